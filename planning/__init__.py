@@ -1,0 +1,1 @@
+"""scanmill planning core: pure functions on numpy arrays (no web, no database)."""

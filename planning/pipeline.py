@@ -1,0 +1,233 @@
+"""The planning pipeline: cloud -> normals -> orientations -> visibility -> set-ups -> areas.
+
+One function, :func:`run_plan`, calls each stage in turn (DESIGN.md "The pipeline", Makki 2010
+§2-3), times it, and gathers the ``plan.json`` document and the ``plan.npz`` arrays. No global
+state: the same cloud and parameters give the same plan.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+import scanmill
+from planning.areas import Areas, assign_areas
+from planning.cloud import Cloud
+from planning.errors import InputError, ParameterError
+from planning.gaussmap import candidate_axes
+from planning.machine import load_profile, machine_visibility
+from planning.normals import sphere_throwing
+from planning.setups import SetupSelection, select_setups
+from planning.visibility import cone_visibility
+from schemas.params import BoxZone, IndexZone, PlanConfig, SphereZone
+from schemas.plan import (InputSummary, NormalsSummary, OrientationsSummary, PlanResult, Selection, Setup,
+                          Timing)
+
+# progress(stage, fraction of that stage done in [0, 1], message)
+Progress = Callable[[str, float, str], None]
+
+STAGES = ("normals", "orientations", "visibility", "setups", "areas")
+
+_ROTARY_NAMES = {
+    "table_table_ac": ("A", "C"), "table_table_bc": ("B", "C"),
+    "head_head_ac": ("A", "C"), "head_head_bc": ("B", "C"),
+}
+
+
+@dataclass
+class PlanOutcome:
+    """A finished plan: the ``plan.json`` model, the ``plan.npz`` arrays, and what the writers need."""
+
+    result: PlanResult
+    arrays: dict[str, np.ndarray]
+    points: np.ndarray                      # (N,3) mm, the whole input cloud
+    input_labels: np.ndarray                # (N,) set-up of every input point
+    selected_axes: np.ndarray               # (k,3)
+    extra: dict = field(default_factory=dict)
+
+
+def _stage_progress(progress: Progress | None, stage: str):
+    if progress is None:
+        return None
+    return lambda fraction, message="": progress(stage, float(fraction), str(message))
+
+
+def zone_mask(points: np.ndarray, sample_index: np.ndarray, zones) -> tuple[np.ndarray, list[str]]:
+    """Bool mask (n,) of sampled points inside any functional zone, and warnings for empty zones.
+
+    Index zones refer to the submitted cloud (0-based); boxes and spheres are in part coordinates, mm.
+    """
+    n_input = points.shape[0]
+    sp = points[sample_index]
+    mask = np.zeros(sample_index.shape[0], dtype=bool)
+    warnings: list[str] = []
+    for i, z in enumerate(zones):
+        if isinstance(z, IndexZone):
+            idx = np.asarray(z.indices, dtype=np.int64)
+            if idx.max(initial=-1) >= n_input:
+                raise ParameterError(
+                    f"setups.functional_zones[{i}]: index {int(idx.max())} is out of range for a cloud of "
+                    f"{n_input} points (indices are 0-based)")
+            inside = np.isin(sample_index, idx)
+        elif isinstance(z, BoxZone):
+            lo, hi = np.asarray(z.min_mm), np.asarray(z.max_mm)
+            inside = np.all((sp >= lo) & (sp <= hi), axis=1)
+        elif isinstance(z, SphereZone):
+            inside = np.sum((sp - np.asarray(z.center_mm)) ** 2, axis=1) <= z.radius_mm ** 2
+        else:  # pragma: no cover - the schema admits no other kind
+            raise ParameterError(f"setups.functional_zones[{i}]: unknown zone type")
+        if not inside.any():
+            warnings.append(f"functional zone {i} ({z.type}) contains no sampled point and constrains nothing")
+        mask |= inside
+    return mask, warnings
+
+
+def _normals_stage(cloud: Cloud, config: PlanConfig, progress) -> tuple[np.ndarray, np.ndarray, NormalsSummary]:
+    p = config.normals
+    n_input = cloud.points.shape[0]
+    if p.method == "input":
+        if cloud.normals is None:
+            raise InputError("normals.method is 'input' but the file carries no normals (PLY nx ny nz, "
+                             "PCD normal_x normal_y normal_z); use normals.method = sphere_throwing",
+                             code="missing_normals")
+        nrm = np.asarray(cloud.normals, dtype=np.float64)
+        length = np.linalg.norm(nrm, axis=1)
+        good = np.isfinite(length) & (length > 1e-12)
+        if not good.any():
+            raise InputError("the normals in the file are all zero or invalid", code="invalid_normals")
+        sample_index = np.flatnonzero(good).astype(np.int64)
+        normals = nrm[good] / length[good, None]
+        summary = NormalsSummary(method="input", n_sampled=int(sample_index.size),
+                                 sampled_fraction=sample_index.size / n_input)
+        return sample_index, normals, summary
+    res = sphere_throwing(cloud.points, sphere_diameter_mm=p.sphere_diameter_mm,
+                          grid_spacing_mm=p.grid_spacing_mm, directions=p.directions, progress=progress)
+    if res.sample_index.size == 0:
+        raise InputError("sphere throwing touched no point: check normals.sphere_diameter_mm and "
+                         "normals.grid_spacing_mm against the part size", code="no_normals")
+    summary = NormalsSummary(method="sphere_throwing", n_sampled=int(res.sample_index.size),
+                             sampled_fraction=res.sample_index.size / n_input,
+                             sphere_diameter_mm=float(res.sphere_diameter_mm),
+                             grid_spacing_mm=float(res.grid_spacing_mm))
+    return np.asarray(res.sample_index, dtype=np.int64), np.asarray(res.normals, dtype=np.float64), summary
+
+
+def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
+             progress: Progress | None = None) -> PlanOutcome:
+    """Plan the 3+2 machining of ``cloud`` (points in mm) with ``config`` (Makki 2010 §2-3).
+
+    Returns the ``plan.json`` model and the ``plan.npz`` arrays: ``sample_index`` (n,),
+    ``normals`` (n,3), ``candidate_axes`` (m,3) (machine-feasible axes), ``visibility`` (n,m),
+    ``selected`` (k,), ``labels`` (n,), ``integrated`` (n,), plus ``input_labels`` (N,).
+    """
+    timings: list[Timing] = []
+    warnings: list[str] = []
+    points = cloud.points
+
+    def timed(stage, fn):
+        t0 = time.perf_counter()
+        if progress:
+            progress(stage, 0.0, "start")
+        out = fn()
+        timings.append(Timing(stage=stage, seconds=round(time.perf_counter() - t0, 4)))
+        if progress:
+            progress(stage, 1.0, f"done in {timings[-1].seconds:.2f} s")
+        return out
+
+    # 1. normals (Makki §2.1)
+    sample_index, normals, nsum = timed(
+        "normals", lambda: _normals_stage(cloud, config, _stage_progress(progress, "normals")))
+    if nsum.method == "sphere_throwing" and nsum.sampled_fraction < 0.01:
+        warnings.append(f"only {nsum.sampled_fraction:.1%} of the points got a normal: the cloud may be sparse "
+                        "for the sphere diameter, or the grid spacing coarse")
+
+    # 2. orientations + machine visibility (§2.2.1-2.2.2)
+    profile = load_profile(config.machine.profile)
+
+    def orientations():
+        o = config.orientations
+        cand = candidate_axes(o.sampling, phi_step_deg=o.phi_step_deg, theta_step_deg=o.theta_step_deg,
+                              resolution_deg=o.resolution_deg)
+        mv = machine_visibility(cand.axes, profile)
+        return cand, mv
+
+    cand, mv = timed("orientations", orientations)
+    feasible = np.asarray(mv.feasible, dtype=bool)
+    if not feasible.any():
+        raise ParameterError(f"no candidate orientation lies within the rotary travel of machine profile "
+                             f"'{profile.name}'")
+    axes = cand.axes[feasible]
+    angles = np.asarray(mv.angles_deg)[feasible]
+
+    # 3. tool visibility (§2.2.3); global visibility plugs in here (§2.2.4, not in this version)
+    vis = timed("visibility", lambda: cone_visibility(normals, axes, config.visibility.cone_deg))
+
+    # 4. set-ups (§3.1)
+    zmask, zwarn = zone_mask(points, sample_index, config.setups.functional_zones)
+    warnings.extend(zwarn)
+    s = config.setups
+    sel: SetupSelection = timed("setups", lambda: select_setups(
+        vis, coverage=s.coverage, max_setups=s.max_setups, min_points=s.min_points,
+        zone_mask=zmask if zmask.any() else None, solver=s.solver, time_limit_s=s.time_limit_s,
+        progress=_stage_progress(progress, "setups")))
+    selected = np.asarray(sel.selected, dtype=np.int64)
+    sel_axes = axes[selected]
+    if sel.status == "infeasible":
+        warnings.append(sel.message)
+    elif sel.status == "feasible":
+        warnings.append(f"the set-up search hit setups.time_limit_s = {s.time_limit_s} s before proving "
+                        f"optimality (gap {sel.gap:.1%}); the best plan found is returned")
+
+    # 5. areas (§3.1)
+    areas: Areas = timed("areas", lambda: assign_areas(
+        points, sample_index, normals, vis, selected, sel_axes, config.visibility.cone_deg))
+    n_integrated = int(areas.integrated.sum())
+    if n_integrated:
+        warnings.append(f"{n_integrated} sampled points ({n_integrated / max(len(sample_index), 1):.1%}) are seen "
+                        "by no chosen orientation and were attached to the nearest area: their accessibility "
+                        "is not guaranteed")
+
+    names = _ROTARY_NAMES[profile.kinematics]
+    setups = []
+    for i, j in enumerate(selected):
+        lab = areas.labels == i
+        setups.append(Setup(
+            id=i, candidate_index=int(j), tool_axis=tuple(float(c) for c in axes[j]),
+            phi_deg=float(cand.phi_deg[feasible][j]), theta_deg=float(cand.theta_deg[feasible][j]),
+            rotary_deg={names[0]: float(angles[j, 0]), names[1]: float(angles[j, 1])},
+            n_visible=int(vis[:, j].sum()), n_points=int(lab.sum()),
+            n_integrated=int((lab & areas.integrated).sum()),
+            n_input_points=int((areas.input_labels == i).sum())))
+
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    result = PlanResult(
+        scanmill_version=scanmill.__version__,
+        status="infeasible" if sel.status == "infeasible" else "planned",
+        message=sel.message,
+        input=InputSummary(name=name, format=cloud.source_format, n_points=int(points.shape[0]),
+                           units=config.input.units, bbox_min_mm=tuple(map(float, lo)),
+                           bbox_max_mm=tuple(map(float, hi)), has_normals=cloud.normals is not None),
+        parameters=config,
+        normals=nsum,
+        orientations=OrientationsSummary(
+            sampling=config.orientations.sampling, n_candidates=int(cand.axes.shape[0]),
+            n_machine_feasible=int(feasible.sum()), n_kept=int(sel.n_axes_kept),
+            machine_profile=profile.name, kinematics=profile.kinematics, rotary_axes=names),
+        selection=Selection(status=sel.status, solver=sel.solver, k=int(sel.k), covered=int(sel.covered),
+                            required_covered=int(sel.required_covered), coverage=float(sel.coverage),
+                            overlap=int(sel.overlap), lower_bound=sel.lower_bound, gap=sel.gap,
+                            best_coverage_at_max=sel.best_coverage_at_max, n_classes=int(sel.n_classes),
+                            seconds=float(sel.seconds), message=sel.message),
+        setups=setups, coverage=float(sel.coverage), overlap_points=int(sel.overlap),
+        n_integrated=n_integrated, timings=timings, warnings=warnings)
+    arrays = {
+        "sample_index": sample_index, "normals": normals, "candidate_axes": axes,
+        "candidate_rotary_deg": angles, "visibility": vis, "selected": selected,
+        "labels": areas.labels, "integrated": areas.integrated, "overlap": areas.overlap,
+        "input_labels": areas.input_labels,
+    }
+    return PlanOutcome(result=result, arrays=arrays, points=points, input_labels=areas.input_labels,
+                       selected_axes=sel_axes)

@@ -1,0 +1,70 @@
+"""Writes a finished plan to a directory: plan.json, plan.npz, segmentation.ply, preview.png.
+
+Every file is written to a temporary name and renamed into place; ``plan.json`` is written last,
+so a directory holding ``plan.json`` holds a complete plan.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from planning.cloud import write_ply
+from planning.pipeline import PlanOutcome
+from planning.preview import UNCOVERED_COLOR, area_colors, render_preview
+
+
+def _atomic_bytes(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def plan_json_text(outcome: PlanOutcome) -> str:
+    """The plan.json document (public parameter names, e.g. ``visibility.global``)."""
+    return json.dumps(outcome.result.model_dump(mode="json", by_alias=True), indent=2) + "\n"
+
+
+def npz_arrays(outcome: PlanOutcome) -> dict[str, np.ndarray]:
+    """The plan.npz arrays (DESIGN.md contract names), with per-area ``cl_i`` once paths exist."""
+    return dict(outcome.arrays)
+
+
+def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike) -> dict[str, Path]:
+    """Write the plan's artifacts into ``out_dir`` (created if needed); return their paths by kind."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    names = outcome.result.artifacts
+    paths = {"plan_npz": out / names.plan_npz, "segmentation_ply": out / names.segmentation_ply,
+             "preview_png": out / names.preview_png, "plan_json": out / "plan.json"}
+
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **npz_arrays(outcome))
+    _atomic_bytes(paths["plan_npz"], buf.getvalue())
+
+    labels = outcome.input_labels
+    k = len(outcome.result.setups)
+    palette = area_colors(max(k, 1))
+    colors = np.where((labels >= 0)[:, None], palette[np.clip(labels, 0, None) % max(k, 1)],
+                      np.asarray(UNCOVERED_COLOR, dtype=np.uint8)).astype(np.uint8)
+    write_ply(paths["segmentation_ply"], outcome.points, colors=colors, labels=labels, binary=True)
+
+    a = outcome.arrays
+    sampled_points = outcome.points[a["sample_index"]]
+    render_preview(paths["preview_png"], sampled_points, a["labels"], outcome.selected_axes,
+                   integrated=a["integrated"],
+                   title=f"{outcome.result.input.name or 'cloud'}: {outcome.result.message}")
+
+    _atomic_bytes(paths["plan_json"], plan_json_text(outcome).encode())
+    return paths

@@ -1,0 +1,178 @@
+"""The ``scanmill`` command line: plan a scan, write reference samples, print schemas and profiles.
+
+Exit status: 0 planned; 2 bad input or parameters (a message says what to fix); 3 planned but
+infeasible (no ``setups.max_setups`` orientations reach ``setups.coverage``; the best plan found is
+still written).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from planning.errors import PlanningError
+
+EXIT_OK, EXIT_ERROR, EXIT_INFEASIBLE = 0, 2, 3
+
+
+class _Progress:
+    """Prints one line per stage start/end and coarse progress inside long stages, to stderr."""
+
+    def __init__(self, stream=sys.stderr, quiet: bool = False):
+        self.stream, self.quiet = stream, quiet
+        self._last: dict[str, float] = {}
+        self._t0 = time.perf_counter()
+
+    def __call__(self, stage: str, fraction: float, message: str) -> None:
+        if self.quiet:
+            return
+        last = self._last.get(stage, -1.0)
+        if 0.0 < fraction < 1.0 and fraction - last < 0.2:
+            return
+        self._last[stage] = fraction
+        elapsed = time.perf_counter() - self._t0
+        print(f"[{elapsed:7.2f} s] {stage:<12} {fraction:4.0%}  {message}", file=self.stream, flush=True)
+
+
+def _load_config(args) -> dict:
+    from schemas.params import apply_overrides
+    data: dict = {}
+    if args.config:
+        try:
+            data = json.loads(Path(args.config).read_text())
+        except FileNotFoundError:
+            raise PlanningError(f"configuration file not found: {args.config}", code="invalid_parameter")
+        except json.JSONDecodeError as exc:
+            raise PlanningError(f"configuration file {args.config} is not valid JSON: {exc}",
+                                code="invalid_parameter")
+    return apply_overrides(data, args.set or [])
+
+
+def _summary_table(result) -> str:
+    rows = [("set-up", "tool axis (x, y, z)", "phi/theta deg", "rotary deg", "visible", "points", "integrated")]
+    for s in result.setups:
+        rot = " ".join(f"{k}{v:+.1f}" for k, v in s.rotary_deg.items())
+        rows.append((str(s.id), "({:+.3f}, {:+.3f}, {:+.3f})".format(*s.tool_axis),
+                     f"{s.phi_deg:.0f}/{s.theta_deg:.0f}", rot, str(s.n_visible), str(s.n_points),
+                     str(s.n_integrated)))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def cmd_plan(args) -> int:
+    from planning.cloud import read_cloud
+    from planning.pipeline import run_plan
+    from planning.report import write_plan
+    from schemas.params import parse_config
+
+    config = parse_config(_load_config(args))
+    progress = _Progress(quiet=args.quiet)
+    progress("read", 0.0, str(args.input))
+    cloud = read_cloud(args.input, fmt=args.format, units=config.input.units,
+                       max_points=config.input.max_points, max_extent_mm=config.input.max_extent_mm,
+                       min_points=config.input.min_points)
+    progress("read", 1.0, f"{cloud.points.shape[0]} points ({cloud.source_format})")
+    outcome = run_plan(cloud, config, name=Path(args.input).name, progress=progress)
+    progress("write", 0.0, str(args.out))
+    paths = write_plan(outcome, args.out)
+    progress("write", 1.0, "done")
+    r = outcome.result
+    print(r.message)
+    print(f"sampled points {r.normals.n_sampled} of {r.input.n_points}; candidate axes "
+          f"{r.orientations.n_machine_feasible} within machine travel; coverage {r.coverage:.1%}; "
+          f"overlap {r.overlap_points} points; integrated {r.n_integrated}")
+    print(_summary_table(r))
+    for w in r.warnings:
+        print(f"warning: {w}")
+    print("timings: " + ", ".join(f"{t.stage} {t.seconds:.2f} s" for t in r.timings))
+    print(f"wrote {', '.join(str(p) for p in paths.values())}")
+    return EXIT_INFEASIBLE if r.status == "infeasible" else EXIT_OK
+
+
+def cmd_sample(args) -> int:
+    from planning.cloud import write_ply
+    from planning.samples import make_sample
+
+    kwargs = {}
+    if args.points is not None:
+        kwargs["n_points"] = args.points
+    if args.seed is not None:
+        kwargs["seed"] = args.seed
+    s = make_sample(args.name, **kwargs)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_ply(out, s.points, normals=s.normals, binary=not args.ascii)
+    print(f"wrote {out}: {s.name}, {s.points.shape[0]} points{' with exact normals' if s.normals is not None else ''}"
+          f" - {s.description}")
+    return EXIT_OK
+
+
+def cmd_schema(args) -> int:
+    if args.what == "plan":
+        from schemas.plan import plan_json_schema
+        schema = plan_json_schema()
+    else:
+        from schemas.params import PlanConfig
+        schema = PlanConfig.model_json_schema(by_alias=True)
+    print(json.dumps(schema, indent=2))
+    return EXIT_OK
+
+
+def cmd_profiles(args) -> int:
+    from planning.machine import available_profiles, load_profile
+    for name in available_profiles():
+        p = load_profile(name)
+        print(f"{name}: {p.kinematics} - {p.description}")
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="scanmill", description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("plan", help="plan the 3+2 set-ups of a scan and write plan.json, plan.npz, PLY, PNG")
+    p.add_argument("input", help="point cloud: PLY (ascii/binary), PCD, XYZ/CSV/TXT")
+    p.add_argument("--config", help="plan configuration JSON (DESIGN.md parameter names)")
+    p.add_argument("--set", action="append", metavar="PATH=VALUE",
+                   help="override one parameter, e.g. --set setups.coverage=0.9 (value parsed as JSON)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--format", choices=["ply", "pcd", "xyz", "csv", "txt"], help="input format (default: detect)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_plan)
+
+    s = sub.add_parser("sample", help="write a reference cloud (DESIGN.md reference cases) as PLY")
+    s.add_argument("name", help="half_sphere, femur_like, slot or post_wall")
+    s.add_argument("--out", required=True, help="output PLY file")
+    s.add_argument("--points", type=int, help="number of points, where the sample takes one")
+    s.add_argument("--seed", type=int, help="random seed")
+    s.add_argument("--ascii", action="store_true", help="write ascii PLY instead of binary")
+    s.set_defaults(func=cmd_sample)
+
+    c = sub.add_parser("schema", help="print the JSON Schema of plan.json or of the configuration")
+    c.add_argument("what", choices=["plan", "config"], nargs="?", default="plan")
+    c.set_defaults(func=cmd_schema)
+
+    m = sub.add_parser("profiles", help="list the bundled machine profiles")
+    m.set_defaults(func=cmd_profiles)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except PlanningError as exc:
+        print(f"error [{exc.code}]: {exc.message}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""pydantic models: the one place where parameter names, units, defaults and ranges are declared."""

@@ -1,0 +1,241 @@
+"""The plan configuration: every parameter's name, unit, default and range, declared once.
+
+The CLI (``--config FILE``, ``--set path=value``), the API (job ``parameters``) and the docs all
+derive from these models. Names follow DESIGN.md ("Parameter names"); units are in the names
+(``_mm``, ``_deg``, ``_s``). Unknown keys are rejected, so a typo never silently falls back to a
+default.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from planning.errors import ParameterError
+
+Vec3 = tuple[float, float, float]
+
+PAPER_DIRECTIONS: list[Vec3] = [(0, 0, 1), (1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+class InputParams(_Strict):
+    """How the submitted cloud is read and what is accepted."""
+
+    units: Literal["mm", "m", "in"] = Field(
+        "mm", description="Unit of the coordinates in the file; everything is converted to millimetres.")
+    max_points: int = Field(
+        20_000_000, ge=1, le=200_000_000,
+        description="Largest accepted cloud, in points (checked from the file header before reading).")
+    max_extent_mm: float = Field(
+        5_000.0, gt=0, le=100_000,
+        description="Largest accepted bounding-box side, in mm (catches files written in the wrong unit).")
+    min_points: int = Field(
+        10, ge=4, le=1_000_000, description="Smallest accepted cloud, in points.")
+
+
+class NormalsParams(_Strict):
+    """Normal estimation by sphere throwing (Makki 2010 §2.1, eq. 2.1) or taken from the file."""
+
+    method: Literal["sphere_throwing", "input"] = Field(
+        "sphere_throwing",
+        description="'sphere_throwing' estimates outward normals; 'input' uses the normals stored in the file "
+                    "(PLY nx ny nz, PCD normal_x..), every point then being a sample.")
+    sphere_diameter_mm: float = Field(
+        7.0, gt=0, le=500, description="Diameter of the thrown sphere, in mm (paper: 7 mm on the femur).")
+    grid_spacing_mm: float | None = Field(
+        None, gt=0, le=100,
+        description="Spacing of the grid of throwing lines, in mm; null derives it from the point density "
+                    "(the value used is reported in plan.json).")
+    directions: list[Vec3] = Field(
+        default_factory=lambda: list(PAPER_DIRECTIONS), min_length=1, max_length=64,
+        description="Throwing directions (part frame, need not be unit); the sphere comes from +direction. "
+                    "Default: the paper's five, +Z +X -X +Y -Y.")
+
+    @field_validator("directions")
+    @classmethod
+    def _nonzero(cls, v: list[Vec3]) -> list[Vec3]:
+        for i, d in enumerate(v):
+            if sum(c * c for c in d) < 1e-18:
+                raise ValueError(f"direction {i} is the zero vector")
+        return v
+
+
+class OrientationsParams(_Strict):
+    """Candidate tool axes on the discretized Gaussian sphere (Makki §2.2.1)."""
+
+    sampling: Literal["phi_theta", "uniform"] = Field(
+        "phi_theta", description="'phi_theta': the paper's grid of polar angle phi and azimuth theta; "
+                                 "'uniform': a near-uniform sampling at resolution_deg.")
+    phi_step_deg: float = Field(10.0, gt=0, le=180, description="Polar-angle step (from +Z), in degrees.")
+    theta_step_deg: float = Field(30.0, gt=0, le=360, description="Azimuth step (from +X towards +Y), in degrees.")
+    resolution_deg: float = Field(
+        10.0, ge=1, le=90, description="Angular resolution of the 'uniform' sampling, in degrees.")
+
+
+class MachineParams(_Strict):
+    """The machine the part is machined on (rotary travel gives the machine visibility, Makki §2.2.2)."""
+
+    profile: str = Field(
+        "compact_trunnion_bc", min_length=1, max_length=200,
+        description="A bundled profile name (see `scanmill profiles`) or a path to a profile JSON file.")
+
+
+class ToolParams(_Strict):
+    """The cutter. Only its diameter matters before collisions and tool paths exist."""
+
+    type: Literal["ball"] = Field("ball", description="Cutter type: ball-end mill.")
+    diameter_mm: float = Field(6.0, gt=0, le=100, description="Cutter diameter, in mm.")
+
+
+class VisibilityParams(_Strict):
+    """Which axes may machine a point (Makki §2.2.3 tool visibility, §2.2.4 global visibility)."""
+
+    cone_deg: tuple[float, float] = Field(
+        (10.0, 80.0),
+        description="[v1, v2]: admissible angle between tool axis and normal, in degrees, 0 <= v1 < v2 <= 90. "
+                    "v1 avoids cutting with the tool tip (zero cutting speed), v2 avoids near-vertical "
+                    "cutting (high scallops). Paper: [10, 80] and [10, 60].")
+    global_: bool = Field(
+        False, alias="global",
+        description="Check tool and holder collisions with the cloud and fixtures (global visibility). "
+                    "Not available in this version: true is rejected.")
+
+    @field_validator("cone_deg")
+    @classmethod
+    def _cone(cls, v: tuple[float, float]) -> tuple[float, float]:
+        v1, v2 = v
+        if not (0.0 <= v1 < v2 <= 90.0):
+            raise ValueError(f"need 0 <= v1 < v2 <= 90 degrees, got [{v1}, {v2}]")
+        return v
+
+    @field_validator("global_")
+    @classmethod
+    def _global(cls, v: bool) -> bool:
+        if v:
+            raise ValueError("collision checking (global visibility) is not available in this version; "
+                             "set visibility.global to false")
+        return v
+
+
+class IndexZone(_Strict):
+    """A functional zone given as indices into the submitted cloud (0-based)."""
+
+    type: Literal["indices"] = "indices"
+    indices: list[Annotated[int, Field(ge=0)]] = Field(..., min_length=1, description="Input point indices.")
+
+
+class BoxZone(_Strict):
+    """A functional zone given as an axis-aligned box in part coordinates (mm)."""
+
+    type: Literal["box"] = "box"
+    min_mm: Vec3 = Field(..., description="Lower corner (x, y, z), mm.")
+    max_mm: Vec3 = Field(..., description="Upper corner (x, y, z), mm.")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "BoxZone":
+        if any(a > b for a, b in zip(self.min_mm, self.max_mm)):
+            raise ValueError(f"box min_mm {list(self.min_mm)} must not exceed max_mm {list(self.max_mm)}")
+        return self
+
+
+class SphereZone(_Strict):
+    """A functional zone given as a ball in part coordinates (mm)."""
+
+    type: Literal["sphere"] = "sphere"
+    center_mm: Vec3 = Field(..., description="Centre (x, y, z), mm.")
+    radius_mm: float = Field(..., gt=0, description="Radius, mm.")
+
+
+FunctionalZone = Annotated[Union[IndexZone, BoxZone, SphereZone], Field(discriminator="type")]
+
+
+class SetupsParams(_Strict):
+    """Choice of the fixed orientations (Makki §3): fewest set-ups, then least overlap."""
+
+    coverage: float = Field(
+        0.95, gt=0, le=1, description="P_a: fraction of the sampled points the set-ups must see together.")
+    max_setups: int = Field(5, ge=1, le=12, description="n_pmax: most set-ups allowed.")
+    min_points: int = Field(
+        1, ge=1, description="Orientations seeing fewer sampled points than this are dropped before the search.")
+    functional_zones: list[FunctionalZone] = Field(
+        default_factory=list, description="Zones where no point may be seen by two chosen set-ups (no overlap).")
+    solver: Literal["auto", "branch_and_bound", "cpsat"] = Field(
+        "auto", description="'auto' = exact branch and bound; 'cpsat' = OR-Tools CP-SAT model (slow at scale).")
+    time_limit_s: float = Field(
+        60.0, gt=0, le=86_400, description="Time limit of the exact search, in seconds; the gap is reported if hit.")
+
+
+class PlanConfig(_Strict):
+    """One plan configuration document, grouped by pipeline stage (DESIGN.md parameter names)."""
+
+    input: InputParams = Field(default_factory=InputParams)
+    normals: NormalsParams = Field(default_factory=NormalsParams)
+    orientations: OrientationsParams = Field(default_factory=OrientationsParams)
+    machine: MachineParams = Field(default_factory=MachineParams)
+    tool: ToolParams = Field(default_factory=ToolParams)
+    visibility: VisibilityParams = Field(default_factory=VisibilityParams)
+    setups: SetupsParams = Field(default_factory=SetupsParams)
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """The configuration as JSON-ready data, with the public names (``visibility.global``)."""
+        return self.model_dump(mode="json", by_alias=True)
+
+
+def _describe(err: dict[str, Any]) -> str:
+    path = ".".join(str(p) for p in err.get("loc", ())) or "(document)"
+    msg = err.get("msg", "invalid")
+    if err.get("type") == "extra_forbidden":
+        return f"{path}: unknown parameter"
+    if "input" in err and err.get("type") != "missing":
+        shown = json.dumps(err["input"], default=str)
+        if len(shown) > 80:
+            shown = shown[:77] + "..."
+        return f"{path} = {shown}: {msg}"
+    return f"{path}: {msg}"
+
+
+def parse_config(data: dict[str, Any] | None) -> PlanConfig:
+    """Validate a configuration document; raise :class:`ParameterError` naming every bad parameter."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ParameterError("the configuration must be a JSON object grouped by stage, e.g. "
+                             '{"setups": {"coverage": 0.95}}')
+    try:
+        return PlanConfig.model_validate(data)
+    except ValidationError as exc:
+        problems = [_describe(e) for e in exc.errors()]
+        raise ParameterError("invalid parameters: " + "; ".join(problems), problems=problems) from None
+
+
+def _parse_value(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def apply_overrides(data: dict[str, Any], assignments: list[str]) -> dict[str, Any]:
+    """Apply ``path=value`` assignments (``setups.coverage=0.9``; value parsed as JSON, else a string)."""
+    out = json.loads(json.dumps(data))
+    for item in assignments:
+        if "=" not in item:
+            raise ParameterError(f"--set expects path=value, got {item!r}")
+        path, value = item.split("=", 1)
+        keys = [k for k in path.strip().split(".") if k]
+        if not keys:
+            raise ParameterError(f"--set has an empty parameter path in {item!r}")
+        node = out
+        for k in keys[:-1]:
+            nxt = node.setdefault(k, {})
+            if not isinstance(nxt, dict):
+                raise ParameterError(f"--set {path}: {k} is not a group of parameters")
+            node = nxt
+        node[keys[-1]] = _parse_value(value)
+    return out

@@ -1,0 +1,121 @@
+"""The plan result (``plan.json``): the contract clients read. Its JSON Schema is exported from here.
+
+Large arrays never travel inside this document: they are in ``plan.npz`` (see DESIGN.md,
+"Plan output contract") and the other artifacts named in ``artifacts``.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from schemas.params import PlanConfig
+
+SCHEMA_VERSION = "1.0"
+
+
+class _Out(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class InputSummary(_Out):
+    name: str | None = Field(None, description="File name of the submitted cloud, if any.")
+    format: str = Field(..., description="Detected file format.")
+    n_points: int = Field(..., ge=1, description="Points read, after unit conversion.")
+    units: str = Field(..., description="Unit declared for the file (everything below is in mm).")
+    bbox_min_mm: tuple[float, float, float]
+    bbox_max_mm: tuple[float, float, float]
+    has_normals: bool = Field(..., description="Whether the file carried normals.")
+
+
+class NormalsSummary(_Out):
+    method: Literal["sphere_throwing", "input"]
+    n_sampled: int = Field(..., ge=0, description="Points with a normal (the sampled points all later stages use).")
+    sampled_fraction: float = Field(..., ge=0, le=1)
+    sphere_diameter_mm: float | None = None
+    grid_spacing_mm: float | None = Field(None, description="Grid spacing actually used, mm.")
+
+
+class OrientationsSummary(_Out):
+    sampling: str
+    n_candidates: int = Field(..., description="Axes on the Gaussian sphere before machine visibility.")
+    n_machine_feasible: int = Field(..., description="Axes within the machine's rotary travel.")
+    n_kept: int = Field(..., description="Axes left after the setups.min_points filter.")
+    machine_profile: str
+    kinematics: str
+    rotary_axes: tuple[str, str] = Field(..., description="Names of the (tilt, rotary) machine axes, e.g. ('B', 'C').")
+
+
+class Setup(_Out):
+    id: int = Field(..., ge=0, description="Area / set-up number, also the label in plan.npz.")
+    candidate_index: int = Field(..., ge=0, description="Index into plan.npz candidate_axes.")
+    tool_axis: tuple[float, float, float] = Field(..., description="Unit tool axis in the part frame (part -> spindle).")
+    phi_deg: float = Field(..., description="Polar angle of the tool axis from +Z, degrees.")
+    theta_deg: float = Field(..., description="Azimuth of the tool axis from +X towards +Y, degrees.")
+    rotary_deg: dict[str, float] = Field(..., description="Machine rotary positions, degrees, by axis name.")
+    n_visible: int = Field(..., description="Sampled points this axis may machine.")
+    n_points: int = Field(..., description="Sampled points labelled with this set-up (integrated ones included).")
+    n_integrated: int = Field(..., description="Of those, leftovers attached by distance (accessibility not guaranteed).")
+    n_input_points: int = Field(..., description="Points of the whole submitted cloud labelled with this set-up.")
+    path: dict | None = Field(None, description="Tool path summary (length, passes, CL count); null until paths exist.")
+
+
+class Selection(_Out):
+    status: Literal["optimal", "feasible", "infeasible"] = Field(
+        ..., description="'optimal': proven minimum overlap for the fewest set-ups; 'feasible': the time limit "
+                         "stopped the proof (see gap); 'infeasible': no max_setups orientations reach the coverage.")
+    solver: str
+    k: int
+    covered: int
+    required_covered: int
+    coverage: float
+    overlap: int = Field(..., description="Sampled points seen by two or more chosen orientations.")
+    lower_bound: int | None = None
+    gap: float | None = None
+    best_coverage_at_max: float | None = None
+    n_classes: int
+    seconds: float
+    message: str
+
+
+class Timing(_Out):
+    stage: str
+    seconds: float
+
+
+class Artifacts(_Out):
+    plan_npz: str = "plan.npz"
+    segmentation_ply: str = "segmentation.ply"
+    preview_png: str = "preview.png"
+
+
+class PlanResult(_Out):
+    """Everything ``scanmill plan`` and a finished job report about a plan."""
+
+    schema_version: Literal["1.0"] = SCHEMA_VERSION
+    scanmill_version: str
+    status: Literal["planned", "infeasible"] = Field(
+        ..., description="'infeasible': the coverage cannot be reached with max_setups; the best set-ups found "
+                         "are still reported and segmented.")
+    message: str = Field(..., description="One sentence for the operator.")
+    input: InputSummary
+    parameters: PlanConfig
+    normals: NormalsSummary
+    orientations: OrientationsSummary
+    selection: Selection
+    setups: list[Setup]
+    coverage: float = Field(..., description="Fraction of sampled points seen by at least one chosen orientation.")
+    overlap_points: int
+    n_integrated: int = Field(..., description="Sampled points attached to an area by distance.")
+    timings: list[Timing]
+    warnings: list[str]
+    artifacts: Artifacts = Field(default_factory=Artifacts)
+
+
+def plan_json_schema() -> dict:
+    """The JSON Schema (draft 2020-12) that every ``plan.json`` validates against."""
+    schema = PlanResult.model_json_schema(by_alias=True, mode="serialization")
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = "scanmill plan"
+    return schema

@@ -1,0 +1,100 @@
+"""The command line as a user runs it: outputs per the contract, clear errors, nothing half-written."""
+
+import json
+
+import jsonschema
+import numpy as np
+import pytest
+
+from planning.cloud import read_cloud
+from scanmill.cli import EXIT_ERROR, EXIT_INFEASIBLE, EXIT_OK, main
+from schemas.plan import plan_json_schema
+
+HS = ["--set", "normals.method=\"input\"", "--set", "setups.max_setups=2", "--set", "tool.diameter_mm=10"]
+
+
+@pytest.fixture(scope="module")
+def half_sphere_ply(tmp_path_factory):
+    path = tmp_path_factory.mktemp("in") / "half_sphere.ply"
+    assert main(["sample", "half_sphere", "--out", str(path)]) == EXIT_OK
+    return path
+
+
+def test_plan_writes_the_contract(half_sphere_ply, tmp_path, capsys):
+    out = tmp_path / "plan"
+    assert main(["plan", str(half_sphere_ply), "--out", str(out), *HS]) == EXIT_OK
+    text = capsys.readouterr()
+    assert "set-up" in text.out and "coverage" in text.out      # summary table
+    assert "normals" in text.err and "setups" in text.err       # progress per stage
+    doc = json.loads((out / "plan.json").read_text())
+    jsonschema.validate(doc, plan_json_schema())
+    assert doc["parameters"]["visibility"]["global"] is False
+    assert {t["stage"] for t in doc["timings"]} >= {"normals", "orientations", "visibility", "setups", "areas"}
+    npz = np.load(out / "plan.npz")
+    for key in ("sample_index", "normals", "candidate_axes", "visibility", "selected", "labels", "integrated"):
+        assert key in npz.files, key
+    assert npz["labels"].max() < len(doc["setups"])
+    seg = read_cloud(out / "segmentation.ply")
+    assert seg.points.shape[0] == doc["input"]["n_points"]
+    assert (out / "preview.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]   # no temporary files left
+
+
+def test_schema_document_rejects_a_broken_plan(half_sphere_ply, tmp_path):
+    out = tmp_path / "plan"
+    main(["plan", str(half_sphere_ply), "--out", str(out), "--quiet", *HS])
+    doc = json.loads((out / "plan.json").read_text())
+    del doc["selection"]
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(doc, plan_json_schema())
+
+
+def test_infeasible_exit_code_and_message(half_sphere_ply, tmp_path, capsys):
+    out = tmp_path / "plan"
+    rc = main(["plan", str(half_sphere_ply), "--out", str(out), "--quiet", *HS, "--set", "setups.max_setups=1"])
+    assert rc == EXIT_INFEASIBLE
+    assert "max_setups" in capsys.readouterr().out
+    assert json.loads((out / "plan.json").read_text())["status"] == "infeasible"
+
+
+@pytest.mark.parametrize("content, code", [
+    (b"", "empty_cloud"),
+    (b"\x00\x01\x02garbage\xff" * 50, None),
+    (b"1 2 3\n4 5 6\nnan 1 2\n" + b"1 1 1\n" * 20, "non_finite"),
+])
+def test_bad_input_is_a_clear_error_and_writes_nothing(tmp_path, capsys, content, code):
+    src = tmp_path / "scan.xyz"
+    src.write_bytes(content)
+    out = tmp_path / "out"
+    assert main(["plan", str(src), "--out", str(out), "--quiet"]) == EXIT_ERROR
+    err = capsys.readouterr().err
+    assert err.startswith("error [")
+    if code:
+        assert f"[{code}]" in err
+    assert "Traceback" not in err
+    assert not out.exists()
+
+
+def test_bad_parameter_and_missing_file(half_sphere_ply, tmp_path, capsys):
+    assert main(["plan", str(half_sphere_ply), "--out", str(tmp_path / "o"), "--set", "setups.coverage=2"]) == EXIT_ERROR
+    assert "setups.coverage = 2" in capsys.readouterr().err
+    assert main(["plan", str(tmp_path / "nope.ply"), "--out", str(tmp_path / "o")]) == EXIT_ERROR
+    assert "nope.ply" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_input_normals_missing(tmp_path, capsys):
+    src = tmp_path / "s.xyz"
+    rng = np.random.default_rng(0)
+    np.savetxt(src, rng.uniform(0, 10, size=(50, 3)))
+    assert main(["plan", str(src), "--out", str(tmp_path / "o"), "--set", "normals.method=input"]) == EXIT_ERROR
+    assert "missing_normals" in capsys.readouterr().err
+
+
+def test_schema_and_profiles_commands(capsys):
+    assert main(["schema", "plan"]) == EXIT_OK
+    assert json.loads(capsys.readouterr().out)["title"] == "scanmill plan"
+    assert main(["schema", "config"]) == EXIT_OK
+    assert "setups" in json.loads(capsys.readouterr().out)["properties"]
+    assert main(["profiles"]) == EXIT_OK
+    assert "compact_trunnion_bc" in capsys.readouterr().out

@@ -21,7 +21,7 @@ EXIT_OK, EXIT_ERROR, EXIT_INFEASIBLE = 0, 2, 3
 class _Progress:
     """Prints one line per stage start/end and coarse progress inside long stages, to stderr."""
 
-    def __init__(self, stream=sys.stderr, quiet: bool = False):
+    def __init__(self, stream=None, quiet: bool = False):
         self.stream, self.quiet = stream, quiet
         self._last: dict[str, float] = {}
         self._t0 = time.perf_counter()
@@ -34,7 +34,8 @@ class _Progress:
             return
         self._last[stage] = fraction
         elapsed = time.perf_counter() - self._t0
-        print(f"[{elapsed:7.2f} s] {stage:<12} {fraction:4.0%}  {message}", file=self.stream, flush=True)
+        print(f"[{elapsed:7.2f} s] {stage:<12} {fraction:4.0%}  {message}", file=self.stream or sys.stderr,
+              flush=True)
 
 
 def _load_config(args) -> dict:
@@ -131,6 +132,12 @@ def cmd_profiles(args) -> int:
     return EXIT_OK
 
 
+def cmd_serve(args) -> int:
+    from scanmill.serve import serve
+    return serve(host=args.host, port=args.port, data_dir=args.data_dir, workers=args.workers,
+                 config=args.config, log_level=args.log_level)
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="scanmill", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -159,6 +166,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     m = sub.add_parser("profiles", help="list the bundled machine profiles")
     m.set_defaults(func=cmd_profiles)
+
+    v = sub.add_parser("serve", help="run the planning service (HTTP jobs API, docs/service.md)")
+    v.add_argument("--host", help="address to bind (default 127.0.0.1; SCANMILL_HOST)")
+    v.add_argument("--port", type=int, help="TCP port (default 8000; SCANMILL_PORT)")
+    v.add_argument("--data-dir", help="job store and files (default ./scanmill-data; SCANMILL_DATA_DIR)")
+    v.add_argument("--workers", type=int, help="jobs run at once (SCANMILL_WORKERS)")
+    v.add_argument("--config", help="settings file, TOML or JSON (SCANMILL_CONFIG)")
+    v.add_argument("--log-level", choices=["critical", "error", "warning", "info", "debug"])
+    v.set_defaults(func=cmd_serve)
     return ap
 
 

@@ -1,0 +1,105 @@
+"""Whole-plan benchmark on the femur-like reference scan (DESIGN.md "Performance").
+
+Prints, for a femur-like cloud (default 1,000,000 points, sphere 7 mm, five throwing directions,
+cone [10, 60] deg, max_setups 5, coverage 95 %): seconds and peak RSS after each pipeline stage,
+and, in the same run on the same cloud, Open3D ``estimate_normals`` (KNN 20) seconds beside
+sphere throwing, so the ratio is between peers measured together. Figures only, no assertions.
+
+    .venv/bin/python bench/bench_plan.py [--points 1000000] [--repeat 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import tempfile
+import time
+
+import numpy as np
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, default=1_000_000)
+    ap.add_argument("--repeat", type=int, default=2, help="repeats of the normals comparison")
+    ap.add_argument("--cone", type=float, nargs=2, default=(10.0, 60.0))
+    ap.add_argument("--max-setups", type=int, default=5)
+    ap.add_argument("--no-write", action="store_true", help="skip writing the artifacts")
+    args = ap.parse_args()
+
+    import open3d as o3d
+
+    from planning.cloud import Cloud
+    from planning.normals import sphere_throwing
+    from planning.pipeline import run_plan
+    from planning.report import write_plan
+    from planning.samples import femur_like
+    from schemas.params import parse_config
+
+    print(f"cores: {os.cpu_count()}  numpy {np.__version__}  open3d {o3d.__version__}")
+    t0 = time.perf_counter()
+    s = femur_like(n_points=args.points, seed=0)
+    print(f"femur_like: {s.points.shape[0]} points generated in {time.perf_counter() - t0:.2f} s, "
+          f"peak RSS {peak_rss_mb():.0f} MB")
+    pts = s.points
+
+    print("\nnormals, same cloud, same run (seconds):")
+    print(f"{'run':>4} {'sphere_throwing(5 dirs)':>24} {'open3d KNN20':>14} {'ratio':>7}")
+    ratios = []
+    for i in range(args.repeat):
+        t = time.perf_counter()
+        res = sphere_throwing(pts, sphere_diameter_mm=7.0)
+        t_st = time.perf_counter() - t
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        t = time.perf_counter()
+        pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
+        t_o3d = time.perf_counter() - t
+        ratios.append(t_st / t_o3d)
+        print(f"{i:>4} {t_st:>24.2f} {t_o3d:>14.2f} {t_st / t_o3d:>7.2f}")
+        del pcd
+    if s.normals is not None:
+        ang = np.degrees(np.arccos(np.clip(np.sum(res.normals * s.normals[res.sample_index], axis=1), -1, 1)))
+        print(f"sphere throwing: {res.sample_index.size} points with normals ({res.sample_index.size / len(pts):.1%}), "
+              f"grid {res.grid_spacing_mm:.3f} mm; error vs exact normals: median {np.median(ang):.2f} deg, "
+              f"p95 {np.percentile(ang, 95):.2f} deg")
+
+    cfg = parse_config({"visibility": {"cone_deg": list(args.cone)},
+                        "setups": {"max_setups": args.max_setups, "coverage": 0.95},
+                        "tool": {"diameter_mm": 6.0}})
+    marks: dict[str, float] = {}
+
+    def progress(stage, fraction, message):
+        if fraction >= 1.0:
+            marks[stage] = peak_rss_mb()
+
+    t = time.perf_counter()
+    out = run_plan(Cloud(points=pts, normals=None, source_format="generated"), cfg, name="femur_like",
+                   progress=progress)
+    total = time.perf_counter() - t
+    r = out.result
+    print(f"\nwhole plan (cone {list(args.cone)}, max_setups {args.max_setups}):")
+    print(f"{'stage':<14}{'seconds':>9}{'peak RSS MB':>13}")
+    for tm in r.timings:
+        print(f"{tm.stage:<14}{tm.seconds:>9.2f}{marks.get(tm.stage, float('nan')):>13.0f}")
+    if not args.no_write:
+        with tempfile.TemporaryDirectory() as d:
+            t = time.perf_counter()
+            write_plan(out, d)
+            tw = time.perf_counter() - t
+        print(f"{'write':<14}{tw:>9.2f}{peak_rss_mb():>13.0f}")
+        total += tw
+    print(f"{'total':<14}{total:>9.2f}{peak_rss_mb():>13.0f}")
+    sel = r.selection
+    print(f"\nsampled {r.normals.n_sampled} points x {r.orientations.n_machine_feasible} axes "
+          f"({sel.n_classes} classes): k {sel.k}, coverage {sel.coverage:.2%}, overlap {sel.overlap}, "
+          f"status {sel.status}, solver {sel.solver}, {sel.seconds:.2f} s")
+    print("axes: " + "; ".join("({:.3f} {:.3f} {:.3f})".format(*s.tool_axis) for s in r.setups))
+
+
+if __name__ == "__main__":
+    main()

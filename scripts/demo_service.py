@@ -1,0 +1,180 @@
+#!/usr/bin/env python3
+"""The main job, through the service: start ``scanmill serve``, plan a sample scan over HTTP, fetch the results.
+
+1. starts ``scanmill serve`` on 127.0.0.1 (a free port) with its embedded defaults: the SQLite job
+   store and files in ``--data-dir`` (default ``./scanmill-data``), local worker processes;
+2. writes the femur-like reference scan (1,000,000 points, no normals: a raw scan) or the paper's
+   half sphere, and submits it with its plan configuration (``POST /jobs``, multipart);
+3. polls ``GET /jobs/{id}`` and prints a line per stage and progress step;
+4. downloads plan.json and every artifact to ``--out/<sample>-service/`` and prints where they are;
+5. stops the server (SIGTERM: it finishes cleanly).
+
+Exit status: 0 planned, 3 planned but infeasible, 1 the job failed or the service did not start.
+Only the standard library and httpx are used on the client side, as any HTTP client could.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import httpx
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# DESIGN.md reference cases: the configuration each is planned with.
+CONFIGS = {
+    "femur_like": {"normals": {"method": "sphere_throwing", "sphere_diameter_mm": 7.0},
+                   "tool": {"diameter_mm": 6.0}, "visibility": {"cone_deg": [10, 60]},
+                   "setups": {"coverage": 0.95, "max_setups": 5}},
+    "half_sphere": {"normals": {"method": "input"}, "tool": {"diameter_mm": 10.0},
+                    "orientations": {"phi_step_deg": 10, "theta_step_deg": 30},
+                    "visibility": {"cone_deg": [10, 80]}, "setups": {"coverage": 0.95, "max_setups": 2}},
+}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _say(t0: float, text: str) -> None:
+    print(f"[{time.monotonic() - t0:7.2f} s] {text}", flush=True)
+
+
+def write_sample(name: str, path: Path, n_points: int | None) -> int:
+    """Write the sample as binary PLY (the femur without normals, like a raw scan); return its point count."""
+    sys.path.insert(0, str(ROOT))
+    from planning.cloud import write_ply
+    from planning.samples import make_sample
+
+    kwargs = {"n_points": n_points} if n_points else {}
+    s = make_sample(name, **kwargs)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_ply(path, s.points, normals=s.normals if name == "half_sphere" else None, binary=True)
+    return int(s.points.shape[0])
+
+
+def start_server(data_dir: Path, port: int, log_path: Path, workers: int | None) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "scanmill.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
+           "--data-dir", str(data_dir)]
+    if workers:
+        cmd += ["--workers", str(workers)]
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    log = open(log_path, "wb")
+    return subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+
+
+def wait_ready(proc: subprocess.Popen, url: str, polls: int = 600) -> bool:
+    for _ in range(polls):
+        if proc.poll() is not None:
+            return False
+        try:
+            if httpx.get(url + "/healthz", timeout=2).status_code == 200:
+                return True
+        except httpx.TransportError:
+            pass
+        time.sleep(0.1)
+    return False
+
+
+def stop_server(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(30)
+
+
+def run(args) -> int:
+    t0 = time.monotonic()
+    out_dir = Path(args.out) / f"{args.sample}-service"
+    scan = Path(args.out) / f"{args.sample}.ply"
+    port = args.port or _free_port()
+    url = f"http://127.0.0.1:{port}"
+    key = os.environ.get("SCANMILL_DEMO_API_KEY")
+    headers = {"Authorization": f"Bearer {key}"} if key else {}
+
+    _say(t0, f"starting scanmill serve on {url} (data: {Path(args.data_dir).resolve()})")
+    proc = start_server(Path(args.data_dir).resolve(), port, Path(args.out) / "service.log", args.workers)
+    try:
+        if not wait_ready(proc, url):
+            print(f"error: the service did not start; see {Path(args.out) / 'service.log'}", file=sys.stderr)
+            return 1
+        _say(t0, f"service ready: {httpx.get(url + '/version').json()}")
+        n = write_sample(args.sample, scan, args.points)
+        _say(t0, f"wrote the {args.sample} scan: {scan} ({n:,} points, {scan.stat().st_size / 1e6:.1f} MB)")
+
+        client = httpx.Client(base_url=url, headers=headers, timeout=600)
+        params = CONFIGS[args.sample]
+        with open(scan, "rb") as fh:
+            r = client.post("/jobs", files={"cloud": (scan.name, fh, "application/octet-stream")},
+                            data={"parameters": json.dumps(params)},
+                            headers={"Idempotency-Key": str(uuid.uuid4())})
+        if r.status_code != 202:
+            print(f"error: the service refused the job ({r.status_code}): {r.text}", file=sys.stderr)
+            return 1
+        job = r.json()
+        _say(t0, f"submitted: {r.headers['location']} (status {job['status']})")
+
+        last = None
+        for _ in range(int(args.max_wait_s / 0.25)):
+            job = client.get(f"/jobs/{job['id']}").json()
+            state = (job["status"], job["stage"], round(job["progress"], 2))
+            if state != last:
+                _say(t0, f"{job['status']:<9} {job['stage'] or '-':<12} {job['progress']:4.0%}  {job['message'] or ''}")
+                last = state
+            if job["status"] in ("succeeded", "failed", "cancelled"):
+                break
+            time.sleep(0.25)
+        if job["status"] != "succeeded":
+            err = job.get("error") or {}
+            print(f"error: job {job['id']} {job['status']}: [{err.get('code')}] {err.get('message')}", file=sys.stderr)
+            return 1
+
+        out_dir.mkdir(parents=True, exist_ok=True)
+        for item in client.get(job["links"]["artifacts"]).json()["items"]:
+            with client.stream("GET", item["href"]) as resp, open(out_dir / item["name"], "wb") as fh:
+                for chunk in resp.iter_bytes():
+                    fh.write(chunk)
+        plan = client.get(job["links"]["result"]).json()
+        print(plan["message"])
+        for s in plan["setups"]:
+            rot = " ".join(f"{k}{v:+.1f}" for k, v in s["rotary_deg"].items())
+            print(f"  set-up {s['id']}: tool axis ({s['tool_axis'][0]:+.3f}, {s['tool_axis'][1]:+.3f}, "
+                  f"{s['tool_axis'][2]:+.3f})  {rot}  {s['n_points']} points")
+        for w in plan["warnings"]:
+            print(f"  warning: {w}")
+        print(f"results: {out_dir}/ ({', '.join(sorted(p.name for p in out_dir.iterdir()))})")
+        print(f"job: {url}/jobs/{job['id']} (kept in {Path(args.data_dir).resolve()})")
+        return 3 if plan["status"] == "infeasible" else 0
+    finally:
+        _say(t0, "stopping the service")
+        stop_server(proc)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sample", choices=sorted(CONFIGS), default="femur_like")
+    ap.add_argument("--points", type=int, help="points in the sample (default: the reference size)")
+    ap.add_argument("--data-dir", default="scanmill-data", help="service data directory (default ./scanmill-data)")
+    ap.add_argument("--out", default="scanmill-out", help="where the scan and the results go")
+    ap.add_argument("--port", type=int, default=0, help="port (default: a free one)")
+    ap.add_argument("--workers", type=int, help="worker processes of the service")
+    ap.add_argument("--max-wait-s", type=float, default=1800.0, help="give up polling after this long")
+    return run(ap.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

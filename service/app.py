@@ -1,0 +1,89 @@
+"""The application factory: ``create_app(settings)`` builds the FastAPI app of ``scanmill serve``.
+
+At start (lifespan) it opens the data directory (taking its lock), the SQLite job store, recovers
+jobs a previous run left running, and starts the worker runner; at shutdown it stops the workers
+and puts their jobs back in the queue. Routers are thin; the settings, the job service and the
+caller are injected as dependencies (``service.deps``).
+"""
+
+from __future__ import annotations
+
+import logging
+from contextlib import asynccontextmanager
+
+import anyio
+from fastapi import FastAPI, Request
+
+import scanmill
+from service.jobs import JobService
+from service.limits import BodyLimitMiddleware, RequestTooLarge
+from service.openapi import build_openapi
+from service.problems import install_handlers, problem_response
+from service.routers import jobs as jobs_routes
+from service.routers import system as system_routes
+from service.settings import Settings, load_settings
+from service.storage import Storage
+from service.store import JobStore
+from service.workers import JobRunner
+
+log = logging.getLogger("scanmill.service")
+
+DESCRIPTION = """\
+Plan the 3+2 five-axis machining of a part straight from its 3D scan.
+
+Submit a point cloud with its plan configuration (`POST /jobs`), poll the job (`GET /jobs/{id}`)
+until it has succeeded, then fetch `plan.json` (`GET /jobs/{id}/result`) and the artifacts
+(`GET /jobs/{id}/artifacts`). Every error is an RFC 9457 problem document
+(`application/problem+json`) with a 4xx status and a stable `code`.
+"""
+
+TAGS = [
+    {"name": "jobs", "description": "Submit, follow, list, cancel and delete planning jobs."},
+    {"name": "artifacts", "description": "Files a finished job produced (NPZ, PLY, PNG, G-code)."},
+    {"name": "service", "description": "Health and version."},
+]
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the app; ``settings`` default to :func:`service.settings.load_settings` (environment)."""
+    settings = settings or load_settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        storage = Storage(settings.data_dir)
+        storage.open()
+        store = JobStore(storage.db_path)
+        runner = JobRunner(settings, store, storage)
+        recovered = runner.recover()
+        if any(recovered.values()):
+            log.warning("recovered jobs left running by the previous run: %s",
+                        {k: len(v) for k, v in recovered.items()})
+        if settings.anonymous:
+            log.warning("SCANMILL_API_KEYS is empty: anonymous requests are accepted from loopback clients only")
+        runner.start()
+        app.state.settings, app.state.storage, app.state.store, app.state.runner = settings, storage, store, runner
+        app.state.jobs = JobService(settings, store, storage, runner, anyio.CapacityLimiter(1))
+        log.info("scanmill %s serving; data in %s; %d worker(s)", scanmill.__version__, storage.root,
+                 settings.workers)
+        try:
+            yield
+        finally:
+            runner.stop()
+            store.close()
+            storage.close()
+
+    app = FastAPI(title="scanmill", version=scanmill.__version__, description=DESCRIPTION, openapi_tags=TAGS,
+                  lifespan=lifespan, separate_input_output_schemas=False, redirect_slashes=False)
+    app.state.settings = settings
+    install_handlers(app)
+
+    @app.exception_handler(RequestTooLarge)
+    async def _too_large(request: Request, exc: RequestTooLarge):
+        return problem_response(413, "request_too_large", exc.detail, instance=request.url.path,
+                                limit=exc.limit_name, limit_value=exc.limit)
+
+    app.add_middleware(BodyLimitMiddleware, settings=settings)
+    app.include_router(jobs_routes.router)
+    app.include_router(system_routes.router)
+    app.openapi = lambda: build_openapi(app)  # type: ignore[method-assign]
+    return app

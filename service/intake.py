@@ -1,0 +1,375 @@
+"""Turning a ``POST /jobs`` request into an accepted, validated submission on disk.
+
+Two request forms:
+
+- ``multipart/form-data``: the scan as file part ``cloud``; optional ``parameters`` (the plan
+  configuration as JSON text), ``name``, ``format`` (ply, pcd, xyz, csv, txt), ``time_limit_s``,
+  and ``fixtures`` (zero or more fixture point-cloud files).
+- ``application/json``: :class:`schemas.api.JobCreateRequest`, a small inline cloud.
+
+Uploads are copied into a fresh staging folder under ``DATA_DIR/tmp`` (with their SHA-256), the
+parameters are validated by ``schemas.params.parse_config`` and the cloud is read once by
+``planning.cloud.read_cloud`` in a worker thread, so a truncated file, garbage, NaN, an empty
+cloud or a header claiming billions of points is answered at once with a 4xx problem naming what
+is wrong. On any error the staging folder is removed: nothing half-written stays behind.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import anyio
+from pydantic import ValidationError
+from starlette.datastructures import UploadFile
+from starlette.requests import Request
+
+from planning.errors import ParameterError
+from schemas.api import InlineCloud
+from schemas.params import PlanConfig, parse_config
+from service.problems import ApiError
+from service.settings import Settings
+from service.storage import Storage, UploadTooLarge, cloud_suffix, copy_stream
+
+MULTIPART_FIELDS = {"cloud", "parameters", "name", "format", "time_limit_s", "fixtures"}
+FORMATS = ("ply", "pcd", "xyz", "csv", "txt")
+# media types that are certainly not a point cloud (a part sent with one of these is refused)
+_NOT_A_CLOUD_PREFIXES = ("image/", "audio/", "video/", "font/", "multipart/")
+_NOT_A_CLOUD = {"application/pdf", "application/zip", "application/gzip", "application/x-gzip",
+                "application/x-tar", "application/x-7z-compressed", "application/x-rar-compressed",
+                "application/msword", "application/vnd.ms-excel", "text/html", "application/json",
+                "application/xml", "text/xml", "application/javascript"}
+log = logging.getLogger("scanmill.service")
+_IDEMPOTENCY_KEY_RE = re.compile(r"^[\x21-\x7e]{1,255}$")
+FIXTURES_WARNING = ("fixture files are stored with the job but not used yet: collision checks against fixtures "
+                    "come with global visibility (visibility.global), which this version does not have")
+
+
+@dataclass
+class Submission:
+    """A validated job submission whose files sit in ``staging`` until the job is stored."""
+
+    staging: Path
+    config: PlanConfig
+    input: dict[str, Any]                      # JobInput fields + internal path/fmt/fixture_paths
+    time_limit_s: float
+    request_hash: str
+    warnings: list[str] = field(default_factory=list)
+
+
+def _clean_name(name: str | None) -> str | None:
+    if not name:
+        return None
+    base = os.path.basename(str(name).replace("\\", "/"))
+    base = "".join(c for c in base if c.isprintable()).strip()
+    return base[:200] or None
+
+
+def _check_part_type(part: UploadFile, field_name: str) -> None:
+    ct = (part.content_type or "").split(";")[0].strip().lower()
+    if ct.startswith(_NOT_A_CLOUD_PREFIXES) or ct in _NOT_A_CLOUD:
+        raise ApiError(415, "unsupported_media_type",
+                       f"The '{field_name}' part is sent as {ct}, which is not a point cloud. Send the scan file "
+                       "(PLY, PCD or XYZ/CSV text) as application/octet-stream.")
+
+
+def _parse_parameters(text: str | None) -> PlanConfig:
+    if text is None or not text.strip():
+        return check_service_parameters(parse_config({}))
+    try:
+        data = json.loads(text)
+    except RecursionError:
+        raise ApiError(422, "invalid_parameter", "The 'parameters' field nests too deeply to be a plan "
+                                                 "configuration.") from None
+    except json.JSONDecodeError as exc:
+        raise ApiError(422, "invalid_parameter",
+                       f"The 'parameters' field is not valid JSON ({exc.msg} at line {exc.lineno} column {exc.colno}); "
+                       'send the plan configuration as a JSON object, e.g. {"setups": {"coverage": 0.95}}.') from None
+    if not isinstance(data, dict):
+        raise ApiError(422, "invalid_parameter", "The 'parameters' field must be a JSON object grouped by stage, "
+                                                 'e.g. {"setups": {"coverage": 0.95}}.',
+                       errors=["parameters: must be a JSON object"])
+    return check_service_parameters(parse_config(data))
+
+
+def check_service_parameters(config: PlanConfig) -> PlanConfig:
+    """What the service allows beyond the schema: machine profiles by bundled name only (a path would let a
+    client make the service read files of its own choosing)."""
+    from planning.machine import available_profiles
+    names = list(available_profiles())
+    if config.machine.profile not in names:
+        raise ParameterError(f"machine.profile = {config.machine.profile[:80]!r}: the service accepts the bundled "
+                             f"profiles only: {', '.join(names)}",
+                             problems=[f"machine.profile: one of {', '.join(names)}"])
+    return config
+
+
+def _time_limit(value: Any, settings: Settings) -> float:
+    if value is None or value == "":
+        return settings.job_time_limit_s
+    try:
+        t = float(value)
+    except (TypeError, ValueError):
+        raise ApiError(422, "invalid_request", f"time_limit_s = {str(value)[:40]!r} is not a number of seconds.",
+                       errors=["time_limit_s: not a number"]) from None
+    if not (t > 0) or t != t:
+        raise ApiError(422, "invalid_request", f"time_limit_s = {t:g} must be a positive number of seconds.",
+                       errors=["time_limit_s: must be > 0"])
+    if t > settings.job_time_limit_s:
+        raise ApiError(422, "invalid_request",
+                       f"time_limit_s = {t:g} exceeds this service's limit of {settings.job_time_limit_s:g} s "
+                       "(SCANMILL_JOB_TIME_LIMIT_S).", errors=["time_limit_s: above the service limit"],
+                       limit="SCANMILL_JOB_TIME_LIMIT_S", limit_value=settings.job_time_limit_s)
+    return t
+
+
+def check_idempotency_key(key: str | None) -> str | None:
+    """Validate an ``Idempotency-Key`` header value (1-255 visible ASCII characters)."""
+    if key is None:
+        return None
+    if not _IDEMPOTENCY_KEY_RE.match(key):
+        raise ApiError(422, "invalid_idempotency_key",
+                       "The Idempotency-Key header must be 1 to 255 visible ASCII characters (e.g. a UUID).",
+                       errors=["header Idempotency-Key: 1-255 visible ASCII characters"])
+    return key
+
+
+def _validate_cloud(path: Path, fmt: str | None, config: PlanConfig, settings: Settings) -> dict[str, Any]:
+    """Read the stored cloud once (in a worker thread) and describe it; raises planning errors."""
+    from planning.cloud import read_cloud
+    cloud = read_cloud(path, fmt=fmt, units=config.input.units,
+                       max_points=min(config.input.max_points, settings.max_points),
+                       max_extent_mm=config.input.max_extent_mm, min_points=config.input.min_points)
+    if config.normals.method == "input" and cloud.normals is None:
+        raise ParameterError("normals.method is 'input' but the file carries no normals (PLY nx ny nz, PCD "
+                             "normal_x normal_y normal_z); use normals.method = sphere_throwing",
+                             code="missing_normals")
+    return {"format": cloud.source_format, "n_points": int(cloud.points.shape[0]),
+            "has_normals": cloud.normals is not None}
+
+
+def _validate_fixture(path: Path, settings: Settings, index: int) -> None:
+    from planning.cloud import read_cloud
+    from planning.errors import PlanningError
+    try:
+        read_cloud(path, max_points=settings.max_points, min_points=1)
+    except PlanningError as exc:
+        exc.message = f"fixture {index}: {exc.message}"
+        raise
+
+
+def _request_hash(config: PlanConfig, input_: dict[str, Any], time_limit_s: float | None) -> str:
+    doc = {"parameters": config.to_json_dict(), "cloud": input_["sha256"], "fmt": input_.get("fmt"),
+           "name": input_.get("name"), "fixtures": input_.get("fixture_sha256", []), "time_limit_s": time_limit_s}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
+
+
+async def _copy_part(part: UploadFile, dst: Path, settings: Settings, what: str) -> tuple[int, str]:
+    try:
+        return await anyio.to_thread.run_sync(
+            lambda: copy_stream(part.file, dst, max_bytes=settings.max_upload_bytes))
+    except UploadTooLarge:
+        raise ApiError(413, "file_too_large",
+                       f"The {what} file is larger than {settings.max_upload_bytes:,} bytes, the limit of this "
+                       "service (SCANMILL_MAX_UPLOAD_BYTES). Decimate the scan or save it as binary PLY.",
+                       limit="SCANMILL_MAX_UPLOAD_BYTES", limit_value=settings.max_upload_bytes) from None
+
+
+async def receive_submission(request: Request, settings: Settings, storage: Storage,
+                             limiter: anyio.CapacityLimiter) -> Submission:
+    """Read a submission into a staging folder and check its fields; raise :class:`ApiError` / planning errors.
+
+    The cloud itself is read by :func:`validate_submission` (after the idempotency check).
+    The caller owns ``Submission.staging`` and removes it if the job is not stored.
+    """
+    ct = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if ct == "multipart/form-data":
+        return await _receive_multipart(request, settings, storage, limiter)
+    if ct == "application/json":
+        return await _receive_json(request, settings, storage, limiter)
+    raise ApiError(415, "unsupported_media_type",
+                   f"POST /jobs takes multipart/form-data (the scan as file part 'cloud') or application/json "
+                   f"(a small inline cloud), not {ct or 'a body without Content-Type'}.")
+
+
+async def _receive_multipart(request: Request, settings: Settings, storage: Storage,
+                             limiter: anyio.CapacityLimiter) -> Submission:
+    staging: Path | None = None
+    try:
+        async with request.form(max_files=1 + settings.max_fixtures, max_fields=16,
+                                max_part_size=1024 * 1024) as form:
+            unknown = sorted({k for k in form.keys() if k not in MULTIPART_FIELDS})
+            if unknown:
+                raise ApiError(422, "invalid_request",
+                               f"Unknown multipart field(s): {', '.join(unknown)}; the fields are "
+                               f"{', '.join(sorted(MULTIPART_FIELDS))}.",
+                               errors=[f"{k}: unknown field" for k in unknown])
+            for k in ("cloud", "parameters", "name", "format", "time_limit_s"):
+                if len(form.getlist(k)) > 1:
+                    raise ApiError(422, "invalid_request", f"The multipart field '{k}' is given more than once.",
+                                   errors=[f"{k}: given more than once"])
+            cloud = form.get("cloud")
+            if cloud is None:
+                raise ApiError(422, "missing_cloud", "The multipart body has no 'cloud' part: attach the scan "
+                                                     "file as the file field 'cloud'.", errors=["cloud: required"])
+            if not isinstance(cloud, UploadFile):
+                raise ApiError(422, "invalid_request", "The 'cloud' part must be a file (with a filename), "
+                                                       "not a text field.", errors=["cloud: must be a file"])
+            texts: dict[str, str | None] = {}
+            for k in ("parameters", "name", "format", "time_limit_s"):
+                v = form.get(k)
+                if isinstance(v, UploadFile):
+                    v = (await v.read(1024 * 1024 + 1)).decode("utf-8", errors="replace")
+                texts[k] = v
+            fixtures = form.getlist("fixtures")
+            if len(fixtures) > settings.max_fixtures:
+                raise ApiError(422, "too_many_fixtures",
+                               f"{len(fixtures)} fixture files sent; the limit is {settings.max_fixtures} "
+                               "(SCANMILL_MAX_FIXTURES).", limit="SCANMILL_MAX_FIXTURES",
+                               limit_value=settings.max_fixtures)
+            if any(not isinstance(f, UploadFile) for f in fixtures):
+                raise ApiError(422, "invalid_request", "Every 'fixtures' part must be a file.",
+                               errors=["fixtures: must be files"])
+            _check_part_type(cloud, "cloud")
+            for f in fixtures:
+                _check_part_type(f, "fixtures")
+
+            config = _parse_parameters(texts["parameters"])
+            fmt = (texts["format"] or "").strip().lower() or None
+            if fmt is not None and fmt not in FORMATS:
+                raise ApiError(422, "invalid_request", f"format = {fmt[:20]!r}; allowed: {', '.join(FORMATS)} "
+                                                       "(or leave it out to detect it).",
+                               errors=["format: not one of " + ", ".join(FORMATS)])
+            time_limit = _time_limit(texts["time_limit_s"], settings)
+            name = _clean_name(texts["name"]) or _clean_name(cloud.filename)
+
+            staging = storage.new_staging()
+            cloud_file = f"cloud{cloud_suffix(cloud.filename)}"
+            size, sha = await _copy_part(cloud, staging / cloud_file, settings, "cloud")
+            fixture_paths, fixture_names, fixture_sha = [], [], []
+            for i, f in enumerate(fixtures):
+                fname = f"fixture-{i}{cloud_suffix(f.filename)}"
+                _, fsha = await _copy_part(f, staging / fname, settings, f"fixture {i}")
+                fixture_paths.append(f"input/{fname}")
+                fixture_names.append(_clean_name(f.filename) or fname)
+                fixture_sha.append(fsha)
+        input_ = {"name": name, "size_bytes": size, "sha256": sha, "fmt": fmt, "path": f"input/{cloud_file}",
+                  "fixtures": fixture_names, "fixture_paths": fixture_paths, "fixture_sha256": fixture_sha}
+        sub = Submission(staging=staging, config=config, input=input_, time_limit_s=time_limit,
+                         request_hash=_request_hash(config, input_, time_limit),
+                         warnings=[FIXTURES_WARNING] if fixtures else [])
+        return sub
+    except BaseException:
+        storage.discard(staging)
+        raise
+
+
+def _inline_to_ply(body: bytes, settings: Settings, staging: Path) -> tuple[PlanConfig, dict[str, Any], float | None]:
+    """Parse and check an inline JSON submission and write its cloud as binary PLY (in a worker thread)."""
+    import numpy as np
+
+    from planning.cloud import write_ply
+    try:
+        doc = json.loads(body)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ApiError(422, "invalid_request", f"The JSON body cannot be parsed: {exc}.") from None
+    except RecursionError:
+        raise ApiError(422, "invalid_request", "The JSON body nests too deeply.") from None
+    if not isinstance(doc, dict):
+        raise ApiError(422, "invalid_request", "The JSON body must be an object with 'cloud' and 'parameters'.")
+    unknown = sorted(set(doc) - {"cloud", "parameters", "name", "time_limit_s"})
+    if unknown:
+        raise ApiError(422, "invalid_request", f"Unknown field(s) in the JSON body: {', '.join(unknown)}.",
+                       errors=[f"{k}: unknown field" for k in unknown])
+    if "parameters" in doc and not isinstance(doc["parameters"], dict):
+        raise ApiError(422, "invalid_parameter", "parameters must be a JSON object grouped by stage, e.g. "
+                                                 '{"setups": {"coverage": 0.95}} (or left out for the defaults).',
+                       errors=["parameters: must be an object"])
+    config = check_service_parameters(parse_config(doc.get("parameters", {})))
+    raw = doc.get("cloud")
+    n = len(raw["points"]) if isinstance(raw, dict) and isinstance(raw.get("points"), list) else 0
+    if n > settings.max_inline_points:
+        raise ApiError(413, "too_many_points",
+                       f"The inline cloud has {n:,} points; the limit for JSON requests is "
+                       f"{settings.max_inline_points:,} (SCANMILL_MAX_INLINE_POINTS). Upload larger clouds as a "
+                       "file (multipart/form-data, field 'cloud').", limit="SCANMILL_MAX_INLINE_POINTS",
+                       limit_value=settings.max_inline_points)
+    try:
+        cloud = InlineCloud.model_validate(raw)
+    except ValidationError as exc:
+        errors = []
+        for e in exc.errors()[:20]:
+            loc = ".".join(str(p) for p in ("cloud", *e.get("loc", ())))
+            errors.append(f"{loc}: {e.get('msg', 'invalid')}")
+        raise ApiError(422, "invalid_request", "The inline cloud is not valid: " + "; ".join(errors),
+                       errors=errors) from None
+    name = doc.get("name")
+    if name is not None and (not isinstance(name, str) or len(name) > 200):
+        raise ApiError(422, "invalid_request", "name must be a string of at most 200 characters.",
+                       errors=["name: string, at most 200 characters"])
+    tl = doc.get("time_limit_s")
+    if tl is not None and (isinstance(tl, bool) or not isinstance(tl, (int, float))):
+        raise ApiError(422, "invalid_request", "time_limit_s must be a number of seconds (or null).",
+                       errors=["time_limit_s: must be a number"])
+    pts = np.asarray(cloud.points, dtype=np.float64).reshape(-1, 3)
+    normals = None
+    if cloud.normals is not None:
+        normals = np.asarray(cloud.normals, dtype=np.float64).reshape(-1, 3)
+        if normals.shape != pts.shape:
+            raise ApiError(422, "invalid_request",
+                           f"cloud.normals has {normals.shape[0]} rows but cloud.points has {pts.shape[0]}; "
+                           "give one normal per point.", errors=["cloud.normals: one row per point"])
+    write_ply(staging / "cloud.ply", pts, normals=normals, binary=True)
+    return config, {"name": _clean_name(name) or "inline"}, tl
+
+
+async def _receive_json(request: Request, settings: Settings, storage: Storage,
+                        limiter: anyio.CapacityLimiter) -> Submission:
+    body = await request.body()
+    staging = storage.new_staging()
+    try:
+        config, meta, tl = await anyio.to_thread.run_sync(lambda: _inline_to_ply(body, settings, staging),
+                                                          limiter=limiter)
+        time_limit = _time_limit(tl, settings)
+        data = (staging / "cloud.ply").read_bytes()
+        input_ = {"name": meta["name"], "size_bytes": len(data), "sha256": hashlib.sha256(data).hexdigest(),
+                  "fmt": "ply", "path": "input/cloud.ply", "fixtures": [], "fixture_paths": [], "fixture_sha256": []}
+        sub = Submission(staging=staging, config=config, input=input_, time_limit_s=time_limit,
+                         request_hash=_request_hash(config, input_, time_limit))
+        return sub
+    except BaseException:
+        storage.discard(staging)
+        raise
+
+
+async def validate_submission(sub: Submission, settings: Settings, limiter: anyio.CapacityLimiter) -> None:
+    """Read the cloud and the fixtures once, off the event loop, and fill in what was read (4xx on errors)."""
+    path = sub.staging / Path(sub.input["path"]).name
+
+    def work() -> dict[str, Any]:
+        from planning.errors import PlanningError
+        what = "cloud"
+        try:
+            info = _validate_cloud(path, sub.input.get("fmt"), sub.config, settings)
+            for i, fp in enumerate(sub.input["fixture_paths"]):
+                what = f"fixture {i}"
+                _validate_fixture(sub.staging / Path(fp).name, settings, i)
+            return info
+        except (PlanningError, ApiError):
+            raise
+        except MemoryError:
+            raise ApiError(413, "too_large_for_memory",
+                           f"The {what} needs more memory to read than the service has; decimate it.") from None
+        except Exception as exc:  # noqa: BLE001 - a reader bug must not become a 500 for the client
+            log.exception("reading the submitted %s failed unexpectedly", what)
+            raise ApiError(422, "unreadable_file",
+                           f"The {what} file could not be read ({type(exc).__name__}); export it again as PLY, "
+                           "PCD or XYZ/CSV text.") from None
+
+    sub.input.update(await anyio.to_thread.run_sync(work, limiter=limiter))

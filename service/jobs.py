@@ -1,0 +1,202 @@
+"""The jobs use cases behind the routes: submit, read, list, cancel, delete, results and artifacts.
+
+:class:`JobService` glues the store (SQLite), the storage (files) and the runner (workers); the
+routers only parse HTTP and call it. :func:`job_view` turns a stored row into the public
+:class:`schemas.api.Job` resource.
+"""
+
+from __future__ import annotations
+
+import base64
+import logging
+from datetime import datetime
+from pathlib import Path
+
+import anyio
+from starlette.requests import Request
+
+from schemas.api import (
+    FINISHED_STATUSES,
+    Artifact,
+    ArtifactList,
+    Job,
+    JobError,
+    JobInput,
+    JobLinks,
+    JobPage,
+    JobResultSummary,
+)
+from service.auth import Principal
+from service.intake import (
+    Submission,
+    check_idempotency_key,
+    receive_submission,
+    validate_submission,
+)
+from service.problems import ApiError
+from service.settings import Settings
+from service.storage import Storage, is_job_id, media_type, new_job_id
+from service.store import IdempotencyConflict, JobRecord, JobStore
+from service.workers import JobRunner
+
+log = logging.getLogger("scanmill.service")
+
+_PUBLIC_INPUT = ("name", "format", "size_bytes", "n_points", "has_normals", "sha256", "fixtures")
+
+
+def job_view(job: JobRecord) -> Job:
+    """The public resource of a stored job."""
+    base = f"/jobs/{job.id}"
+    done = job.status == "succeeded"
+    error = None
+    if job.status in ("failed", "cancelled") and job.error_code:
+        error = JobError(code=job.error_code, message=job.error_message or job.error_code)
+    return Job(
+        id=job.id, status=job.status, stage=job.stage, progress=job.progress, message=job.message,
+        created_at=datetime.fromisoformat(job.created_at),
+        started_at=datetime.fromisoformat(job.started_at) if job.started_at else None,
+        finished_at=datetime.fromisoformat(job.finished_at) if job.finished_at else None,
+        updated_at=datetime.fromisoformat(job.updated_at), attempts=job.attempts, time_limit_s=job.time_limit_s,
+        input=JobInput(**{k: job.input.get(k) for k in _PUBLIC_INPUT if k in job.input}),
+        parameters=job.parameters, error=error,
+        result=JobResultSummary(**job.result) if (done and job.result) else None,
+        warnings=job.warnings,
+        links=JobLinks(self=base, result=f"{base}/result" if done else None,
+                       artifacts=f"{base}/artifacts" if done else None))
+
+
+def encode_cursor(seq: int) -> str:
+    return base64.urlsafe_b64encode(f"s{seq}".encode()).decode().rstrip("=")
+
+
+def decode_cursor(cursor: str) -> int:
+    try:
+        raw = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)).decode()
+        if not raw.startswith("s"):
+            raise ValueError
+        return int(raw[1:])
+    except (ValueError, UnicodeDecodeError):
+        raise ApiError(422, "invalid_cursor", "The cursor is not one this service gave out; start from the first "
+                                              "page (no cursor).", errors=["query cursor: invalid"]) from None
+
+
+class JobService:
+    """What the routes do, independent of HTTP details."""
+
+    def __init__(self, settings: Settings, store: JobStore, storage: Storage, runner: JobRunner,
+                 limiter: anyio.CapacityLimiter):
+        self.settings, self.store, self.storage, self.runner, self.limiter = settings, store, storage, runner, limiter
+
+    # -- submit ----------------------------------------------------------------------------------
+    async def submit(self, request: Request, who: Principal, idempotency_key: str | None) -> tuple[Job, bool]:
+        """Accept a job; returns (job, replayed). ``replayed``: the Idempotency-Key named an identical request."""
+        key = check_idempotency_key(idempotency_key)
+        sub = await receive_submission(request, self.settings, self.storage, self.limiter)
+        try:
+            if key is not None:
+                existing = await anyio.to_thread.run_sync(self.store.find_by_idempotency_key, who.owner, key)
+                if existing is not None:
+                    return self._replay(existing, sub), True
+            await validate_submission(sub, self.settings, self.limiter)
+            try:
+                job = await anyio.to_thread.run_sync(self._store_job, sub, who, key)
+            except IdempotencyConflict as exc:     # the same key raced in from a parallel request
+                return self._replay(exc.existing, sub), True
+        finally:
+            self.storage.discard(sub.staging)      # a no-op once it was moved into the job's folder
+        self.runner.wake()
+        log.info("job %s: accepted (%s, %s points)", job.id, job.input.get("name"), job.input.get("n_points"))
+        return job_view(job), False
+
+    def _replay(self, existing: JobRecord, sub: Submission) -> Job:
+        if existing.request_hash != sub.request_hash:
+            raise ApiError(422, "idempotency_key_reused",
+                           "This Idempotency-Key was already used for a different request (other cloud or "
+                           f"parameters), job {existing.id}; use a new key for a new job.",
+                           errors=["header Idempotency-Key: already used with another body"])
+        return job_view(existing)
+
+    def _store_job(self, sub: Submission, who: Principal, key: str | None) -> JobRecord:
+        job_id = new_job_id()
+        self.storage.accept_staging(sub.staging, job_id)
+        try:
+            return self.store.create(job_id=job_id, owner=who.owner, parameters=sub.config.to_json_dict(),
+                                     input=sub.input, time_limit_s=sub.time_limit_s, warnings=sub.warnings,
+                                     idempotency_key=key, request_hash=sub.request_hash)
+        except BaseException:
+            self.storage.remove_job(job_id)
+            raise
+
+    # -- read ------------------------------------------------------------------------------------
+    def _get(self, job_id: str, who: Principal) -> JobRecord:
+        job = self.store.get(job_id, owner=who.owner) if is_job_id(job_id) else None
+        if job is None:
+            raise ApiError(404, "job_not_found", f"There is no job {job_id[:64]!r} for this API key.")
+        return job
+
+    def get(self, job_id: str, who: Principal) -> Job:
+        return job_view(self._get(job_id, who))
+
+    def list(self, who: Principal, status: str | None, limit: int, cursor: str | None) -> JobPage:
+        before = decode_cursor(cursor) if cursor else None
+        rows, more = self.store.list(who.owner, status=status, before_seq=before, limit=limit)
+        next_cursor = encode_cursor(rows[-1].seq) if (more and rows) else None
+        q = f"limit={limit}" + (f"&status={status}" if status else "")
+        links = {"self": f"/jobs?{q}" + (f"&cursor={cursor}" if cursor else "")}
+        if next_cursor:
+            links["next"] = f"/jobs?{q}&cursor={next_cursor}"
+        return JobPage(items=[job_view(r) for r in rows], next_cursor=next_cursor, links=links)
+
+    # -- cancel / delete ---------------------------------------------------------------------------
+    def delete(self, job_id: str, who: Principal) -> Job | None:
+        """Cancel an active job (returns it) or delete a finished one with its files (returns None)."""
+        job = self._get(job_id, who)
+        if job.status not in FINISHED_STATUSES:
+            cancelled = self.store.cancel(job.id, who.owner)
+            if cancelled is not None:
+                if self.runner.kill(job.id, "cancel"):
+                    log.info("job %s: cancelled; its worker was stopped", job.id)
+                else:
+                    log.info("job %s: cancelled before it started", job.id)
+                return job_view(self.store.get(job.id) or cancelled)
+            job = self._get(job_id, who)           # it finished meanwhile: delete it below
+        self.runner.kill(job.id, "cancel")         # a cancelled job's worker may still be stopping
+        if self.store.delete(job.id, who.owner):
+            self.storage.remove_job(job.id)
+            log.info("job %s: deleted with its files", job.id)
+            return None
+        raise ApiError(409, "job_busy", "The job changed while it was being deleted; try again.",
+                       job_status=self._get(job_id, who).status)
+
+    # -- results -----------------------------------------------------------------------------------
+    def _finished(self, job_id: str, who: Principal) -> JobRecord:
+        job = self._get(job_id, who)
+        if job.status != "succeeded":
+            what = {"queued": "is still queued", "running": "is still running",
+                    "failed": f"failed ({job.error_code}: {job.error_message})",
+                    "cancelled": "was cancelled"}[job.status]
+            raise ApiError(409, "job_not_succeeded", f"Job {job.id} {what}; its results exist once it has "
+                                                    "succeeded.", job_status=job.status)
+        return job
+
+    def result_path(self, job_id: str, who: Principal) -> Path:
+        job = self._finished(job_id, who)
+        path = self.storage.artifact_path(job.id, "plan.json")
+        if path is None:
+            raise ApiError(404, "artifact_not_found", f"Job {job.id} has no plan.json.")
+        return path
+
+    def artifacts(self, job_id: str, who: Principal) -> ArtifactList:
+        job = self._finished(job_id, who)
+        items = [Artifact(name=p.name, media_type=media_type(p.name), size_bytes=p.stat().st_size,
+                          href=f"/jobs/{job.id}/artifacts/{p.name}") for p in self.storage.artifacts(job.id)]
+        return ArtifactList(job_id=job.id, items=items)
+
+    def artifact_path(self, job_id: str, name: str, who: Principal) -> Path:
+        job = self._finished(job_id, who)
+        path = self.storage.artifact_path(job.id, name)
+        if path is None:
+            raise ApiError(404, "artifact_not_found",
+                           f"Job {job.id} has no artifact named {name[:100]!r}; GET /jobs/{job.id}/artifacts "
+                           "lists them.")
+        return path

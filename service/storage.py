@@ -1,0 +1,267 @@
+"""Files of the service under ``SCANMILL_DATA_DIR``: uploads, artifacts, atomic writes, safe names.
+
+Layout::
+
+    DATA_DIR/scanmill.sqlite3        the job store (service/store.py)
+    DATA_DIR/server.lock             held by the one server using this directory
+    DATA_DIR/tmp/                    uploads being received (emptied at start)
+    DATA_DIR/jobs/ID/input/          the accepted cloud (cloud.EXT) and fixtures (fixture-N.EXT)
+    DATA_DIR/jobs/ID/work-N/         attempt N writing its artifacts (removed when it ends)
+    DATA_DIR/jobs/ID/result/         the artifacts of the succeeded job (renamed from work-N)
+
+A job's files appear all at once: uploads are written into a staging folder under ``tmp/`` and
+renamed into ``jobs/ID`` when accepted; artifacts are written into ``work-N`` and the folder is
+renamed to ``result`` when the worker reports success. Artifact names are checked against a strict
+pattern and resolved inside ``result/`` (no ``..``, no separators, no hidden files, no links), so a
+request cannot reach a file outside the job's folder.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import hashlib
+import os
+import re
+import shutil
+import uuid
+from pathlib import Path
+from typing import BinaryIO, Iterable
+
+JOB_ID_RE = re.compile(r"^[0-9a-f]{32}$")
+ARTIFACT_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
+#: File name extensions kept from an uploaded file's name (they drive format detection).
+CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".csv", ".txt", ".pts", ".asc", ".xyzn", ".xyzrgb")
+
+MEDIA_TYPES = {
+    ".json": "application/json", ".png": "image/png", ".npz": "application/octet-stream",
+    ".ply": "application/octet-stream", ".nc": "text/plain", ".ngc": "text/plain", ".gcode": "text/plain",
+    ".tap": "text/plain", ".txt": "text/plain", ".csv": "text/plain",
+}
+
+
+class StorageLocked(RuntimeError):
+    """Another server process already uses this data directory."""
+
+
+def new_job_id() -> str:
+    """A fresh unguessable job id: 32 lowercase hex digits."""
+    return uuid.uuid4().hex
+
+
+def is_job_id(value: str) -> bool:
+    """Whether ``value`` has the form of a job id (anything else is simply not found)."""
+    return bool(JOB_ID_RE.match(value or ""))
+
+
+def safe_artifact_name(name: str) -> bool:
+    """Whether ``name`` is a plain file name an artifact may have (no path, not hidden, not a temp file)."""
+    return bool(ARTIFACT_NAME_RE.match(name or "")) and ".." not in name and not name.endswith(".tmp")
+
+
+def cloud_suffix(filename: str | None) -> str:
+    """The known point-cloud extension of an uploaded file name, or '' (then the content decides)."""
+    suffix = Path(filename or "").suffix.lower()
+    return suffix if suffix in CLOUD_SUFFIXES else ""
+
+
+def media_type(name: str) -> str:
+    """The media type an artifact is served with."""
+    return MEDIA_TYPES.get(Path(name).suffix.lower(), "application/octet-stream")
+
+
+def fsync_dir(path: Path) -> None:
+    """Flush a directory entry (after a rename) to disk; a no-op where directories cannot be opened."""
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temporary file in the same folder, fsync and rename."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+    fsync_dir(path.parent)
+
+
+class UploadTooLarge(Exception):
+    """A file part grew past its limit while being copied."""
+
+
+def copy_stream(src: BinaryIO, dst_path: Path, *, max_bytes: int, chunk: int = 1 << 20) -> tuple[int, str]:
+    """Copy ``src`` into a new file ``dst_path`` (fsynced); return (size, sha256 hex).
+
+    Raises :class:`UploadTooLarge` past ``max_bytes`` (the partial file is removed).
+    """
+    h = hashlib.sha256()
+    size = 0
+    try:
+        with open(dst_path, "xb") as out:
+            while True:
+                block = src.read(chunk)
+                if not block:
+                    break
+                size += len(block)
+                if size > max_bytes:
+                    raise UploadTooLarge(size)
+                h.update(block)
+                out.write(block)
+            out.flush()
+            os.fsync(out.fileno())
+    except BaseException:
+        with contextlib.suppress(OSError):
+            dst_path.unlink()
+        raise
+    return size, h.hexdigest()
+
+
+class Storage:
+    """The service's data directory: paths, staging, atomic moves, cleanup."""
+
+    def __init__(self, root: str | os.PathLike):
+        self.root = Path(root).resolve()
+        self.jobs_dir = self.root / "jobs"
+        self.tmp_dir = self.root / "tmp"
+        self.db_path = self.root / "scanmill.sqlite3"
+        self._lock_fd: int | None = None
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    def open(self) -> None:
+        """Create the folders and take the directory lock (one server per data directory)."""
+        for d in (self.root, self.jobs_dir, self.tmp_dir):
+            d.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.root / "server.lock", os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise StorageLocked(f"another scanmill server is using the data directory {self.root}") from None
+            raise
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._lock_fd = fd
+
+    def close(self) -> None:
+        """Release the directory lock."""
+        if self._lock_fd is not None:
+            with contextlib.suppress(OSError):
+                fcntl.flock(self._lock_fd, fcntl.LOCK_UN)
+                os.close(self._lock_fd)
+            self._lock_fd = None
+
+    # -- paths -------------------------------------------------------------------------------
+    def job_dir(self, job_id: str) -> Path:
+        """``jobs/ID`` (``job_id`` must be a job id)."""
+        if not is_job_id(job_id):
+            raise ValueError(f"not a job id: {job_id!r}")
+        return self.jobs_dir / job_id
+
+    def input_dir(self, job_id: str) -> Path:
+        return self.job_dir(job_id) / "input"
+
+    def work_dir(self, job_id: str, attempt: int) -> Path:
+        return self.job_dir(job_id) / f"work-{int(attempt)}"
+
+    def result_dir(self, job_id: str) -> Path:
+        return self.job_dir(job_id) / "result"
+
+    # -- uploads -----------------------------------------------------------------------------
+    def new_staging(self) -> Path:
+        """A fresh folder under ``tmp/`` for one request's uploads."""
+        path = self.tmp_dir / f"upload-{uuid.uuid4().hex}"
+        path.mkdir()
+        return path
+
+    def discard(self, path: Path | None) -> None:
+        """Remove a staging or job folder, ignoring what is already gone."""
+        if path is not None:
+            shutil.rmtree(path, ignore_errors=True)
+
+    def accept_staging(self, staging: Path, job_id: str) -> Path:
+        """Move a staging folder to ``jobs/ID/input`` in one rename; return that folder."""
+        job = self.job_dir(job_id)
+        job.mkdir()
+        target = job / "input"
+        os.replace(staging, target)
+        fsync_dir(job)
+        fsync_dir(self.jobs_dir)
+        return target
+
+    # -- results -----------------------------------------------------------------------------
+    def publish_result(self, job_id: str, attempt: int) -> Path:
+        """Rename ``work-N`` to ``result`` (the artifacts appear together)."""
+        work, result = self.work_dir(job_id, attempt), self.result_dir(job_id)
+        if result.exists():
+            shutil.rmtree(result)
+        os.replace(work, result)
+        fsync_dir(self.job_dir(job_id))
+        return result
+
+    def has_result(self, job_id: str) -> bool:
+        """Whether a complete result exists (plan.json is written last)."""
+        return (self.result_dir(job_id) / "plan.json").is_file()
+
+    def artifacts(self, job_id: str) -> list[Path]:
+        """The artifact files of a job's result, sorted by name."""
+        result = self.result_dir(job_id)
+        if not result.is_dir():
+            return []
+        return sorted(p for p in result.iterdir()
+                      if safe_artifact_name(p.name) and p.is_file() and not p.is_symlink())
+
+    def artifact_path(self, job_id: str, name: str) -> Path | None:
+        """The path of artifact ``name``, or None if there is no such artifact (or the name is unsafe)."""
+        if not safe_artifact_name(name):
+            return None
+        result = self.result_dir(job_id).resolve()
+        path = (result / name)
+        try:
+            resolved = path.resolve(strict=True)
+        except (OSError, RuntimeError):
+            return None
+        if resolved.parent != result or path.is_symlink() or not resolved.is_file():
+            return None
+        return resolved
+
+    def remove_job(self, job_id: str) -> None:
+        """Delete all files of a job."""
+        shutil.rmtree(self.job_dir(job_id), ignore_errors=True)
+
+    def remove_work(self, job_id: str, attempt: int) -> None:
+        shutil.rmtree(self.work_dir(job_id, attempt), ignore_errors=True)
+
+    # -- cleanup at start ----------------------------------------------------------------------
+    def sweep(self, known_jobs: Iterable[str]) -> list[str]:
+        """Remove what no job owns: ``tmp/*``, job folders without a job, ``work-*`` of stopped attempts.
+
+        Called at start, before any worker runs. Returns the removed paths (for the log).
+        """
+        known = set(known_jobs)
+        removed: list[str] = []
+        for p in self.tmp_dir.iterdir():
+            shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+            removed.append(str(p))
+        for p in self.jobs_dir.iterdir():
+            if p.name not in known:
+                shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+                removed.append(str(p))
+                continue
+            for w in p.glob("work-*"):
+                shutil.rmtree(w, ignore_errors=True)
+                removed.append(str(w))
+        return removed

@@ -1,10 +1,10 @@
-# make run   - set up, then plan the bundled femur-like reference scan with the CLI
+# make run   - set up, start the planning service and plan the femur-like reference scan through it over HTTP
 # make test  - set up, then run the test suite (slow tests: make test-slow)
 VENV ?= .venv
 BIN := $(VENV)/bin
 OUT ?= scanmill-out
 
-.PHONY: setup run test test-slow bench
+.PHONY: setup run serve test test-slow bench bench-service
 
 setup: $(VENV)/.installed
 
@@ -12,9 +12,10 @@ $(VENV)/.installed: pyproject.toml scripts/setup.sh
 	VENV=$(VENV) bash scripts/setup.sh
 
 run: setup
-	$(BIN)/scanmill sample femur_like --out $(OUT)/femur_like.ply
-	$(BIN)/scanmill plan $(OUT)/femur_like.ply --out $(OUT)/femur_like
-	@echo "results: $(OUT)/femur_like/ (plan.json, plan.npz, segmentation.ply, preview.png)"
+	$(BIN)/python scripts/demo_service.py --sample femur_like --data-dir scanmill-data --out $(OUT)
+
+serve: setup
+	$(BIN)/scanmill serve
 
 test: setup
 	$(BIN)/python -m pytest -q
@@ -23,4 +24,9 @@ test-slow: setup
 	$(BIN)/python -m pytest -q -m slow
 
 bench: setup
-	$(BIN)/python bench/bench_plan.py
+	$(BIN)/python bench/bench_plan.py --repeat 3
+	$(BIN)/python bench/bench_setups.py
+
+bench-service: setup
+	$(BIN)/python bench/bench_service_load.py --jobs 20 --pollers 50 --interval-s 0.5
+	$(BIN)/python bench/bench_service_load.py --jobs 20 --pollers 50 --interval-s 0.05

@@ -61,17 +61,15 @@ key) and identical columns are collapsed to their lowest index; then either
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import itertools
 import math
-import os
-import threading
 import time
 from dataclasses import dataclass
 from fractions import Fraction
 from collections.abc import Callable
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from planning.errors import ParameterError
 
@@ -289,76 +287,17 @@ class _Problem:
 # BLAS threads
 # --------------------------------------------------------------------------------------------
 
-_BLAS_LOCK = threading.Lock()
-_BLAS_FUNCS: list | None = None
-_BLAS_STATE = {"depth": 0, "saved": []}
-
-
-def _openblas_thread_functions() -> list:
-    """(get, set) thread-count functions of the OpenBLAS libraries loaded in this process."""
-    global _BLAS_FUNCS
-    if _BLAS_FUNCS is not None:
-        return _BLAS_FUNCS
-    funcs = []
-    try:
-        with open("/proc/self/maps") as fh:
-            paths = sorted({ln.split()[-1] for ln in fh if "openblas" in ln.lower() and "/" in ln})
-        for path in paths:
-            try:
-                lib = ctypes.CDLL(path, mode=getattr(os, "RTLD_NOLOAD", 0) | os.RTLD_LOCAL)
-            except (OSError, AttributeError):
-                continue
-            for get_name, set_name in (
-                ("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"),
-                ("scipy_openblas_get_num_threads", "scipy_openblas_set_num_threads"),
-                ("openblas_get_num_threads64_", "openblas_set_num_threads64_"),
-                ("openblas_get_num_threads", "openblas_set_num_threads"),
-            ):
-                if hasattr(lib, get_name) and hasattr(lib, set_name):
-                    get, set_ = getattr(lib, get_name), getattr(lib, set_name)
-                    get.restype, get.argtypes = ctypes.c_int, []
-                    set_.restype, set_.argtypes = None, [ctypes.c_int]
-                    funcs.append((get, set_))
-                    break
-    except OSError:  # pragma: no cover - no /proc (not Linux)
-        funcs = []
-    _BLAS_FUNCS = funcs
-    return funcs
-
-
 @contextlib.contextmanager
 def _single_threaded_blas():
     """Run the search's many small matrix products on one BLAS thread, then restore the setting.
 
     The products here are small (~100 x 2000 x 100); waking OpenBLAS threads for each costs more
     than they save: on the shared 2-core machine the search ran ~5-8x slower with them (a single
-    product measured 30 ms instead of 0.6 ms).  Like threadpoolctl (not a dependency), this changes
-    a process-wide setting while any call is inside (nested and concurrent calls are counted; the
-    first in saves, the last out restores); it does nothing where no OpenBLAS is found.
+    product measured 30 ms instead of 0.6 ms). threadpoolctl changes the process-wide setting for
+    the duration of the call.
     """
-    with _BLAS_LOCK:
-        if _BLAS_STATE["depth"] == 0:
-            saved = []
-            try:
-                for get, set_ in _openblas_thread_functions():
-                    saved.append((set_, get()))
-                    set_(1)
-            except Exception:  # pragma: no cover - never fail a plan over a thread count
-                pass
-            _BLAS_STATE["saved"] = saved
-        _BLAS_STATE["depth"] += 1
-    try:
+    with threadpool_limits(limits=1, user_api="blas"):
         yield
-    finally:
-        with _BLAS_LOCK:
-            _BLAS_STATE["depth"] -= 1
-            if _BLAS_STATE["depth"] == 0:
-                for set_, nthreads in _BLAS_STATE["saved"]:
-                    try:
-                        set_(nthreads)
-                    except Exception:  # pragma: no cover
-                        pass
-                _BLAS_STATE["saved"] = []
 
 
 # --------------------------------------------------------------------------------------------

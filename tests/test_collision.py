@@ -1,0 +1,170 @@
+"""Cloud collisions of a ball-end cutter and holder (planning.collision)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from planning.collision import brute_force_collision_free, cloud_collision_free
+from planning.errors import ParameterError
+
+
+def _unit(v):
+    v = np.asarray(v, dtype=float)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _axes(rng, m, max_deg=85.0, hemisphere=True):
+    """m random unit axes; within max_deg of +Z when hemisphere, else anywhere."""
+    if hemisphere:
+        ct = rng.uniform(np.cos(np.radians(max_deg)), 1.0, m)
+        ph = rng.uniform(0, 2 * np.pi, m)
+        st = np.sqrt(1 - ct ** 2)
+        return np.stack([st * np.cos(ph), st * np.sin(ph), ct], axis=1)
+    return _unit(rng.normal(size=(m, 3)))
+
+
+def _bumpy(rng, n=324):
+    k = int(np.sqrt(n))
+    x, y = np.meshgrid(np.linspace(-15, 15, k), np.linspace(-15, 15, k))
+    x = x.ravel() + rng.uniform(-0.4, 0.4, x.size)
+    y = y.ravel() + rng.uniform(-0.4, 0.4, y.size)
+    z = 3 * np.sin(x / 4) * np.cos(y / 5)
+    fx = 3 / 4 * np.cos(x / 4) * np.cos(y / 5)
+    fy = -3 / 5 * np.sin(x / 4) * np.sin(y / 5)
+    return np.stack([x, y, z], 1), _unit(np.stack([-fx, -fy, np.ones_like(x)], 1))
+
+
+def _slot(rng):
+    """A plate with a 6 mm wide, 4 mm deep slot along y: floor, walls, top faces."""
+    pts, nrm = [], []
+    for x in np.linspace(-15, 15, 21):
+        for y in np.linspace(-10, 10, 11):
+            if abs(x) < 3:
+                pts.append((x, y, -4.0)); nrm.append((0, 0, 1))
+            elif abs(x) > 3:
+                pts.append((x, y, 0.0)); nrm.append((0, 0, 1))
+    for s in (-1, 1):
+        for y in np.linspace(-10, 10, 11):
+            for z in np.linspace(-3.5, -0.5, 5):
+                pts.append((s * 3.0, y, z)); nrm.append((-s, 0, 0))
+    pts = np.asarray(pts) + rng.normal(scale=0.05, size=(len(pts), 3))
+    return pts, np.asarray(nrm, float)
+
+
+def _post_wall(rng, g=10.0, r_p=2.0, hp=13.0):
+    """Floor around the origin, a vertical post whose nearest generator is at x = g, a wall at y=12."""
+    pts, nrm = [], []
+    for x in np.linspace(-12, 12, 17):
+        for y in np.linspace(-12, 12, 17):
+            if np.hypot(x - (g + r_p), y) > r_p:
+                pts.append((x, y, 0.0)); nrm.append((0, 0, 1))
+    xp = g + r_p
+    for ph in np.linspace(0, 2 * np.pi, 16, endpoint=False):
+        for z in np.linspace(0, hp, 14):
+            pts.append((xp - r_p * np.cos(ph), -r_p * np.sin(ph), z))
+            nrm.append((-np.cos(ph), -np.sin(ph), 0))
+    for x in np.linspace(-12, 12, 13):
+        for z in np.linspace(0, 8, 5):
+            pts.append((x, 12.0, z)); nrm.append((0, -1, 0))
+    return np.asarray(pts), np.asarray(nrm, float)
+
+
+def _noise_cloud(rng, n=300):
+    pts = rng.uniform(-8, 8, size=(n, 3)) * np.array([1, 1, 0.4])
+    return pts, _unit(rng.normal(size=(n, 3)) + np.array([0, 0, 1.5]))
+
+
+TOOLS = [
+    dict(tool_radius_mm=3.0, flute_length_mm=12.0),                                    # cutter only
+    dict(tool_radius_mm=2.0, flute_length_mm=6.0, holder_radius_mm=6.0),               # infinite holder
+    dict(tool_radius_mm=3.0, flute_length_mm=5.0, holder_radius_mm=8.0, holder_length_mm=10.0),
+    dict(tool_radius_mm=3.0, flute_length_mm=4.0, holder_radius_mm=2.0),               # thin neck
+    dict(tool_radius_mm=1.5, flute_length_mm=3.0, holder_radius_mm=1.0, holder_length_mm=4.0),
+]
+
+
+@pytest.mark.parametrize("cloud", ["bumpy", "slot", "post_wall", "noise"])
+@pytest.mark.parametrize("tool", range(len(TOOLS)))
+def test_fast_matches_brute_force(cloud, tool):
+    rng = np.random.default_rng(100 * ["bumpy", "slot", "post_wall", "noise"].index(cloud) + tool)
+    pts, nrm = {"bumpy": _bumpy, "slot": _slot, "post_wall": _post_wall, "noise": _noise_cloud}[cloud](rng)
+    sample = rng.choice(pts.shape[0], size=min(60, pts.shape[0]), replace=False)
+    axes = np.concatenate([_axes(rng, 20), _axes(rng, 6, hemisphere=False), [[0, 0, 1.0]]])
+    kw = TOOLS[tool]
+    fast = cloud_collision_free(pts, sample, nrm[sample], axes, **kw)
+    ref = brute_force_collision_free(pts, sample, nrm[sample], axes, **kw)
+    assert fast.shape == ref.shape == (sample.size, axes.shape[0])
+    assert not np.any(fast & ~ref), "a colliding pair was called free"
+    assert np.array_equal(fast, ref)
+    # the test must exercise both outcomes
+    assert ref.any() and not ref.all()
+
+
+def test_candidates_and_progress():
+    rng = np.random.default_rng(7)
+    pts, nrm = _bumpy(rng)
+    sample = np.arange(0, pts.shape[0], 5)
+    axes = _axes(rng, 12)
+    cand = rng.random((sample.size, axes.shape[0])) < 0.5
+    calls = []
+    kw = dict(tool_radius_mm=2.0, flute_length_mm=8.0, holder_radius_mm=5.0)
+    fast = cloud_collision_free(pts, sample, nrm[sample], axes, candidates=cand,
+                                progress=lambda d, t: calls.append((d, t)), **kw)
+    ref = brute_force_collision_free(pts, sample, nrm[sample], axes, candidates=cand, **kw)
+    full = brute_force_collision_free(pts, sample, nrm[sample], axes, **kw)
+    assert np.array_equal(fast, ref)
+    assert not np.any(fast & ~cand)
+    assert np.array_equal(fast[cand], full[cand])
+    assert calls[-1] == (axes.shape[0], axes.shape[0]) and len(calls) == axes.shape[0]
+
+
+def test_flat_plate_never_collides():
+    # A ball on a plane: the cutter cylinder along any axis with t_z > 0 stays above the plane
+    # (a point at distance s along the tilt has a = s sin(th) - R cos(th) and
+    # rho = s cos(th) + R sin(th) >= R / sin(th) >= R whenever a > 0).
+    x, y = np.meshgrid(np.linspace(-20, 20, 41), np.linspace(-20, 20, 41))
+    pts = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
+    nrm = np.tile([0.0, 0.0, 1.0], (pts.shape[0], 1))
+    rng = np.random.default_rng(3)
+    axes = np.concatenate([_axes(rng, 40, max_deg=89.0), [[0, 0, 1.0], [1, 0, 1e-3]]])
+    axes = _unit(axes)
+    sample = np.arange(pts.shape[0])
+    free = cloud_collision_free(pts, sample, nrm, axes, tool_radius_mm=3.0, flute_length_mm=50.0)
+    assert free.all()
+
+
+def test_post_collides_when_tilt_reaches_its_top():
+    # Contact at the origin on the floor (normal +Z, ball centre (0,0,R)), post whose nearest
+    # generator is the line x = g, z in [0, hp]; axis t = (sin th, 0, cos th). For q = (g, 0, R + w):
+    # a = g sin th + w cos th, rho = |g cos th - w sin th|. rho < R needs w > (g cos th - R)/sin th,
+    # so (long flutes) the post's top w = hp - R is reached once g cos th - (hp - R) sin th < R:
+    # th* = acos(R / sqrt(g^2 + (hp-R)^2)) - atan2(hp - R, g).
+    g, r_p, hp, R = 10.0, 2.0, 13.0, 3.0
+    pts, nrm = _post_wall(np.random.default_rng(0), g=g, r_p=r_p, hp=hp)
+    pts = np.concatenate([pts, [[0.0, 0.0, 0.0]]])
+    nrm = np.concatenate([nrm, [[0.0, 0.0, 1.0]]])
+    i0 = pts.shape[0] - 1
+    th_star = np.degrees(np.arccos(R / np.hypot(g, hp - R)) - np.arctan2(hp - R, g))
+    assert 30 < th_star < 35
+    ths = np.concatenate([np.linspace(0, th_star - 0.5, 8), np.linspace(th_star + 0.5, 80, 8)])
+    axes = np.stack([np.sin(np.radians(ths)), np.zeros_like(ths), np.cos(np.radians(ths))], 1)
+    kw = dict(tool_radius_mm=R, flute_length_mm=40.0)
+    free = cloud_collision_free(pts, [i0], nrm[[i0]], axes, **kw)[0]
+    assert np.array_equal(free, ths < th_star)
+    # tilting away from the post (towards -x) never meets it, nor the wall at y = 12
+    away = axes * np.array([-1, 1, 1])
+    assert cloud_collision_free(pts, [i0], nrm[[i0]], away, **kw).all()
+    # a short cutter with no holder fits under the post top: a <= L cuts off the line
+    assert np.array_equal(free, brute_force_collision_free(pts, [i0], nrm[[i0]], axes, **kw)[0])
+
+
+def test_invalid_arguments():
+    pts = np.zeros((4, 3))
+    with pytest.raises(ParameterError):
+        cloud_collision_free(pts, [0], [[0, 0, 1]], [[0, 0, 1]], tool_radius_mm=0, flute_length_mm=1)
+    with pytest.raises(ParameterError):
+        cloud_collision_free(pts, [9], [[0, 0, 1]], [[0, 0, 1]], tool_radius_mm=1, flute_length_mm=1)
+    with pytest.raises(ParameterError):
+        cloud_collision_free(pts, [0], [[0, 0, 1]], [[0, 0, 1]], tool_radius_mm=1, flute_length_mm=1,
+                             candidates=np.ones((2, 1), bool))

@@ -175,7 +175,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
         progress=_stage_progress(progress, "setups")))
     selected = np.asarray(sel.selected, dtype=np.int64)
     sel_axes = axes[selected]
-    if sel.status == "infeasible":
+    if sel.status in ("infeasible", "unknown"):
         warnings.append(sel.message)
     elif sel.status == "feasible":
         warnings.append(f"the set-up search hit setups.time_limit_s = {s.time_limit_s} s before proving "
@@ -205,7 +205,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     lo, hi = points.min(axis=0), points.max(axis=0)
     result = PlanResult(
         scanmill_version=scanmill.__version__,
-        status="infeasible" if sel.status == "infeasible" else "planned",
+        status={"infeasible": "infeasible", "unknown": "incomplete"}.get(sel.status, "planned"),
         message=sel.message,
         input=InputSummary(name=name, format=cloud.source_format, n_points=int(points.shape[0]),
                            units=config.input.units, bbox_min_mm=tuple(map(float, lo)),

@@ -1,8 +1,8 @@
 """The ``scanmill`` command line: plan a scan, write reference samples, print schemas and profiles.
 
 Exit status: 0 planned; 2 bad input or parameters (a message says what to fix); 3 planned but
-infeasible (no ``setups.max_setups`` orientations reach ``setups.coverage``; the best plan found is
-still written).
+infeasible or incomplete (no ``setups.max_setups`` orientations reach ``setups.coverage``, or the
+search time limit ran out first; the best plan found is still written).
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ def cmd_plan(args) -> int:
         print(f"warning: {w}")
     print("timings: " + ", ".join(f"{t.stage} {t.seconds:.2f} s" for t in r.timings))
     print(f"wrote {', '.join(str(p) for p in paths.values())}")
-    return EXIT_INFEASIBLE if r.status == "infeasible" else EXIT_OK
+    return EXIT_OK if r.status == "planned" else EXIT_INFEASIBLE
 
 
 def cmd_sample(args) -> int:

@@ -53,7 +53,7 @@ class JobInput(_Model):
 class JobResultSummary(_Model):
     """The headline of a finished plan; the whole plan is at ``links.result``."""
 
-    status: str = Field(..., description="plan.json 'status': 'planned' or 'infeasible'.", examples=["planned"])
+    status: str = Field(..., description="plan.json 'status': 'planned', 'infeasible' or 'incomplete'.", examples=["planned"])
     message: str = Field(..., description="plan.json 'message': one sentence for the operator.")
     n_setups: int = Field(..., ge=0, description="Number of set-ups (fixed tool orientations).")
     coverage: float = Field(..., ge=0, le=1, description="Fraction of sampled points the set-ups see.")

@@ -62,9 +62,11 @@ class Setup(_Out):
 
 
 class Selection(_Out):
-    status: Literal["optimal", "feasible", "infeasible"] = Field(
+    status: Literal["optimal", "feasible", "infeasible", "unknown"] = Field(
         ..., description="'optimal': proven minimum overlap for the fewest set-ups; 'feasible': the time limit "
-                         "stopped the proof (see gap); 'infeasible': no max_setups orientations reach the coverage.")
+                         "stopped the proof (see gap); 'infeasible': no max_setups orientations reach the coverage; "
+                         "'unknown': the time limit hit before any set of orientations reaching the coverage was "
+                         "found or ruled out (the best coverage found is reported).")
     solver: str
     k: int
     covered: int
@@ -95,9 +97,10 @@ class PlanResult(_Out):
 
     schema_version: Literal["1.0"] = SCHEMA_VERSION
     scanmill_version: str
-    status: Literal["planned", "infeasible"] = Field(
-        ..., description="'infeasible': the coverage cannot be reached with max_setups; the best set-ups found "
-                         "are still reported and segmented.")
+    status: Literal["planned", "infeasible", "incomplete"] = Field(
+        ..., description="'infeasible': the coverage cannot be reached with max_setups; 'incomplete': the search "
+                         "time limit ran out before the coverage was reached or ruled out. In both cases the best "
+                         "set-ups found are still reported and segmented.")
     message: str = Field(..., description="One sentence for the operator.")
     input: InputSummary
     parameters: PlanConfig

@@ -9,7 +9,7 @@
 4. downloads plan.json and every artifact to ``--out/<sample>-service/`` and prints where they are;
 5. stops the server (SIGTERM: it finishes cleanly).
 
-Exit status: 0 planned, 3 planned but infeasible, 1 the job failed or the service did not start.
+Exit status: 0 planned, 3 planned but infeasible or incomplete, 1 the job failed or the service did not start.
 Only the standard library and httpx are used on the client side, as any HTTP client could.
 """
 
@@ -158,7 +158,7 @@ def run(args) -> int:
             print(f"  warning: {w}")
         print(f"results: {out_dir}/ ({', '.join(sorted(p.name for p in out_dir.iterdir()))})")
         print(f"job: {url}/jobs/{job['id']} (kept in {Path(args.data_dir).resolve()})")
-        return 3 if plan["status"] == "infeasible" else 0
+        return 0 if plan["status"] == "planned" else 3
     finally:
         _say(t0, "stopping the service")
         stop_server(proc)

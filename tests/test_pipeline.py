@@ -123,3 +123,25 @@ def test_same_input_same_plan():
         assert np.array_equal(a.arrays[key], b.arrays[key]), key
     assert _strip_times(a.result.model_dump(mode="json")) == _strip_times(b.result.model_dump(mode="json"))
     assert a.result.normals.n_sampled > 0 and a.result.selection.k >= 1
+
+
+def test_search_time_out_before_any_answer_is_reported_as_incomplete(monkeypatch):
+    """A selection with status 'unknown' (time limit before coverage was reached or ruled out)
+    must still give a valid plan document, flagged 'incomplete', never a crash."""
+    import dataclasses
+
+    import planning.pipeline as pipeline
+    from planning.setups import select_setups
+
+    def timed_out(*args, **kwargs):
+        sel = select_setups(*args, **kwargs)
+        return dataclasses.replace(sel, status="unknown", lower_bound=None, gap=None,
+                                   message="time limit reached before 95 % coverage was found or ruled out")
+
+    monkeypatch.setattr(pipeline, "select_setups", timed_out)
+    s = half_sphere()
+    out = run_plan(Cloud(points=s.points, normals=s.normals, source_format="generated"),
+                   parse_config(PAPER_HALF_SPHERE))
+    assert out.result.status == "incomplete"
+    assert out.result.selection.status == "unknown"
+    assert any("time limit" in w for w in out.result.warnings)

@@ -9,26 +9,18 @@ from __future__ import annotations
 import io
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from planning.cloud import write_ply
+from planning.cloud import atomic_path, write_ply
 from planning.pipeline import PlanOutcome
 from planning.preview import UNCOVERED_COLOR, area_colors, render_preview
 
 
 def _atomic_bytes(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
 
 
 def plan_json_text(outcome: PlanOutcome) -> str:

@@ -29,6 +29,8 @@ import uuid
 from pathlib import Path
 from typing import BinaryIO, Iterable
 
+from planning.cloud import atomic_path
+
 JOB_ID_RE = re.compile(r"^[0-9a-f]{32}$")
 ARTIFACT_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
 #: File name extensions kept from an uploaded file's name (they drive format detection).
@@ -84,17 +86,8 @@ def fsync_dir(path: Path) -> None:
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary file in the same folder, fsync and rename."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
     fsync_dir(path.parent)
 
 

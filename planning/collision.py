@@ -1,53 +1,61 @@
-"""Global visibility (Makki 2010 §2.2.4): cloud collisions of a ball-end cutter and its holder.
+"""Global visibility (Makki 2010 §2.2.4): collisions of the cutter and its holder with the cloud.
 
 For a sampled point ``p = points[sample_index[i]]`` with unit normal ``n = normals[i]`` and a
-candidate tool axis ``t = axes[j]`` (unit, part frame, pointing from the part to the spindle) the
-ball of radius ``R`` touches ``p`` with its centre at ``c = p + R n``. For every cloud point ``q``
-let ``d = q - c``, ``a = d . t`` (height above the ball centre along the axis) and
-``rho = |d - a t|`` (radial distance from the axis). With ``eps = 1e-6`` mm:
+candidate tool axis ``t = axes[j]`` (unit, part frame, pointing from the part to the spindle) a
+ball-end cutter of radius ``R`` touches ``p`` with its ball centre at ``c = p + R n``. The tool
+assembly above the ball centre is a stack of coaxial cylinders (:class:`planning.tool.Segment`,
+``lo < a <= hi``, radius ``r``). For every obstacle point ``q`` (the cloud, plus optional extra
+obstacle points such as forbidden regions given as point clouds) let ``d = q - c``,
+``a = d . t`` (height above the ball centre along the axis) and ``rho = |d - a t|`` (distance
+from the axis). With ``EPS_MM = 1e-6``:
 
-* the cutter collides with ``q`` when ``0 < a <= L`` and ``rho < R - eps``
-  (``L = flute_length_mm``: the cylinder from the ball centre to the top of the flutes);
-* the holder collides with ``q`` when ``L < a <= L + H`` and ``rho < R_h - eps``
-  (``R_h = holder_radius_mm``, ``H = holder_length_mm``; ``H = None`` means an infinitely long
-  holder, ``R_h = None`` means no holder at all).
+    q collides with pair (i, j)  when, for some segment,  lo < a <= hi  and  rho < r - EPS_MM.
 
-The pair (i, j) is collision free when no cloud point collides. Points below the ball centre
+The pair is collision free when no obstacle point collides. Points below the ball centre
 (``a <= 0``) are left to the ball itself: the local gouge test belongs to the tool paths. The
 contact point and its surface neighbours lie at or below the centre for any admissible axis, and
-the ``eps`` keeps points exactly on the cylinder wall (a flat floor met by a tilted axis) free.
+``EPS_MM`` keeps points exactly on the cylinder wall (a flat floor met by a tilted axis) free.
 
-``brute_force_collision_free`` is the reference (every pair against every point).
-``cloud_collision_free`` is the fast method (DESIGN.md, Performance, "Global visibility"): per
-axis the cloud is projected onto the plane normal to the axis and rastered into square cells
-keeping the highest point of each cell. The question "is there a point within radius r of the
-axis and higher than the centre" is answered by two disk max filters evaluated at the centre's
-cell: one over every cell that *may* hold a point within r of a centre anywhere in its cell (it can
-only over-report) and one over the cells that lie *wholly* within r (it can only under-report).
-Pairs the two disagree on, and pairs of height-bounded questions (a finite flute length without a
-holder above it, a finite holder), get the exact test above on the points of the relevant cells,
-gathered through a CSR cell -> points index. Filter decisions keep a float margin, so a pair is
-only called free by a filter when every point is below the centre by more than rounding; the
-exact test uses the same arithmetic as the reference, so both agree pair for pair.
+``brute_force_collision_free`` is the reference: every pair against every point, in numpy.
+
+``cloud_collision_free`` is the fast method and gives the same answer pair for pair. Per axis
+the obstacles are projected onto the plane normal to the axis and binned into square cells (a
+counting sort, O(N)) keeping each cell's highest and lowest height along the axis; one raster
+per distinct segment radius, with cells of ``cell_fraction * r``. For each ball centre and
+segment, only the cells of the disk of radius ``r`` about the centre's projection are visited
+(row by row, the column interval that the disk covers, widened by a rounding slack); a cell is
+skipped when all its points are below ``lo`` or above ``hi`` by more than a rounding margin,
+otherwise its points get the exact test above, with the same floating-point expressions as the
+reference, and the pair stops at its first colliding point. This is the max-height raster of
+DESIGN.md ("Global visibility") evaluated per centre instead of per cell, so there is no
+undecided ring to re-check; it is compiled with numba and runs over the centres in parallel.
 """
 
 from __future__ import annotations
 
-from typing import Callable, Optional
+import math
+import os
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 from scipy import ndimage
 
 from planning.errors import ParameterError
+from planning.tool import Segment, ToolAssembly
 
 EPS_MM = 1e-6
-_MAX_GRID_CELLS = 4_000_000
-_MAX_PAIR_CELLS = 2_000_000
-_MAX_GATHER = 4_000_000
+_MAX_GRID_CELLS = 8_000_000
+_THREADS = max(1, min(2, os.cpu_count() or 1))
+
+try:  # numba compiles the per-axis kernels; import cost only when the module is used
+    import numba
+    from numba import njit
+except ImportError:  # pragma: no cover - numba is a declared dependency
+    numba = None
 
 
 # ----------------------------------------------------------------------------------------------
-# shared arithmetic (the reference and the fast exact step use exactly the same expressions)
+# shared arithmetic (the reference and the fast kernel use exactly the same expressions)
 
 def _inside(d: np.ndarray, t: np.ndarray, lo: float, hi: Optional[float], r: float) -> np.ndarray:
     """Bool per row of ``d`` (k,3): ``lo < a <= hi`` and ``rho < r - EPS_MM``."""
@@ -62,8 +70,40 @@ def _inside(d: np.ndarray, t: np.ndarray, lo: float, hi: Optional[float], r: flo
     return m
 
 
-def _validate(points, sample_index, normals, axes, tool_radius_mm, flute_length_mm,
-              holder_radius_mm, holder_length_mm, candidates):
+def _segments(tool) -> list[tuple[float, Optional[float], float]]:
+    if not isinstance(tool, ToolAssembly):
+        raise ParameterError("tool must be a planning.tool.ToolAssembly")
+    out = []
+    for s in tool.segments:
+        lo = float(s.lo_mm)
+        hi = None if s.hi_mm is None else float(s.hi_mm)
+        r = float(s.radius_mm)
+        if not (math.isfinite(lo) and (hi is None or math.isfinite(hi)) and math.isfinite(r)):
+            raise ParameterError("tool segments must be finite")
+        if lo < 0:
+            raise ParameterError(f"tool segment starts below the ball centre (lo_mm = {lo})")
+        if r - EPS_MM <= 0 or (hi is not None and hi <= lo):
+            continue            # an empty cylinder collides with nothing
+        out.append((lo, hi, r))
+    return out
+
+
+def _as_queries(segs):
+    """The same union of cylinders, with a segment made unbounded where the stack above it is
+    contiguous, unbounded and nowhere narrower (its points above ``hi`` collide anyway): an
+    unbounded query can be settled by the under-reporting filter alone."""
+    segs = sorted(segs, key=lambda s: s[0])
+    out = []
+    for k, (lo, hi, r) in enumerate(segs):
+        above = segs[k:]
+        ok = above[-1][1] is None and all(
+            a[1] is not None and a[1] == b[0] for a, b in zip(above[:-1], above[1:])) \
+            and all(s[2] >= r for s in above)
+        out.append((lo, None if ok else hi, r))
+    return out
+
+
+def _validate(points, sample_index, normals, axes, tool, candidates, obstacles):
     points = np.asarray(points, dtype=np.float64)
     sample_index = np.asarray(sample_index, dtype=np.int64).reshape(-1)
     normals = np.asarray(normals, dtype=np.float64)
@@ -79,49 +119,30 @@ def _validate(points, sample_index, normals, axes, tool_radius_mm, flute_length_
     if not np.all(np.isfinite(points)) or not np.all(np.isfinite(normals)) \
             or not np.all(np.isfinite(axes)):
         raise ParameterError("points, normals and axes must be finite")
-    R = float(tool_radius_mm)
-    L = float(flute_length_mm)
-    if not R > 0:
-        raise ParameterError(f"tool_radius_mm = {tool_radius_mm}: must be > 0")
-    if not L >= 0:
-        raise ParameterError(f"flute_length_mm = {flute_length_mm}: must be >= 0")
-    Rh = None if holder_radius_mm is None else float(holder_radius_mm)
-    H = None if holder_length_mm is None or Rh is None else float(holder_length_mm)
-    if Rh is not None and not Rh > 0:
-        raise ParameterError(f"holder_radius_mm = {holder_radius_mm}: must be > 0")
-    if H is not None and not H > 0:
-        raise ParameterError(f"holder_length_mm = {holder_length_mm}: must be > 0")
+    segs = _segments(tool)
     n, m = normals.shape[0], axes.shape[0]
     if candidates is not None:
         candidates = np.asarray(candidates, dtype=bool)
         if candidates.shape != (n, m):
             raise ParameterError(f"candidates must be ({n},{m}), got {candidates.shape}")
-    return points, sample_index, normals, axes, R, L, Rh, H, candidates
+    obst = points
+    if obstacles is not None:
+        extra = np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)
+        if not np.all(np.isfinite(extra)):
+            raise ParameterError("obstacle points must be finite")
+        obst = np.concatenate([points, extra]) if extra.size else points
+    return points, obst, sample_index, normals, axes, float(tool.radius_mm), segs, candidates
 
 
-def _queries(R, L, Rh, H):
-    """The collision region as a union of (lo, hi, r): lo < a <= hi (hi None: unbounded), rho < r-eps."""
-    if Rh is None:
-        return [(0.0, L, R)]
-    if H is None:
-        if Rh >= R:
-            # {0<a<=L, rho<R} u {a>L, rho<Rh} == {a>0, rho<R} u {a>L, rho<Rh}
-            return [(0.0, None, R), (L, None, Rh)]
-        # == {a>0, rho<Rh} u {0<a<=L, rho<R}
-        return [(0.0, None, Rh), (0.0, L, R)]
-    return [(0.0, L, R), (L, L + H, Rh)]
-
-
-def brute_force_collision_free(points, sample_index, normals, axes, *, tool_radius_mm,
-                               flute_length_mm, holder_radius_mm=None, holder_length_mm=None,
-                               candidates=None, progress: Optional[Callable] = None) -> np.ndarray:
-    """Reference for :func:`cloud_collision_free`: every pair against every cloud point.
+def brute_force_collision_free(points, sample_index, normals, axes, tool: ToolAssembly, *,
+                               candidates=None, obstacles=None,
+                               progress: Optional[Callable] = None) -> np.ndarray:
+    """Reference for :func:`cloud_collision_free`: every pair against every obstacle point.
 
     Same arguments, definitions and result; O(n * m * N), for small clouds and tests only.
     """
-    points, sample_index, normals, axes, R, L, Rh, H, candidates = _validate(
-        points, sample_index, normals, axes, tool_radius_mm, flute_length_mm,
-        holder_radius_mm, holder_length_mm, candidates)
+    points, obst, sample_index, normals, axes, R, segs, candidates = _validate(
+        points, sample_index, normals, axes, tool, candidates, obstacles)
     n, m = normals.shape[0], axes.shape[0]
     centres = points[sample_index] + R * normals
     out = np.zeros((n, m), dtype=bool)
@@ -130,10 +151,10 @@ def brute_force_collision_free(points, sample_index, normals, axes, *, tool_radi
         for i in range(n):
             if candidates is not None and not candidates[i, j]:
                 continue
-            d = points - centres[i]
-            hit = _inside(d, t, 0.0, L, R)
-            if Rh is not None:
-                hit |= _inside(d, t, L, None if H is None else L + H, Rh)
+            d = obst - centres[i]
+            hit = np.zeros(obst.shape[0], dtype=bool)
+            for lo, hi, r in segs:
+                hit |= _inside(d, t, lo, hi, r)
             out[i, j] = not hit.any()
         if progress is not None:
             progress(j + 1, m)
@@ -141,7 +162,7 @@ def brute_force_collision_free(points, sample_index, normals, axes, *, tool_radi
 
 
 # ----------------------------------------------------------------------------------------------
-# fast method
+# fast method (numba kernels)
 
 def _basis(t: np.ndarray):
     """Two unit vectors completing ``t`` to an orthonormal frame."""
@@ -196,220 +217,247 @@ def _disk_max(mz: np.ndarray, fp: np.ndarray) -> np.ndarray:
     return out
 
 
-class _AxisRaster:
-    """Points and centres projected along one axis, binned on a square grid (CSR cell -> points)."""
 
-    def __init__(self, px, py, pz, cx, cy, h, pad):
-        x0 = min(px.min(), cx.min()) - pad * h
-        y0 = min(py.min(), cy.min()) - pad * h
-        nx = int(np.floor((max(px.max(), cx.max()) - x0) / h)) + pad + 2
-        ny = int(np.floor((max(py.max(), cy.max()) - y0) / h)) + pad + 2
-        self.nx, self.ny = nx, ny
-        self.x0, self.y0, self.h = x0, y0, h
-        self.cx, self.cy = cx, cy
-        pix = np.floor((px - x0) / h).astype(np.int64)
-        piy = np.floor((py - y0) / h).astype(np.int64)
-        self.cix = np.floor((cx - x0) / h).astype(np.int64)
-        self.ciy = np.floor((cy - y0) / h).astype(np.int64)
-        cell = pix * ny + piy
-        order = np.lexsort((-pz, cell))      # by cell, highest point first within a cell
-        sc = cell[order]
-        self.sz = pz[order]
-        self.sx = px[order]
-        self.sy = py[order]
-        self.order = order
+if numba is not None:
+    @njit(cache=True, nogil=True)
+    def _project(x, u, v, t):
+        """Rows of ``x`` (k,3) as (x.u, x.v, x.t), the last in the reference's operation order."""
+        out = np.empty((x.shape[0], 3))
+        for i in range(x.shape[0]):
+            a, b, c = x[i, 0], x[i, 1], x[i, 2]
+            out[i, 0] = a * u[0] + b * u[1] + c * u[2]
+            out[i, 1] = a * v[0] + b * v[1] + c * v[2]
+            out[i, 2] = a * t[0] + b * t[1] + c * t[2]
+        return out
+
+    @njit(cache=True, nogil=True)
+    def _bounds(a, b):
+        """Smallest and largest of columns 0 and 1 over the rows of ``a`` and ``b``."""
+        lo0 = lo1 = np.inf
+        hi0 = hi1 = -np.inf
+        for x in (a, b):
+            for i in range(x.shape[0]):
+                lo0 = min(lo0, x[i, 0])
+                hi0 = max(hi0, x[i, 0])
+                lo1 = min(lo1, x[i, 1])
+                hi1 = max(hi1, x[i, 1])
+        return lo0, lo1, hi0, hi1
+
+    @njit(cache=True, nogil=True)
+    def _raster(obst, proj, x0, y0, h, nx, ny):
+        """Counting sort of the obstacle points into square cells of side h.
+
+        Returns the points in cell order with their projections (k,6: x y z pu pv pz), the
+        start of every cell's run (ncell+1), and every cell's highest and lowest pz."""
+        npt = obst.shape[0]
         ncell = nx * ny
-        self.start = np.searchsorted(sc, np.arange(ncell + 1))
-        self.count = np.diff(self.start)
-        mz = np.full(ncell, -np.inf)
-        nz = self.count > 0
-        firsts = self.start[:-1][nz]
-        mz[nz] = np.maximum.reduceat(pz[order], firsts)
-        self.mz_flat = mz
-        self.mz = mz.reshape(nx, ny)
+        cell = np.empty(npt, np.int64)
+        start = np.zeros(ncell + 1, np.int64)
+        cmax = np.full(ncell, -np.inf)
+        cmin = np.full(ncell, np.inf)
+        for i in range(npt):
+            ix = min(max(int(math.floor((proj[i, 0] - x0) / h)), 0), nx - 1)
+            iy = min(max(int(math.floor((proj[i, 1] - y0) / h)), 0), ny - 1)
+            c = ix * ny + iy
+            cell[i] = c
+            start[c + 1] += 1
+            z = proj[i, 2]
+            if z > cmax[c]:
+                cmax[c] = z
+            if z < cmin[c]:
+                cmin[c] = z
+        for c in range(ncell):
+            start[c + 1] += start[c]
+        fill = start[:-1].copy()
+        pts = np.empty((npt, 6))
+        for i in range(npt):
+            c = cell[i]
+            s = fill[c]
+            fill[c] = s + 1
+            pts[s, 0] = obst[i, 0]
+            pts[s, 1] = obst[i, 1]
+            pts[s, 2] = obst[i, 2]
+            pts[s, 3] = proj[i, 0]
+            pts[s, 4] = proj[i, 1]
+            pts[s, 5] = proj[i, 2]
+        return pts, start, cmax, cmin
 
-
-def _exact(raster: _AxisRaster, points, centres_sel, t, thr, lo, hi, r, pair_rows, dis, djs, tol,
-           slack):
-    """Exact test of pairs ``pair_rows`` (rows into centres_sel/thr) over the given cell offsets.
-
-    Returns bool per pair row: some point collides."""
-    hit = np.zeros(pair_rows.size, dtype=bool)
-    k = dis.size
-    if k == 0 or pair_rows.size == 0:
-        return hit
-    step = max(1, _MAX_PAIR_CELLS // k)
-    ny = raster.ny
-    for s in range(0, pair_rows.size, step):
-        rows = pair_rows[s:s + step]
-        cells = (raster.cix[rows][:, None] + dis[None, :]) * ny + (raster.ciy[rows][:, None] + djs[None, :])
-        keep = raster.mz_flat[cells] > (thr[rows] - tol)[:, None]
-        loc, col = np.nonzero(keep)
-        if loc.size == 0:
-            continue
-        # keep only the cells that may hold a point within r of this very centre (not just of
-        # some centre in its cell)
-        rl = rows[loc]
-        hx = raster.h
-        ix = (raster.cix[rl] + dis[col]) * hx + raster.x0
-        iy = (raster.ciy[rl] + djs[col]) * hx + raster.y0
-        pcx, pcy = raster.cx[rl], raster.cy[rl]
-        gx = np.maximum(np.maximum(ix - pcx, pcx - (ix + hx)), 0.0)
-        gy = np.maximum(np.maximum(iy - pcy, pcy - (iy + hx)), 0.0)
-        lim = r - EPS_MM + slack
-        near = gx * gx + gy * gy < lim * lim
-        loc, col = loc[near], col[near]
-        if loc.size == 0:
-            continue
-        cc = cells[loc, col]
-        # only the points of a cell higher than the threshold matter: binary search in the
-        # cell's run, sorted by decreasing height
-        th = (thr[rows] - tol)[loc]
-        lo_i = raster.start[cc].copy()
-        hi_i = lo_i + raster.count[cc]
-        act = np.flatnonzero(lo_i < hi_i)
-        while act.size:
-            mid = (lo_i[act] + hi_i[act]) // 2
-            above = raster.sz[mid] > th[act]
-            lo_i[act[above]] = mid[above] + 1
-            hi_i[act[~above]] = mid[~above]
-            act = act[lo_i[act] < hi_i[act]]
-        cnt = lo_i - raster.start[cc]
-        # split so the gathered points stay bounded
-        csum = np.cumsum(cnt)
-        bounds = [0]
-        base = 0
-        while bounds[-1] < cc.size:
-            nxt = int(np.searchsorted(csum, base + _MAX_GATHER, side="right"))
-            nxt = max(nxt, bounds[-1] + 1)
-            bounds.append(min(nxt, cc.size))
-            base = int(csum[bounds[-1] - 1])
-        for b0, b1 in zip(bounds[:-1], bounds[1:]):
-            c_cnt = cnt[b0:b1]
-            tot = int(c_cnt.sum())
-            if tot == 0:
+    @njit(cache=True, nogil=True)
+    def _query(sorted_pts, centres, rows, t, cx, cy, cz, lo, hi, bounded, r, start, cmax, cmin,
+               x0, y0, h, nx, ny, slack, tol, hit):
+        """Set ``hit[k]`` when an obstacle point lies in segment (lo, hi, r) of centre rows[k]."""
+        rr = r - 1e-6 + slack
+        r_eff = r - 1e-6
+        rr2 = rr * rr
+        r2_in = r_eff * r_eff * (1.0 - 1e-12)
+        r2_out = r_eff * r_eff * (1.0 + 1e-12)
+        t0, t1, t2 = t[0], t[1], t[2]
+        for k in range(rows.shape[0]):
+            if hit[k]:
                 continue
-            owner = np.repeat(loc[b0:b1], c_cnt)
-            first = np.repeat(raster.start[cc[b0:b1]] - (np.cumsum(c_cnt) - c_cnt), c_cnt)
-            sidx = first + np.arange(tot)
-            # 2-D prefilter on the projected distance (conservative by slack), then the exact test
-            ro = rows[owner]
-            ex = raster.sx[sidx] - raster.cx[ro]
-            ey = raster.sy[sidx] - raster.cy[ro]
-            cand = np.flatnonzero(ex * ex + ey * ey < lim * lim)
-            if cand.size == 0:
-                continue
-            own = owner[cand]
-            d = points[raster.order[sidx[cand]]] - centres_sel[rows[own]]
-            ins = _inside(d, t, lo, hi, r)
-            if ins.any():
-                hit[s + np.unique(own[ins])] = True
-    return hit
+            i = rows[k]
+            c0, c1, c2 = centres[i, 0], centres[i, 1], centres[i, 2]
+            px, py = cx[k], cy[k]
+            thr_lo = cz[k] + lo - tol
+            thr_hi = cz[k] + hi + tol
+            ix0 = max(int(math.floor((px - rr - x0) / h)), 0)
+            ix1 = min(int(math.floor((px + rr - x0) / h)), nx - 1)
+            found = False
+            for ix in range(ix0, ix1 + 1):
+                if found:
+                    break
+                xa = x0 + ix * h
+                gx = 0.0
+                if px < xa:
+                    gx = xa - px
+                elif px > xa + h:
+                    gx = px - (xa + h)
+                if gx >= rr:
+                    continue
+                half = math.sqrt(rr * rr - gx * gx)
+                iy0 = max(int(math.floor((py - half - y0) / h)), 0)
+                iy1 = min(int(math.floor((py + half - y0) / h)), ny - 1)
+                base = ix * ny
+                for iy in range(iy0, iy1 + 1):
+                    cc = base + iy
+                    if cmax[cc] <= thr_lo:
+                        continue
+                    if bounded and cmin[cc] > thr_hi:
+                        continue
+                    for s in range(start[cc], start[cc + 1]):
+                        # projected prefilter, conservative by the rounding margins
+                        if sorted_pts[s, 5] <= thr_lo:
+                            continue
+                        if bounded and sorted_pts[s, 5] > thr_hi:
+                            continue
+                        e0 = sorted_pts[s, 3] - px
+                        e1 = sorted_pts[s, 4] - py
+                        if e0 * e0 + e1 * e1 >= rr2:
+                            continue
+                        d0 = sorted_pts[s, 0] - c0
+                        d1 = sorted_pts[s, 1] - c1
+                        d2 = sorted_pts[s, 2] - c2
+                        a = d0 * t0 + d1 * t1 + d2 * t2
+                        if a > lo and ((not bounded) or a <= hi):
+                            w0 = d0 - a * t0
+                            w1 = d1 - a * t1
+                            w2 = d2 - a * t2
+                            w = w0 * w0 + w1 * w1 + w2 * w2
+                            # rho < r_eff decided on the square where it is clear-cut (the
+                            # relative margin dwarfs rounding); sqrt, as the reference, otherwise
+                            if w < r2_in:
+                                found = True
+                                break
+                            if w <= r2_out and math.sqrt(w) < r_eff:
+                                found = True
+                                break
+                    if found:
+                        break
+            if found:
+                hit[k] = True
 
 
-def cloud_collision_free(points, sample_index, normals, axes, *, tool_radius_mm, flute_length_mm,
-                         holder_radius_mm=None, holder_length_mm=None, candidates=None,
-                         progress: Optional[Callable] = None,
-                         cell_fraction: float = 0.2) -> np.ndarray:
-    """Bool (n, m): True where sample i machined along axis j touches no cloud point.
+def cloud_collision_free(points, sample_index, normals, axes, tool: ToolAssembly, *,
+                         candidates=None, obstacles=None, progress: Optional[Callable] = None,
+                         cell_fraction: float = 0.35) -> np.ndarray:
+    """Bool (n, m): True where sample i machined along axis j leaves every obstacle point outside
+    the tool assembly (Makki 2010 §2.2.4, cloud part of the global visibility).
 
-    ``points`` (N,3) is the whole cloud; ``sample_index`` (n,) picks the sampled points and
+    ``points`` (N,3) mm is the whole cloud; ``sample_index`` (n,) picks the sampled points and
     ``normals`` (n,3) their unit outward normals; ``axes`` (m,3) are unit tool axes in the part
-    frame pointing from the part to the spindle. A cloud point ``q`` collides with pair (i, j) when,
-    with ``c = points[sample_index[i]] + R normals[i]``, ``d = q - c``, ``a = d . t`` and
-    ``rho = |d - a t|``: ``0 < a <= flute_length_mm`` and ``rho < R - 1e-6`` (cutter), or
-    ``flute_length_mm < a <= flute_length_mm + holder_length_mm`` and
-    ``rho < holder_radius_mm - 1e-6`` (holder; ``holder_length_mm=None``: unbounded;
-    ``holder_radius_mm=None``: no holder). Points below the ball centre (``a <= 0``) are ignored:
-    the local gouge test belongs to the tool paths. See the module docstring for the method.
+    frame pointing from the part to the spindle; ``tool`` gives the ball radius ``R`` (ball centre
+    ``c = p + R n``) and the cutter, shank and holder cylinders above the centre. ``obstacles``
+    (K,3) mm: extra obstacle points (forbidden regions given as point clouds) checked like the
+    cloud. The collision rule is in the module docstring; the ball's lower half is not tested
+    (local gouging belongs to the tool paths).
 
     ``candidates`` (n,m) bool, optional: only these pairs are evaluated, the others are False.
-    ``progress(done_axes, m)`` is called after each axis. ``cell_fraction`` sets the raster cell to
-    that fraction of the smallest query radius (at least 1/8 of each query radius; it changes
-    speed only, never the answer). Agrees with
-    :func:`brute_force_collision_free` pair for pair; never calls a colliding pair free.
+    ``progress(done_axes, m)`` is called after each axis. ``cell_fraction`` sets the raster cell
+    to that fraction of each segment radius (speed only, never the answer). Agrees with
+    :func:`brute_force_collision_free` pair for pair: it never calls a colliding pair free.
     """
-    points, sample_index, normals, axes, R, L, Rh, H, candidates = _validate(
-        points, sample_index, normals, axes, tool_radius_mm, flute_length_mm,
-        holder_radius_mm, holder_length_mm, candidates)
-    if not 0 < float(cell_fraction) <= 1:
-        raise ParameterError("cell_fraction must be in (0, 1]")
+    points, obst, sample_index, normals, axes, R, segs, candidates = _validate(
+        points, sample_index, normals, axes, tool, candidates, obstacles)
+    if not 0 < float(cell_fraction) <= 2:
+        raise ParameterError("cell_fraction must be in (0, 2]")
     n, m = normals.shape[0], axes.shape[0]
     out = np.zeros((n, m), dtype=bool)
     if n == 0 or m == 0:
         return out
-    centres = points[sample_index] + R * normals
-    scale = float(max(np.abs(points).max(), np.abs(centres).max(), 1.0))
-    slack = 1e-9 * scale      # covers rounding of projections and cell assignment
-    tol = 1e-9 * scale        # height margin of the filter decisions
-    queries = [q for q in _queries(R, L, Rh, H) if q[2] - EPS_MM > 0 and (q[1] is None or q[1] > q[0])]
-    ext = float(np.ptp(points, axis=0).max() + 2 * R) if points.shape[0] else 1.0
-    r_min = min(q[2] for q in queries) if queries else R
-    def one_axis(j):
-        t = axes[j] / np.linalg.norm(axes[j])
-        t_ref = axes[j]   # the exact test uses the axis as given, like the reference
-        rows_all = np.arange(n) if candidates is None else np.flatnonzero(candidates[:, j])
-        if rows_all.size == 0:
-            return rows_all, np.zeros(0, dtype=bool)
-        u, v = _basis(t)
-        px = points @ u
-        py = points @ v
-        pz = points[:, 0] * t_ref[0] + points[:, 1] * t_ref[1] + points[:, 2] * t_ref[2]
-        cs = centres[rows_all]
-        cx = cs @ u
-        cy = cs @ v
-        cz = cs[:, 0] * t_ref[0] + cs[:, 1] * t_ref[1] + cs[:, 2] * t_ref[2]
-        hit = np.zeros(rows_all.size, dtype=bool)
-        for lo, hi, r in queries:
-            todo = np.flatnonzero(~hit)
-            if todo.size == 0:
-                break
-            r_eff = r - EPS_MM
-            # one cell size for all queries, set by the smallest radius (a wide holder disk
-            # with fine cells has a thin undecided ring: far fewer pairs and points to check)
-            h = cell_fraction * max(r_min, r / 8.0)
-            while (ext / h + 10) ** 2 > _MAX_GRID_CELLS:
-                h *= 1.5
-            k, di, dj, over, under = _offsets(r_eff, h, slack)
-            raster = _AxisRaster(px, py, pz, cx, cy, h, k + 1)
-            thr = cz + lo
-            ci, cj = raster.cix[todo], raster.ciy[todo]
-            mo = _disk_max(raster.mz, over)[ci, cj]
-            sure_free = mo <= thr[todo] - tol
-            if hi is None:
-                mu = _disk_max(raster.mz, under)[ci, cj]
-                sure_hit = mu > thr[todo] + tol
-                hit[todo[sure_hit & ~sure_free]] = True
-                amb = ~sure_free & ~sure_hit
-                ring = over & ~under
-                amb_ring = amb & (mu <= thr[todo] - tol)    # wholly-inside cells all below centre
-                amb_full = amb & ~amb_ring
-                for sel, fp in ((amb_ring, ring), (amb_full, over)):
-                    rows = todo[sel]
-                    if rows.size:
-                        hit[rows] |= _exact(raster, points, cs, t_ref, thr, lo, hi, r, rows,
-                                            di[fp], dj[fp], tol, slack)
-            else:
-                rows = todo[~sure_free]
-                if rows.size:
-                    hit[rows] |= _exact(raster, points, cs, t_ref, thr, lo, hi, r, rows,
-                                        di[over], dj[over], tol, slack)
-        return rows_all, hit
+    centres = np.ascontiguousarray(points[sample_index] + R * normals)
+    obst = np.ascontiguousarray(obst)
+    scale = float(max(np.abs(obst).max(), np.abs(centres).max(), 1.0))
+    slack = 1e-9 * scale     # rounding of projections and of the cell assignment, mm
+    tol = 1e-9 * scale       # height margin of the cell skips, mm
+    ext = float(max(np.ptp(obst, axis=0).max(), np.ptp(centres, axis=0).max())) + 1.0
+    segs = _as_queries(segs)
+    radii = sorted({r for _, _, r in segs})
+    cand_t = None if candidates is None else np.ascontiguousarray(candidates.T)
 
-    # axes are independent; numpy releases the GIL in the heavy array work, so two threads
-    # overlap well (results and progress stay in axis order)
-    workers = min(2, m)
+    def one_axis(j):
+        t_ref = np.ascontiguousarray(axes[j])     # the exact test uses the axis as given
+        rows = np.arange(n) if cand_t is None else np.flatnonzero(cand_t[j])
+        if rows.size and segs:
+            t = t_ref / np.linalg.norm(t_ref)
+            u, v = _basis(t)
+            proj = _project(obst, u, v, t_ref)
+            cs = centres[rows]
+            cproj = _project(cs, u, v, t_ref)
+            cx, cy, cz = cproj[:, 0], cproj[:, 1], cproj[:, 2]
+            bx0, by0, bx1, by1 = _bounds(proj, cproj)
+            hit = np.zeros(rows.size, dtype=np.bool_)
+            for r in radii:
+                h = max(cell_fraction * r, ext / math.sqrt(_MAX_GRID_CELLS))
+                k_pad = int(math.ceil((r + slack) / h)) + 3
+                x0 = bx0 - k_pad * h
+                y0 = by0 - k_pad * h
+                nx = int((bx1 - x0) / h) + k_pad + 2
+                ny = int((by1 - y0) / h) + k_pad + 2
+                spts, start, cmax, cmin = _raster(obst, proj, x0, y0, h, nx, ny)
+                # per centre cell: the highest point of every cell that may come within r of a
+                # centre anywhere in the cell (over-reports) and of the cells wholly within r of
+                # every such centre (under-reports)
+                _, _, _, over, under = _offsets(r - EPS_MM, h, slack)
+                mz = cmax.reshape(nx, ny)
+                ccell = np.floor((cx - x0) / h).astype(np.int64) * ny \
+                    + np.floor((cy - y0) / h).astype(np.int64)
+                m_over = _disk_max(mz, over).ravel()[ccell]
+                m_under = _disk_max(mz, under).ravel()[ccell] if under.any() else None
+                for lo, hi, rs in segs:
+                    if rs != r:
+                        continue
+                    thr = cz + lo
+                    todo = ~hit & (m_over > thr - tol)          # the others are surely free
+                    if hi is None and m_under is not None:
+                        sure = todo & (m_under > thr + tol)     # a point surely inside
+                        hit |= sure
+                        todo &= ~sure
+                    sel = np.flatnonzero(todo)
+                    if sel.size == 0:
+                        continue
+                    # neighbouring centres read the same cells: visit them in cell order
+                    sub = np.zeros(sel.size, dtype=np.bool_)
+                    _query(spts, cs, sel, t_ref, cx[sel], cy[sel], cz[sel], lo,
+                           0.0 if hi is None else hi, hi is not None, r, start, cmax, cmin,
+                           x0, y0, h, nx, ny, slack, tol, sub)
+                    hit[sel] |= sub
+            return rows, hit
+        return rows, np.zeros(rows.size, dtype=np.bool_)
+
+    # axes are independent and the kernels release the GIL: two threads (the cores here)
+    workers = min(_THREADS, m)
     if workers > 1:
         from concurrent.futures import ThreadPoolExecutor
         with ThreadPoolExecutor(max_workers=workers) as ex:
-            for j, (rows_all, hit) in enumerate(ex.map(one_axis, range(m))):
-                out[rows_all, j] = ~hit
+            for j, (rows, hit) in enumerate(ex.map(one_axis, range(m))):
+                out[rows, j] = ~hit
                 if progress is not None:
                     progress(j + 1, m)
     else:
         for j in range(m):
-            rows_all, hit = one_axis(j)
-            out[rows_all, j] = ~hit
+            rows, hit = one_axis(j)
+            out[rows, j] = ~hit
             if progress is not None:
                 progress(j + 1, m)
     return out
+

@@ -7,6 +7,18 @@ import pytest
 
 from planning.collision import brute_force_collision_free, cloud_collision_free
 from planning.errors import ParameterError
+from planning.tool import Segment, ToolAssembly, ball_tool
+
+
+def _tool(tool_radius_mm, flute_length_mm, holder_radius_mm=None, holder_length_mm=None):
+    """Cutter cylinder of radius R up to flute_length_mm above the ball centre, then an optional
+    holder (radius, length; length None = unbounded)."""
+    L = float(flute_length_mm)
+    segs = [Segment(0.0, L, tool_radius_mm, "cutter")]
+    if holder_radius_mm is not None:
+        segs.append(Segment(L, None if holder_length_mm is None else L + holder_length_mm,
+                            holder_radius_mm, "holder"))
+    return ToolAssembly(tool_radius_mm, tuple(segs), 100.0)
 
 
 def _unit(v):
@@ -92,8 +104,8 @@ def test_fast_matches_brute_force(cloud, tool):
     sample = rng.choice(pts.shape[0], size=min(60, pts.shape[0]), replace=False)
     axes = np.concatenate([_axes(rng, 20), _axes(rng, 6, hemisphere=False), [[0, 0, 1.0]]])
     kw = TOOLS[tool]
-    fast = cloud_collision_free(pts, sample, nrm[sample], axes, **kw)
-    ref = brute_force_collision_free(pts, sample, nrm[sample], axes, **kw)
+    fast = cloud_collision_free(pts, sample, nrm[sample], axes, tool=_tool(**kw))
+    ref = brute_force_collision_free(pts, sample, nrm[sample], axes, tool=_tool(**kw))
     assert fast.shape == ref.shape == (sample.size, axes.shape[0])
     assert not np.any(fast & ~ref), "a colliding pair was called free"
     assert np.array_equal(fast, ref)
@@ -110,9 +122,9 @@ def test_candidates_and_progress():
     calls = []
     kw = dict(tool_radius_mm=2.0, flute_length_mm=8.0, holder_radius_mm=5.0)
     fast = cloud_collision_free(pts, sample, nrm[sample], axes, candidates=cand,
-                                progress=lambda d, t: calls.append((d, t)), **kw)
-    ref = brute_force_collision_free(pts, sample, nrm[sample], axes, candidates=cand, **kw)
-    full = brute_force_collision_free(pts, sample, nrm[sample], axes, **kw)
+                                progress=lambda d, t: calls.append((d, t)), tool=_tool(**kw))
+    ref = brute_force_collision_free(pts, sample, nrm[sample], axes, candidates=cand, tool=_tool(**kw))
+    full = brute_force_collision_free(pts, sample, nrm[sample], axes, tool=_tool(**kw))
     assert np.array_equal(fast, ref)
     assert not np.any(fast & ~cand)
     assert np.array_equal(fast[cand], full[cand])
@@ -130,7 +142,7 @@ def test_flat_plate_never_collides():
     axes = np.concatenate([_axes(rng, 40, max_deg=89.0), [[0, 0, 1.0], [1, 0, 1e-3]]])
     axes = _unit(axes)
     sample = np.arange(pts.shape[0])
-    free = cloud_collision_free(pts, sample, nrm, axes, tool_radius_mm=3.0, flute_length_mm=50.0)
+    free = cloud_collision_free(pts, sample, nrm, axes, tool=_tool(tool_radius_mm=3.0, flute_length_mm=50.0))
     assert free.all()
 
 
@@ -150,21 +162,87 @@ def test_post_collides_when_tilt_reaches_its_top():
     ths = np.concatenate([np.linspace(0, th_star - 0.5, 8), np.linspace(th_star + 0.5, 80, 8)])
     axes = np.stack([np.sin(np.radians(ths)), np.zeros_like(ths), np.cos(np.radians(ths))], 1)
     kw = dict(tool_radius_mm=R, flute_length_mm=40.0)
-    free = cloud_collision_free(pts, [i0], nrm[[i0]], axes, **kw)[0]
+    free = cloud_collision_free(pts, [i0], nrm[[i0]], axes, tool=_tool(**kw))[0]
     assert np.array_equal(free, ths < th_star)
     # tilting away from the post (towards -x) never meets it, nor the wall at y = 12
     away = axes * np.array([-1, 1, 1])
-    assert cloud_collision_free(pts, [i0], nrm[[i0]], away, **kw).all()
+    assert cloud_collision_free(pts, [i0], nrm[[i0]], away, tool=_tool(**kw)).all()
     # a short cutter with no holder fits under the post top: a <= L cuts off the line
-    assert np.array_equal(free, brute_force_collision_free(pts, [i0], nrm[[i0]], axes, **kw)[0])
+    assert np.array_equal(free, brute_force_collision_free(pts, [i0], nrm[[i0]], axes, tool=_tool(**kw))[0])
 
 
 def test_invalid_arguments():
     pts = np.zeros((4, 3))
+    tool = _tool(tool_radius_mm=1, flute_length_mm=1)
     with pytest.raises(ParameterError):
-        cloud_collision_free(pts, [0], [[0, 0, 1]], [[0, 0, 1]], tool_radius_mm=0, flute_length_mm=1)
+        cloud_collision_free(pts, [0], [[0, 0, 1]], [[0, 0, 1]], tool=None)
     with pytest.raises(ParameterError):
-        cloud_collision_free(pts, [9], [[0, 0, 1]], [[0, 0, 1]], tool_radius_mm=1, flute_length_mm=1)
+        cloud_collision_free(pts, [9], [[0, 0, 1]], [[0, 0, 1]], tool=tool)
     with pytest.raises(ParameterError):
-        cloud_collision_free(pts, [0], [[0, 0, 1]], [[0, 0, 1]], tool_radius_mm=1, flute_length_mm=1,
-                             candidates=np.ones((2, 1), bool))
+        cloud_collision_free(pts, [0], [[0, 0, 1]], [[0, 0, 1]], tool=tool, candidates=np.ones((2, 1), bool))
+    with pytest.raises(ParameterError):
+        cloud_collision_free(pts, [0], [[0, 0, 1]], [[0, 0, 1]], tool=tool, obstacles=[[np.nan, 0, 0]])
+    with pytest.raises(ParameterError):
+        ball_tool(0.0, flute_length_mm=1)
+    with pytest.raises(ParameterError):
+        ball_tool(3.0, flute_length_mm=2)           # flutes shorter than the ball radius
+    with pytest.raises(ParameterError):
+        ball_tool(3.0, flute_length_mm=10, stickout_mm=5)
+
+
+STACKS = [
+    # a narrow neck under a wide holder, then a cone
+    ball_tool(2.0, flute_length_mm=5.0, stickout_mm=12.0, shank_radius_mm=1.5,
+              holder=[(5.0, 6.0, 8.0), (10.0, None, None)]),
+    # a finite two-step holder, nothing above it
+    ball_tool(3.0, flute_length_mm=8.0, stickout_mm=14.0, holder=[(6.0, 5.0, None), (9.0, 4.0, None)]),
+]
+
+
+@pytest.mark.parametrize("stack", range(len(STACKS)))
+@pytest.mark.parametrize("cloud", ["bumpy", "post_wall", "noise"])
+def test_tool_stacks_and_obstacles_match_brute_force(stack, cloud):
+    rng = np.random.default_rng(50 + stack * 7 + ["bumpy", "post_wall", "noise"].index(cloud))
+    pts, nrm = {"bumpy": _bumpy, "post_wall": _post_wall, "noise": _noise_cloud}[cloud](rng)
+    sample = rng.choice(pts.shape[0], size=50, replace=False)
+    axes = np.concatenate([_axes(rng, 16), _axes(rng, 4, hemisphere=False)])
+    # extra forbidden points: a small block floating above part of the cloud
+    extra = rng.uniform([-6, -6, 9], [0, 0, 14], size=(40, 3))
+    tool = STACKS[stack]
+    for obst in (None, extra):
+        fast = cloud_collision_free(pts, sample, nrm[sample], axes, tool, obstacles=obst)
+        ref = brute_force_collision_free(pts, sample, nrm[sample], axes, tool, obstacles=obst)
+        assert np.array_equal(fast, ref)
+        assert ref.any() and not ref.all()
+    # the extra obstacles can only remove pairs
+    assert not np.any(cloud_collision_free(pts, sample, nrm[sample], axes, tool, obstacles=extra)
+                      & ~cloud_collision_free(pts, sample, nrm[sample], axes, tool))
+
+
+def test_cell_size_changes_speed_only():
+    rng = np.random.default_rng(11)
+    pts, nrm = _bumpy(rng, n=900)
+    sample = np.arange(0, pts.shape[0], 3)
+    axes = _axes(rng, 24)
+    tool = STACKS[0]
+    ref = cloud_collision_free(pts, sample, nrm[sample], axes, tool)
+    for cf in (0.05, 0.2, 1.0, 2.0):
+        assert np.array_equal(cloud_collision_free(pts, sample, nrm[sample], axes, tool, cell_fraction=cf), ref)
+
+
+def test_ball_tool_geometry():
+    t = ball_tool(3.0, flute_length_mm=12.0, stickout_mm=30.0, shank_radius_mm=2.5,
+                  holder=[(10.0, 40.0, None), (10.0, 20.0, 20.0)])
+    cutter, shank = t.segments[0], t.segments[1]
+    assert (cutter.lo_mm, cutter.hi_mm, cutter.radius_mm, cutter.part) == (0.0, 9.0, 3.0, "cutter")
+    assert (shank.lo_mm, shank.hi_mm, shank.radius_mm, shank.part) == (9.0, 27.0, 2.5, "shank")
+    holder = t.holder_segments
+    assert holder[0].lo_mm == 27.0 and holder[0].hi_mm == 67.0
+    cone = holder[1:]
+    # the cone 10 -> 20 mm radius over 20 mm is sliced into cylinders that contain it
+    assert cone[0].lo_mm == 67.0 and cone[-1].hi_mm == pytest.approx(87.0)
+    for s in cone:
+        r_top = 10.0 + 10.0 * (s.hi_mm - 67.0) / 20.0
+        assert r_top - 1e-9 <= s.radius_mm <= r_top + 0.1 + 1e-9
+    assert t.gauge_length_mm == pytest.approx(30.0 + 60.0)
+    assert t.top_mm == pytest.approx(87.0)

@@ -10,6 +10,30 @@ are in :mod:`planning.machine`):
 * ``tilt`` is the A axis (rotation about machine X) or the B axis (about machine Y);
 * ``rotary`` is the C axis (about machine Z when the tilt is 0);
 * with every axis at 0 the tool axis is part +Z.
+
+Linear-axis geometry (translational travel, Makki 2010 §2.2.2, Fig. 4c; used by
+:mod:`planning.travel`). All lengths in mm. Every field below is optional, so profiles written
+before they existed stay valid and keep their behaviour:
+
+* **Table frame**: origin at the table-top centre, on the C axis, with every rotary axis at 0;
+  Z up (normal to the table top). A part-frame point ``p`` sits at ``p + placement_mm`` in it.
+* **Machine frame**: fixed to the machine's rotary pivot; it coincides with the table frame when
+  every rotary axis is at 0. The linear axes X/Y/Z position a **controlled point** in this frame:
+  the spindle gauge point (tool axis on the gauge line) for table-table kinematics, the head's
+  rotation centre (where the C and A/B axes meet, on the spindle axis) for head-head kinematics.
+  Only the relative position of tool and table matters, so it does not matter which of them the
+  real machine moves.
+* ``x_limits_mm`` / ``y_limits_mm`` / ``z_limits_mm``: ``[min, max]`` machine coordinates of the
+  controlled point, each spanning exactly the declared ``*_travel_mm`` (within
+  :data:`LIMIT_SPAN_TOL_MM`). Defaults: X and Y centred on the table centre
+  (``[-travel/2, +travel/2]``); Z from the lowest gauge-line height
+  :data:`DEFAULT_MIN_GAUGE_HEIGHT_MM` (100 mm) above the table top with the rotary axes at 0 (plus
+  ``head_pivot_length_mm`` for head-head, whose controlled point is the pivot) up over the travel.
+* ``table_pivot_mm`` (table-table only): a point of the tilt (A or B) axis in the table frame;
+  default ``[0, 0, 0]`` (the tilt axis passes through the table-top centre). A trunnion axis
+  80 mm below the table top is ``[0, 0, -80]``. The C axis is the table frame's Z axis.
+* ``head_pivot_length_mm`` (head-head only): distance along the tool axis from the spindle gauge
+  line up to the head's rotation centre; default 0. The spindle axis passes through that centre.
 """
 
 from __future__ import annotations
@@ -17,23 +41,35 @@ from __future__ import annotations
 import json
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from planning.errors import ParameterError
 
-__all__ = ["Kinematics", "KINEMATICS", "MachineProfile", "available_profiles", "load_profile"]
+__all__ = ["DEFAULT_MIN_GAUGE_HEIGHT_MM", "Kinematics", "KINEMATICS", "LIMIT_SPAN_TOL_MM", "MachineProfile",
+           "available_profiles", "load_profile"]
 
 Kinematics = Literal["table_table_ac", "table_table_bc", "head_head_ac", "head_head_bc"]
 KINEMATICS: tuple[str, ...] = ("table_table_ac", "table_table_bc", "head_head_ac", "head_head_bc")
+
+#: Default lowest height of the spindle gauge line above the table top (rotary axes at 0, Z at the
+#: bottom of its travel), mm; used when a profile gives no ``z_limits_mm``.
+DEFAULT_MIN_GAUGE_HEIGHT_MM = 100.0
+
+#: Largest accepted difference between the span of ``*_limits_mm`` and ``*_travel_mm``, mm.
+LIMIT_SPAN_TOL_MM = 1e-3
+
+_Coord = Annotated[float, Field(ge=-100_000, le=100_000, allow_inf_nan=False)]
+_Range = tuple[_Coord, _Coord]
 
 
 class MachineProfile(BaseModel):
     """A 5-axis machine as the planner sees it: kinematic layout, rotary travel, linear travel.
 
-    Only rotary travel is used by machine visibility today (Makki §2.2.2, Fig. 4b); the linear
-    travels are declared for the collision / translational-travel check (Fig. 4c).
+    Rotary travel is used by machine visibility (Makki §2.2.2, Fig. 4b); the linear travels, their
+    limits and the pivot geometry by the translational travel check (Fig. 4c,
+    :mod:`planning.travel`). Frames and defaults: see the module docstring.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -66,12 +102,40 @@ class MachineProfile(BaseModel):
         description="Upper travel limit of the rotary axis (C), degrees; required unless rotary_continuous.")
     x_travel_mm: float = Field(
         ..., gt=0, le=100_000,
-        description="Travel of the X linear axis, mm (stroke, end to end). Declared for the translational "
-                    "travel check (Makki §2.2.2, Fig. 4c); not used by rotary machine visibility.")
+        description="Travel of the X linear axis, mm (stroke, end to end). Used by the translational travel "
+                    "check (Makki §2.2.2, Fig. 4c) with x_limits_mm; not used by rotary machine visibility.")
     y_travel_mm: float = Field(
         ..., gt=0, le=100_000, description="Travel of the Y linear axis, mm (stroke, end to end).")
     z_travel_mm: float = Field(
         ..., gt=0, le=100_000, description="Travel of the Z linear axis, mm (stroke, end to end).")
+    x_limits_mm: Optional[_Range] = Field(
+        None,
+        description="[min, max] machine X of the controlled point (table-table: spindle gauge point; "
+                    "head-head: head rotation centre), mm, in the machine frame (origin at the table-top "
+                    "centre with every rotary axis at 0, Z up; see the module docstring). Must span "
+                    "x_travel_mm (within 0.001 mm). Default (null): [-x_travel_mm/2, +x_travel_mm/2], centred "
+                    "on the table. Used by the translational travel check (Makki §2.2.2, Fig. 4c).")
+    y_limits_mm: Optional[_Range] = Field(
+        None,
+        description="[min, max] machine Y of the controlled point, mm; must span y_travel_mm. "
+                    "Default (null): [-y_travel_mm/2, +y_travel_mm/2].")
+    z_limits_mm: Optional[_Range] = Field(
+        None,
+        description="[min, max] machine Z of the controlled point, mm (0 = table top with the rotary axes "
+                    "at 0); must span z_travel_mm. Default (null): min = 100 mm (lowest gauge-line height "
+                    "above the table top) plus head_pivot_length_mm for head-head, max = min + z_travel_mm.")
+    table_pivot_mm: Optional[tuple[_Coord, _Coord, _Coord]] = Field(
+        None,
+        description="Table-table only: [x, y, z] of a point of the tilt (A/B) axis in the table frame "
+                    "(origin at the table-top centre on the C axis, Z up, rotary axes at 0), mm; the "
+                    "component along the tilt axis is irrelevant. E.g. [0, 0, -80]: tilt axis 80 mm below "
+                    "the table top. Default (null): [0, 0, 0], the tilt axis passes through the table-top "
+                    "centre. Must be null for head-head kinematics.")
+    head_pivot_length_mm: Optional[float] = Field(
+        None, ge=0, le=10_000, allow_inf_nan=False,
+        description="Head-head only: distance along the tool axis from the spindle gauge line up to the "
+                    "head's rotation centre (where the C and A/B axes meet, on the spindle axis), mm. "
+                    "Default (null): 0. Must be null for table-table kinematics.")
 
     @model_validator(mode="after")
     def _consistent(self) -> "MachineProfile":
@@ -87,6 +151,23 @@ class MachineProfile(BaseModel):
             if not self.rotary_min_deg < self.rotary_max_deg:
                 raise ValueError(f"rotary_min_deg ({self.rotary_min_deg:g}) must be below rotary_max_deg "
                                  f"({self.rotary_max_deg:g})")
+        for ax in ("x", "y", "z"):
+            lim = getattr(self, f"{ax}_limits_mm")
+            if lim is None:
+                continue
+            lo, hi = lim
+            travel = getattr(self, f"{ax}_travel_mm")
+            if not lo < hi:
+                raise ValueError(f"{ax}_limits_mm = [{lo:g}, {hi:g}]: the minimum must be below the maximum")
+            if abs((hi - lo) - travel) > LIMIT_SPAN_TOL_MM:
+                raise ValueError(f"{ax}_limits_mm = [{lo:g}, {hi:g}] spans {hi - lo:g} mm but {ax}_travel_mm is "
+                                 f"{travel:g} mm; the limits must span exactly the travel")
+        if self.table_pivot_mm is not None and not self.is_table_table:
+            raise ValueError(f"table_pivot_mm applies to table-table kinematics only (kinematics is "
+                             f"{self.kinematics!r}); leave it null")
+        if self.head_pivot_length_mm is not None and self.is_table_table:
+            raise ValueError(f"head_pivot_length_mm applies to head-head kinematics only (kinematics is "
+                             f"{self.kinematics!r}); leave it null")
         return self
 
     @property
@@ -98,6 +179,38 @@ class MachineProfile(BaseModel):
     def axis_names(self) -> tuple[str, str]:
         """Machine names of the (tilt, rotary) axes, e.g. ``('B', 'C')``."""
         return (self.kinematics[-2].upper(), self.kinematics[-1].upper())
+
+    @property
+    def pivot_length_mm(self) -> float:
+        """Head-head: gauge line to head rotation centre, mm (``head_pivot_length_mm``, default 0);
+        0 for table-table."""
+        return float(self.head_pivot_length_mm or 0.0)
+
+    @property
+    def pivot_mm(self) -> tuple[float, float, float]:
+        """Table-table: a point of the tilt axis in the table frame, mm (``table_pivot_mm``, default the
+        origin); the origin for head-head."""
+        if self.table_pivot_mm is None:
+            return (0.0, 0.0, 0.0)
+        x, y, z = self.table_pivot_mm
+        return (float(x), float(y), float(z))
+
+    @property
+    def linear_limits_mm(self) -> tuple[tuple[float, float], tuple[float, float], tuple[float, float]]:
+        """``((xmin, xmax), (ymin, ymax), (zmin, zmax))``: machine-frame limits of the controlled point,
+        mm, with the documented defaults applied (Makki §2.2.2, Fig. 4c)."""
+        out = []
+        for ax in ("x", "y", "z"):
+            lim = getattr(self, f"{ax}_limits_mm")
+            travel = float(getattr(self, f"{ax}_travel_mm"))
+            if lim is not None:
+                out.append((float(lim[0]), float(lim[1])))
+            elif ax == "z":
+                lo = DEFAULT_MIN_GAUGE_HEIGHT_MM + self.pivot_length_mm
+                out.append((lo, lo + travel))
+            else:
+                out.append((-0.5 * travel, 0.5 * travel))
+        return (out[0], out[1], out[2])
 
 
 def _profiles_dir():

@@ -93,6 +93,13 @@ def _as_queries(segs):
     contiguous, unbounded and nowhere narrower (its points above ``hi`` collide anyway): an
     unbounded query can be settled by the under-reporting filter alone."""
     segs = sorted(segs, key=lambda s: s[0])
+    merged = []
+    for lo, hi, r in segs:          # join touching segments of one radius (cutter and shank)
+        if merged and merged[-1][2] == r and merged[-1][1] is not None and merged[-1][1] == lo:
+            merged[-1] = (merged[-1][0], hi, r)
+        else:
+            merged.append((lo, hi, r))
+    segs = merged
     out = []
     for k, (lo, hi, r) in enumerate(segs):
         above = segs[k:]

@@ -47,9 +47,8 @@ A continuous rotary angle is reported in [-180, 180); a limited one is the 360-d
 travel nearest 0. Angles within :data:`ANGLE_TOL_DEG` of a travel limit (inside or outside) count
 as within travel and are set exactly onto the limit.
 
-Only rotary travel is checked here (Makki Fig. 4b). The translational travel and tool-length
-reduction (Fig. 4c) need the part, holder and tool geometry; the profile declares X/Y/Z travel
-for that later check.
+Only rotary travel is checked here (Makki Fig. 4b). The translational travel (Fig. 4c) needs the
+part placement and the tool length: :mod:`planning.travel` checks it per (point, axis) pair.
 """
 
 from __future__ import annotations

@@ -18,13 +18,14 @@ from planning.areas import Areas, assign_areas
 from planning.cloud import Cloud
 from planning.errors import InputError, ParameterError
 from planning.gaussmap import candidate_axes
+from planning.globalvis import global_visibility
 from planning.machine import load_profile, machine_visibility
 from planning.normals import sphere_throwing
 from planning.setups import SetupSelection, select_setups
 from planning.visibility import cone_visibility
 from schemas.params import BoxZone, IndexZone, PlanConfig, SphereZone
-from schemas.plan import (InputSummary, NormalsSummary, OrientationsSummary, PlanResult, Selection, Setup,
-                          Timing)
+from schemas.plan import (AxisFilters, InputSummary, NormalsSummary, OrientationsSummary, PlanResult, Selection,
+                          Setup, Timing, VisibilitySummary)
 
 # progress(stage, fraction of that stage done in [0, 1], message)
 Progress = Callable[[str, float, str], None]
@@ -116,12 +117,13 @@ def _normals_stage(cloud: Cloud, config: PlanConfig, progress) -> tuple[np.ndarr
 
 
 def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
-             progress: Progress | None = None) -> PlanOutcome:
+             progress: Progress | None = None, base_dir=None) -> PlanOutcome:
     """Plan the 3+2 machining of ``cloud`` (points in mm) with ``config`` (Makki 2010 §2-3).
 
     Returns the ``plan.json`` model and the ``plan.npz`` arrays: ``sample_index`` (n,),
     ``normals`` (n,3), ``candidate_axes`` (m,3) (machine-feasible axes), ``visibility`` (n,m),
     ``selected`` (k,), ``labels`` (n,), ``integrated`` (n,), plus ``input_labels`` (N,).
+    ``base_dir``: where relative fixture mesh paths are looked up (the configuration's folder).
     """
     timings: list[Timing] = []
     warnings: list[str] = []
@@ -162,8 +164,44 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     axes = cand.axes[feasible]
     angles = np.asarray(mv.angles_deg)[feasible]
 
-    # 3. tool visibility (§2.2.3); global visibility plugs in here (§2.2.4, not in this version)
-    vis = timed("visibility", lambda: cone_visibility(normals, axes, config.visibility.cone_deg))
+    # 3. tool visibility (§2.2.3), then travel (Fig. 4c) and global visibility (§2.2.4)
+    vp = config.visibility
+
+    def visibility():
+        cone = cone_visibility(normals, axes, vp.cone_deg)
+        gv = global_visibility(points, sample_index, normals, axes, angles, cone, tool=config.tool.assembly(),
+                               profile=profile, fixtures_params=config.fixtures, check_global=vp.global_,
+                               check_travel=vp.travel, obstacles=vp.obstacles, base_dir=base_dir,
+                               progress=_stage_progress(progress, "visibility"))
+        return cone, gv
+
+    cone, gv = timed("visibility", visibility)
+    vis = gv.visible
+    n_s = int(sample_index.size)
+    feas_idx = np.flatnonzero(feasible)
+    cone_counts = cone.sum(axis=0)
+    col = {int(c): k for k, c in enumerate(feas_idx)}
+    per_axis = []
+    for c in range(cand.axes.shape[0]):
+        k = col.get(c)
+        if k is None:
+            per_axis.append(AxisFilters(candidate=c, phi_deg=float(cand.phi_deg[c]), theta_deg=float(cand.theta_deg[c]),
+                                        machine=n_s, cone=0, travel=0, fixture_collision=0, cloud_collision=0,
+                                        visible=0))
+        else:
+            per_axis.append(AxisFilters(
+                candidate=c, phi_deg=float(cand.phi_deg[c]), theta_deg=float(cand.theta_deg[c]), machine=0,
+                cone=int(n_s - cone_counts[k]), travel=int(gv.removed["travel"][k]),
+                fixture_collision=int(gv.removed["fixture_collision"][k]),
+                cloud_collision=int(gv.removed["cloud_collision"][k]), visible=int(vis[:, k].sum())))
+    vsum = VisibilitySummary(
+        global_checked=vp.global_, travel_checked=vp.travel, obstacles=vp.obstacles,
+        n_obstacle_points=gv.n_obstacles, placement_mm=tuple(float(x) for x in gv.placement_mm),
+        table_z_mm=gv.table_z_mm, pairs_cone=int(cone.sum()), pairs_visible=int(vis.sum()),
+        removed_total={k: int(v.sum()) for k, v in gv.removed.items()}, per_axis=per_axis)
+    if not vis.any():
+        warnings.append("no sampled point is visible along any feasible axis after the travel and collision "
+                        "checks: check the tool length, holder, placement and fixtures")
 
     # 4. set-ups (§3.1)
     zmask, zwarn = zone_mask(points, sample_index, config.setups.functional_zones)
@@ -216,6 +254,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
             sampling=config.orientations.sampling, n_candidates=int(cand.axes.shape[0]),
             n_machine_feasible=int(feasible.sum()), n_kept=int(sel.n_axes_kept),
             machine_profile=profile.name, kinematics=profile.kinematics, rotary_axes=names),
+        visibility=vsum,
         selection=Selection(status=sel.status, solver=sel.solver, k=int(sel.k), covered=int(sel.covered),
                             required_covered=int(sel.required_covered), coverage=float(sel.coverage),
                             overlap=int(sel.overlap), lower_bound=sel.lower_bound, gap=sel.gap,

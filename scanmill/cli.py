@@ -78,7 +78,8 @@ def cmd_plan(args) -> int:
                        max_points=config.input.max_points, max_extent_mm=config.input.max_extent_mm,
                        min_points=config.input.min_points)
     progress("read", 1.0, f"{cloud.points.shape[0]} points ({cloud.source_format})")
-    outcome = run_plan(cloud, config, name=Path(args.input).name, progress=progress)
+    base_dir = Path(args.config).resolve().parent if getattr(args, "config", None) else Path.cwd()
+    outcome = run_plan(cloud, config, name=Path(args.input).name, progress=progress, base_dir=base_dir)
     progress("write", 0.0, str(args.out))
     paths = write_plan(outcome, args.out)
     progress("write", 1.0, "done")

@@ -86,11 +86,61 @@ class MachineParams(_Strict):
         description="A bundled profile name (see `scanmill profiles`) or a path to a profile JSON file.")
 
 
+class HolderElement(_Strict):
+    """One coaxial piece of the tool holder (collet nut, body, flange), listed from the holder face
+    towards the spindle."""
+
+    diameter_mm: float = Field(..., gt=0, le=1000, description="Diameter at its lower end (tool side), mm.")
+    length_mm: float | None = Field(
+        ..., gt=0, le=5000,
+        description="Length along the tool axis, mm; null (last element only) = unbounded towards the spindle.")
+    top_diameter_mm: float | None = Field(
+        None, gt=0, le=1000,
+        description="Diameter at its upper end for a cone, mm; null = a cylinder. Cones are checked as "
+                    "stacked cylinders that contain them (at most 0.1 mm larger in radius).")
+
+
+def _default_holder() -> list["HolderElement"]:
+    return [HolderElement(diameter_mm=25.0, length_mm=45.0), HolderElement(diameter_mm=50.0, length_mm=40.0)]
+
+
 class ToolParams(_Strict):
-    """The cutter. Only its diameter matters before collisions and tool paths exist."""
+    """The cutter and its holder (Makki §2.2.4 models both as cylinders along the tool axis)."""
 
     type: Literal["ball"] = Field("ball", description="Cutter type: ball-end mill.")
     diameter_mm: float = Field(6.0, gt=0, le=100, description="Cutter diameter, in mm.")
+    flute_length_mm: float = Field(
+        12.0, gt=0, le=1000, description="Cutting length measured from the tool tip, mm (at least the ball radius).")
+    stickout_mm: float = Field(
+        30.0, gt=0, le=2000, description="Length from the tool tip to the holder face, mm (at least the flute length).")
+    shank_diameter_mm: float | None = Field(
+        None, gt=0, le=100, description="Diameter between the flutes and the holder, mm; null = the cutter diameter.")
+    holder: list[HolderElement] = Field(
+        default_factory=_default_holder, max_length=20,
+        description="Holder pieces from the holder face up (default: a 25 mm x 45 mm collet nut and a "
+                    "50 mm x 40 mm flange). Nothing above the last piece is checked unless its length is null.")
+    gauge_length_mm: float | None = Field(
+        None, gt=0, le=5000,
+        description="Tool tip to spindle gauge line, mm (used by the travel check); null = stick-out plus "
+                    "the holder lengths.")
+
+    @model_validator(mode="after")
+    def _assembly(self) -> "ToolParams":
+        self.assembly()
+        return self
+
+    def assembly(self):
+        """The :class:`planning.tool.ToolAssembly` these parameters describe."""
+        from planning.tool import ball_tool
+        try:
+            return ball_tool(
+                self.diameter_mm / 2.0, flute_length_mm=self.flute_length_mm, stickout_mm=self.stickout_mm,
+                shank_radius_mm=None if self.shank_diameter_mm is None else self.shank_diameter_mm / 2.0,
+                holder=[(h.diameter_mm / 2.0, h.length_mm,
+                         None if h.top_diameter_mm is None else h.top_diameter_mm / 2.0) for h in self.holder],
+                gauge_length_mm=self.gauge_length_mm)
+        except ParameterError as exc:
+            raise ValueError(str(exc)) from None
 
 
 class VisibilityParams(_Strict):
@@ -102,9 +152,17 @@ class VisibilityParams(_Strict):
                     "v1 avoids cutting with the tool tip (zero cutting speed), v2 avoids near-vertical "
                     "cutting (high scallops). Paper: [10, 80] and [10, 60].")
     global_: bool = Field(
-        False, alias="global",
-        description="Check tool and holder collisions with the cloud and fixtures (global visibility). "
-                    "Not available in this version: true is rejected.")
+        True, alias="global",
+        description="Global visibility (Makki §2.2.4): drop the (point, axis) pairs where the cutter, shank or "
+                    "holder would hit another point of the cloud, a fixture or the table.")
+    travel: bool = Field(
+        True, description="Translational travel (Makki Fig. 4c): drop the pairs whose machine X/Y/Z position "
+                          "lies outside the profile's linear limits, with the part placed as in `fixtures`.")
+    obstacles: Literal["sampled", "all"] = Field(
+        "sampled",
+        description="Cloud points the collision test checks: 'sampled' = the points that got a normal (one per "
+                    "throwing-grid square, spacing reported in plan.json); 'all' = every input point (exact for "
+                    "the scan, slower in proportion to its size).")
 
     @field_validator("cone_deg")
     @classmethod
@@ -114,13 +172,70 @@ class VisibilityParams(_Strict):
             raise ValueError(f"need 0 <= v1 < v2 <= 90 degrees, got [{v1}, {v2}]")
         return v
 
-    @field_validator("global_")
-    @classmethod
-    def _global(cls, v: bool) -> bool:
-        if v:
-            raise ValueError("collision checking (global visibility) is not available in this version; "
-                             "set visibility.global to false")
-        return v
+
+class BoxFixtureItem(_Strict):
+    """An axis-aligned box in part coordinates (vise jaw, clamp, riser), mm."""
+
+    type: Literal["box"] = "box"
+    name: str = Field("box", max_length=100, description="Name used in reports.")
+    min_mm: Vec3 = Field(..., description="Lower corner (x, y, z), mm.")
+    max_mm: Vec3 = Field(..., description="Upper corner (x, y, z), mm.")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "BoxFixtureItem":
+        if any(a >= b for a, b in zip(self.min_mm, self.max_mm)):
+            raise ValueError(f"box min_mm {list(self.min_mm)} must be below max_mm {list(self.max_mm)}")
+        return self
+
+
+class CylinderFixtureItem(_Strict):
+    """A solid cylinder in part coordinates (chuck, round riser, clamp bolt), mm."""
+
+    type: Literal["cylinder"] = "cylinder"
+    name: str = Field("cylinder", max_length=100, description="Name used in reports.")
+    base_mm: Vec3 = Field(..., description="Centre of the base disc (x, y, z), mm.")
+    axis: Vec3 = Field((0.0, 0.0, 1.0), description="Direction from the base to the top (need not be unit).")
+    radius_mm: float = Field(..., gt=0, le=10_000, description="Radius, mm.")
+    height_mm: float = Field(..., gt=0, le=10_000, description="Height along the axis, mm.")
+
+
+class MeshFixtureItem(_Strict):
+    """A fixture from a triangle mesh file (STL, OBJ, PLY), in part coordinates. CLI only: the
+    service does not read paths on its own disk."""
+
+    type: Literal["mesh"] = "mesh"
+    name: str = Field("mesh", max_length=100, description="Name used in reports.")
+    path: str = Field(..., min_length=1, max_length=1000, description="Mesh file (.stl, .obj, .ply).")
+    units: Literal["mm", "m", "in"] = Field("mm", description="Unit of the mesh coordinates.")
+
+
+class PointsFixtureItem(_Strict):
+    """A forbidden region given as points (Makki's way of adding fixtures): the tool and holder must
+    not contain any of them, exactly like the cloud's own points."""
+
+    type: Literal["points"] = "points"
+    name: str = Field("points", max_length=100, description="Name used in reports.")
+    points_mm: list[Vec3] = Field(..., min_length=1, max_length=1_000_000, description="Points (x, y, z), mm.")
+
+
+FixtureItem = Annotated[Union[BoxFixtureItem, CylinderFixtureItem, MeshFixtureItem, PointsFixtureItem],
+                        Field(discriminator="type")]
+
+
+class FixturesParams(_Strict):
+    """Where the part sits on the machine and what holds it (Makki §2.2.4 fixtures, Fig. 4c placement)."""
+
+    placement_mm: Vec3 | None = Field(
+        None, description="Position of the part-frame origin in the table frame (origin at the table-top centre "
+                          "on the C axis, Z up), mm; null = the part centred over the table with its lowest "
+                          "point fixture_height_mm above the table top.")
+    fixture_height_mm: float = Field(
+        50.0, ge=0, le=5000, description="Height of the part's lowest point above the table top when "
+                                         "placement_mm is null, mm.")
+    table: bool = Field(True, description="Treat the machine table (everything below its top) as an obstacle.")
+    items: list[FixtureItem] = Field(
+        default_factory=list, max_length=100, description="Fixtures in part coordinates: boxes, cylinders, meshes, "
+                                                          "forbidden points.")
 
 
 class IndexZone(_Strict):
@@ -179,6 +294,7 @@ class PlanConfig(_Strict):
     orientations: OrientationsParams = Field(default_factory=OrientationsParams)
     machine: MachineParams = Field(default_factory=MachineParams)
     tool: ToolParams = Field(default_factory=ToolParams)
+    fixtures: FixturesParams = Field(default_factory=FixturesParams)
     visibility: VisibilityParams = Field(default_factory=VisibilityParams)
     setups: SetupsParams = Field(default_factory=SetupsParams)
 

@@ -47,6 +47,37 @@ class OrientationsSummary(_Out):
     rotary_axes: tuple[str, str] = Field(..., description="Names of the (tilt, rotary) machine axes, e.g. ('B', 'C').")
 
 
+class AxisFilters(_Out):
+    """How many sampled points each visibility filter removed for one candidate axis (filters run in
+    this order; each sees only what the previous ones kept)."""
+
+    candidate: int = Field(..., ge=0, description="Index into the candidate axes before machine visibility.")
+    phi_deg: float
+    theta_deg: float
+    machine: int = Field(..., ge=0, description="Removed by rotary travel (all points, or none).")
+    cone: int = Field(..., ge=0, description="Removed by the tool cone [v1, v2] about the normal.")
+    travel: int = Field(..., ge=0, description="Removed by X/Y/Z travel.")
+    fixture_collision: int = Field(..., ge=0, description="Removed by tool/holder collisions with fixtures or the table.")
+    cloud_collision: int = Field(..., ge=0, description="Removed by tool/holder collisions with the cloud.")
+    visible: int = Field(..., ge=0, description="Left visible.")
+
+
+class VisibilitySummary(_Out):
+    """Visibility filters (Makki §2.2.2-2.2.4): which ran, where the part was placed, and per axis the
+    points each filter removed."""
+
+    global_checked: bool = Field(..., description="Tool, holder and fixture collisions were checked.")
+    travel_checked: bool = Field(..., description="X/Y/Z travel was checked.")
+    obstacles: str = Field(..., description="'sampled' or 'all': which cloud points the collision test used.")
+    n_obstacle_points: int = Field(..., ge=0, description="Points the collision test checked (cloud and forbidden points).")
+    placement_mm: tuple[float, float, float] = Field(..., description="Part-frame origin in the table frame, mm.")
+    table_z_mm: float | None = Field(None, description="Table top in the part frame (z), mm; null = table not checked.")
+    pairs_cone: int = Field(..., ge=0, description="(point, axis) pairs inside the tool cone on feasible axes.")
+    pairs_visible: int = Field(..., ge=0, description="Pairs left after every filter.")
+    removed_total: dict[str, int] = Field(..., description="Pairs removed per filter, all axes together.")
+    per_axis: list[AxisFilters]
+
+
 class Setup(_Out):
     id: int = Field(..., ge=0, description="Area / set-up number, also the label in plan.npz.")
     candidate_index: int = Field(..., ge=0, description="Index into plan.npz candidate_axes.")
@@ -106,6 +137,7 @@ class PlanResult(_Out):
     parameters: PlanConfig
     normals: NormalsSummary
     orientations: OrientationsSummary
+    visibility: VisibilitySummary | None = None
     selection: Selection
     setups: list[Setup]
     coverage: float = Field(..., description="Fraction of sampled points seen by at least one chosen orientation.")

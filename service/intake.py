@@ -99,14 +99,19 @@ def _parse_parameters(text: str | None) -> PlanConfig:
 
 
 def check_service_parameters(config: PlanConfig) -> PlanConfig:
-    """What the service allows beyond the schema: machine profiles by bundled name only (a path would let a
-    client make the service read files of its own choosing)."""
+    """What the service allows beyond the schema: machine profiles by bundled name only and no mesh fixtures
+    (a path would let a client make the service read files of its own choosing)."""
     from planning.machine import available_profiles
     names = list(available_profiles())
     if config.machine.profile not in names:
         raise ParameterError(f"machine.profile = {config.machine.profile[:80]!r}: the service accepts the bundled "
                              f"profiles only: {', '.join(names)}",
                              problems=[f"machine.profile: one of {', '.join(names)}"])
+    meshes = [i for i, it in enumerate(config.fixtures.items) if it.type == "mesh"]
+    if meshes:
+        raise ParameterError(f"fixtures.items[{meshes[0]}]: mesh fixtures read a file path, which the service does not "
+                             "accept; give the fixture as boxes, cylinders or points_mm, or use the CLI",
+                             problems=[f"fixtures.items[{i}].type: 'mesh' is CLI only" for i in meshes])
     return config
 
 

@@ -28,7 +28,15 @@ def test_plan_writes_the_contract(half_sphere_ply, tmp_path, capsys):
     assert "normals" in text.err and "setups" in text.err       # progress per stage
     doc = json.loads((out / "plan.json").read_text())
     jsonschema.validate(doc, plan_json_schema())
-    assert doc["parameters"]["visibility"]["global"] is False
+    assert doc["parameters"]["visibility"]["global"] is True
+    # per-axis filter counts: every candidate axis, each sampled point removed at most once
+    vs = doc["visibility"]
+    n = doc["normals"]["n_sampled"]
+    assert len(vs["per_axis"]) == doc["orientations"]["n_candidates"]
+    for a in vs["per_axis"]:
+        assert a["machine"] + a["cone"] + a["travel"] + a["fixture_collision"] + a["cloud_collision"] \
+            + a["visible"] == n
+    assert vs["pairs_visible"] == sum(a["visible"] for a in vs["per_axis"])
     assert {t["stage"] for t in doc["timings"]} >= {"normals", "orientations", "visibility", "setups", "areas"}
     npz = np.load(out / "plan.npz")
     for key in ("sample_index", "normals", "candidate_axes", "visibility", "selected", "labels", "integrated"):

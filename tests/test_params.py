@@ -14,7 +14,15 @@ def test_defaults_follow_design():
     assert (c.orientations.phi_step_deg, c.orientations.theta_step_deg) == (10, 30)
     assert tuple(c.visibility.cone_deg) == (10, 80)
     assert (c.setups.coverage, c.setups.max_setups, c.setups.min_points) == (0.95, 5, 1)
-    assert c.to_json_dict()["visibility"]["global"] is False
+    d = c.to_json_dict()
+    assert d["visibility"]["global"] is True and d["visibility"]["travel"] is True
+    assert d["visibility"]["obstacles"] == "sampled"
+    assert d["fixtures"] == {"placement_mm": None, "fixture_height_mm": 50.0, "table": True, "items": []}
+    assert (c.tool.flute_length_mm, c.tool.stickout_mm) == (12.0, 30.0)
+    # the default assembly: cutter + shank to the holder face, a collet nut and a flange
+    a = c.tool.assembly()
+    assert a.radius_mm == 3.0 and a.gauge_length_mm == 30.0 + 45.0 + 40.0
+    assert [s.part for s in a.segments] == ["cutter", "shank", "holder", "holder"]
 
 
 @pytest.mark.parametrize("doc, needle", [
@@ -26,7 +34,16 @@ def test_defaults_follow_design():
     ({"normals": {"directions": [[0, 0, 0]]}}, "zero vector"),
     ({"normals": {"method": "pca"}}, "normals.method"),
     ({"setups": {"covrage": 0.9}}, "setups.covrage: unknown parameter"),
-    ({"visibility": {"global": True}}, "not available"),
+    ({"visibility": {"obstacles": "some"}}, "visibility.obstacles"),
+    ({"tool": {"stickout_mm": 5}}, "at least tool.flute_length_mm"),
+    ({"tool": {"flute_length_mm": 2}}, "at least the ball radius"),
+    ({"tool": {"holder": [{"diameter_mm": 20, "length_mm": None}, {"diameter_mm": 30, "length_mm": 5}]}},
+     "only the last holder element"),
+    ({"tool": {"holder": [{"diameter_mm": -1, "length_mm": 5}]}}, "tool.holder.0.diameter_mm"),
+    ({"fixtures": {"items": [{"type": "box", "min_mm": [0, 0, 0], "max_mm": [0, 1, 1]}]}}, "must be below"),
+    ({"fixtures": {"items": [{"type": "cone"}]}}, "fixtures.items.0"),
+    ({"fixtures": {"items": [{"type": "cylinder", "base_mm": [0, 0, 0], "radius_mm": 0, "height_mm": 1}]}},
+     "radius_mm"),
     ({"setups": {"functional_zones": [{"type": "box", "min_mm": [1, 1, 1], "max_mm": [0, 2, 2]}]}}, "must not exceed"),
 ])
 def test_bad_parameters_name_the_parameter(doc, needle):

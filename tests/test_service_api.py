@@ -61,7 +61,7 @@ def test_submit_answers_202_with_location_and_the_job(a, cloud):
     assert job["input"]["n_points"] == 2537 and job["input"]["has_normals"] is True
     assert job["input"]["name"] == "my part"
     assert job["parameters"]["setups"]["max_setups"] == 2          # the validated configuration, defaults filled
-    assert job["parameters"]["visibility"]["global"] is False
+    assert job["parameters"]["visibility"]["global"] is True
     assert job["links"]["self"] == f"/jobs/{job['id']}" and job["links"]["result"] is None
     final = wait_status(a, job["id"])
     assert final["status"] == "succeeded", final
@@ -211,6 +211,22 @@ def test_machine_profile_must_be_a_bundled_name(a, cloud):
     r = submit(a, cloud, dict(HALF_SPHERE_PARAMS, machine={"profile": "fork_head_ac"}))
     assert r.status_code == 202
     wait_status(a, r.json()["id"])
+
+
+def test_mesh_fixtures_are_cli_only_and_primitives_are_planned(a, cloud):
+    mesh = {"items": [{"type": "mesh", "path": "/etc/passwd"}]}
+    r = submit(a, cloud, dict(HALF_SPHERE_PARAMS, fixtures=mesh))
+    assert r.status_code == 422 and r.json()["code"] == "invalid_parameter"
+    assert "fixtures.items[0]" in r.json()["detail"] and "CLI" in r.json()["detail"]
+    # a clamp box beside the half sphere's rim: accepted, planned, and its removals reported
+    box = {"items": [{"type": "box", "name": "clamp", "min_mm": [52, -10, 0], "max_mm": [70, 10, 25]}]}
+    r = submit(a, cloud, dict(HALF_SPHERE_PARAMS, fixtures=box))
+    assert r.status_code == 202
+    job = wait_status(a, r.json()["id"])
+    assert job["status"] == "succeeded"
+    plan = a.get(f"/jobs/{job['id']}/result").json()
+    assert plan["parameters"]["fixtures"]["items"][0]["name"] == "clamp"
+    assert plan["visibility"]["removed_total"]["fixture_collision"] > 0
 
 
 def test_isolation_between_keys(server, a, b, done_job):

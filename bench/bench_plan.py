@@ -30,6 +30,12 @@ def main() -> None:
     ap.add_argument("--cone", type=float, nargs=2, default=(10.0, 60.0))
     ap.add_argument("--max-setups", type=int, default=5)
     ap.add_argument("--no-write", action="store_true", help="skip writing the artifacts")
+    ap.add_argument("--no-global", action="store_true", help="skip the collision checks (visibility.global false)")
+    ap.add_argument("--fixture-height", type=float, default=150.0,
+                    help="part's lowest point above the table, mm (150: a riser; at 50 the table blocks the "
+                         "underside and the plan is infeasible)")
+    ap.add_argument("--travel", action="store_true",
+                    help="check X/Y/Z travel on the default profile (the 400 mm femur does not fit it at 60 deg)")
     args = ap.parse_args()
 
     import open3d as o3d
@@ -68,7 +74,9 @@ def main() -> None:
               f"grid {res.grid_spacing_mm:.3f} mm; error vs exact normals: median {np.median(ang):.2f} deg, "
               f"p95 {np.percentile(ang, 95):.2f} deg")
 
-    cfg = parse_config({"visibility": {"cone_deg": list(args.cone)},
+    cfg = parse_config({"visibility": {"cone_deg": list(args.cone), "global": not args.no_global,
+                                       "travel": args.travel},
+                        "fixtures": {"fixture_height_mm": args.fixture_height},
                         "setups": {"max_setups": args.max_setups, "coverage": 0.95},
                         "tool": {"diameter_mm": 6.0}})
     marks: dict[str, float] = {}
@@ -95,6 +103,9 @@ def main() -> None:
         total += tw
     print(f"{'total':<14}{total:>9.2f}{peak_rss_mb():>13.0f}")
     sel = r.selection
+    v = r.visibility
+    print(f"\nvisibility: global {v.global_checked}, travel {v.travel_checked}, {v.n_obstacle_points} obstacle points; "
+          f"{v.pairs_cone} pairs in the cone, removed {v.removed_total}, {v.pairs_visible} visible")
     print(f"\nsampled {r.normals.n_sampled} points x {r.orientations.n_machine_feasible} axes "
           f"({sel.n_classes} classes): k {sel.k}, coverage {sel.coverage:.2%}, overlap {sel.overlap}, "
           f"status {sel.status}, solver {sel.solver}, {sel.seconds:.2f} s")

@@ -79,15 +79,16 @@ def build_fixtures(fixtures_params, placement_mm: np.ndarray, *, base_dir: Optio
 def global_visibility(points: np.ndarray, sample_index: np.ndarray, normals: np.ndarray, axes: np.ndarray,
                       angles_deg: np.ndarray, cone_visible: np.ndarray, *, tool: ToolAssembly, profile,
                       fixtures_params, check_global: bool = True, check_travel: bool = True,
-                      obstacles: str = "sampled", base_dir: Optional[Path] = None,
+                      obstacles: str = "all", base_dir: Optional[Path] = None,
                       progress: Optional[Callable[[float, str], None]] = None) -> GlobalVisibility:
     """Apply travel, fixture and cloud-collision filters to ``cone_visible`` (n, m) bool.
 
     ``points`` (N,3) mm: the whole cloud; ``sample_index`` (n,), ``normals`` (n,3): the sampled
     points; ``axes`` (m,3) unit tool axes (part frame) with their rotary positions ``angles_deg``
     (m,2) ``(tilt, rotary)``; ``tool``: the cutter and holder; ``profile``: the machine profile;
-    ``fixtures_params``: :class:`schemas.params.FixturesParams`. ``obstacles``: ``'sampled'``
-    (the sampled points are the cloud obstacles) or ``'all'`` (every input point). Follows Makki
+    ``fixtures_params``: :class:`schemas.params.FixturesParams`. ``obstacles``: ``'all'`` (every
+    input point is an obstacle: exact) or ``'sampled'`` (only the sampled points: faster, may miss a
+    tool passing between samples). Follows Makki
     2010 §2.2.2 (Fig. 4c, travel) and §2.2.4 (global visibility).
     """
     m = axes.shape[0]

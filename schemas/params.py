@@ -158,11 +158,12 @@ class VisibilityParams(_Strict):
     travel: bool = Field(
         True, description="Translational travel (Makki Fig. 4c): drop the pairs whose machine X/Y/Z position "
                           "lies outside the profile's linear limits, with the part placed as in `fixtures`.")
-    obstacles: Literal["sampled", "all"] = Field(
-        "sampled",
-        description="Cloud points the collision test checks: 'sampled' = the points that got a normal (one per "
-                    "throwing-grid square, spacing reported in plan.json); 'all' = every input point (exact for "
-                    "the scan, slower in proportion to its size).")
+    obstacles: Literal["all", "sampled"] = Field(
+        "all",
+        description="Cloud points the collision test checks: 'all' = every input point (exact for the scan; time "
+                    "grows with its size); 'sampled' = only the points that got a normal (one per throwing-grid "
+                    "square: about 10x faster on a dense scan, but a tool passing between samples is missed - on "
+                    "the femur-like case 0.02 % of the pairs, 0.6 % of the collisions).")
 
     @field_validator("cone_deg")
     @classmethod

@@ -106,3 +106,28 @@ def test_schema_and_profiles_commands(capsys):
     assert "setups" in json.loads(capsys.readouterr().out)["properties"]
     assert main(["profiles"]) == EXIT_OK
     assert "compact_trunnion_bc" in capsys.readouterr().out
+
+
+def test_plan_with_a_mesh_fixture_next_to_the_config(half_sphere_ply, tmp_path, capsys):
+    import open3d as o3d
+    box = o3d.geometry.TriangleMesh.create_box(18.0, 20.0, 25.0)
+    box.translate((52.0, -10.0, 0.0))            # a clamp beside the half sphere's rim
+    cfg_dir = tmp_path / "job"
+    cfg_dir.mkdir()
+    o3d.io.write_triangle_mesh(str(cfg_dir / "clamp.stl"), box.compute_triangle_normals())
+    cfg = {"fixtures": {"items": [{"type": "mesh", "name": "clamp", "path": "clamp.stl"}]}}
+    (cfg_dir / "config.json").write_text(json.dumps(cfg))
+    out = tmp_path / "plan"
+    assert main(["plan", str(half_sphere_ply), "--config", str(cfg_dir / "config.json"), "--out", str(out),
+                 *HS]) == EXIT_OK
+    doc = json.loads((out / "plan.json").read_text())
+    assert doc["visibility"]["removed_total"]["fixture_collision"] > 0
+    # a missing mesh is a clear error, and nothing is written
+    cfg["fixtures"]["items"][0]["path"] = "nope.stl"
+    (cfg_dir / "config.json").write_text(json.dumps(cfg))
+    out2 = tmp_path / "plan2"
+    capsys.readouterr()
+    assert main(["plan", str(half_sphere_ply), "--config", str(cfg_dir / "config.json"), "--out", str(out2),
+                 *HS]) == EXIT_ERROR
+    assert "nope.stl" in capsys.readouterr().err
+    assert not out2.exists()

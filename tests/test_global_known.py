@@ -148,3 +148,25 @@ def test_visibility_stage_counts_and_order():
     hover = FixturesParams.model_validate({"items": [{"type": "points", "points_mm": [[x, y, 45.0] for x in range(-40, 41, 2) for y in range(-30, 31, 2)]}]})
     hv = global_visibility(s.points, idx, normals, axes, angles, cone, tool=tool, profile=prof, fixtures_params=hover)
     assert not np.any(hv.visible & ~gv.visible) and hv.visible.sum() < gv.visible.sum()
+
+
+def test_all_obstacles_never_free_more_than_sampled():
+    """Every input point as an obstacle (default) is the exact answer; the sampled subset can only
+    call more pairs free."""
+    s = samples.slot(density_per_mm2=1.0, seed=4)
+    idx = np.arange(0, s.points.shape[0], 4)
+    normals = s.normals[idx]
+    prof = load_profile("compact_trunnion_bc")
+    from planning.gaussmap import candidate_axes
+    cand = candidate_axes("phi_theta", phi_step_deg=15, theta_step_deg=45)
+    mv = machine_visibility(cand.axes, prof)
+    axes, angles = cand.axes[mv.feasible], np.asarray(mv.angles_deg)[mv.feasible]
+    cone = cone_visibility(normals, axes, (10, 80))
+    tool = ball_tool(3.0, flute_length_mm=20.0)
+    kw = dict(tool=tool, profile=prof, fixtures_params=FixturesParams(), check_travel=False)
+    full = global_visibility(s.points, idx, normals, axes, angles, cone, obstacles="all", **kw)
+    sub = global_visibility(s.points, idx, normals, axes, angles, cone, obstacles="sampled", **kw)
+    assert not np.any(full.visible & ~sub.visible)
+    assert full.n_obstacles == s.points.shape[0] and sub.n_obstacles == idx.size
+    ref = brute_force_collision_free(s.points, idx[:40], normals[:40], axes, tool, candidates=cone[:40])
+    assert np.array_equal(full.visible[:40], ref)

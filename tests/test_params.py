@@ -16,7 +16,7 @@ def test_defaults_follow_design():
     assert (c.setups.coverage, c.setups.max_setups, c.setups.min_points) == (0.95, 5, 1)
     d = c.to_json_dict()
     assert d["visibility"]["global"] is True and d["visibility"]["travel"] is True
-    assert d["visibility"]["obstacles"] == "sampled"
+    assert d["visibility"]["obstacles"] == "all"
     assert d["fixtures"] == {"placement_mm": None, "fixture_height_mm": 50.0, "table": True, "items": []}
     assert (c.tool.flute_length_mm, c.tool.stickout_mm) == (12.0, 30.0)
     # the default assembly: cutter + shank to the holder face, a collet nut and a flange

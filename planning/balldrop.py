@@ -27,6 +27,7 @@ import numpy as np
 from numba import njit, prange
 
 from planning.errors import ParameterError
+from planning.raster import bin_cells, take_rows
 
 _BLOCK = 4      # raster cells per side of the blocks pruned as a whole
 
@@ -71,45 +72,6 @@ def brute_force_ball_drop(points, xy, radius_mm) -> BallDrop:
             j = int(np.argmax(h))
             z[k], idx[k] = h[j], j
     return BallDrop(z, idx)
-
-
-@njit(cache=True)
-def _bin(points, x0, y0, h, nx, ny):
-    n = points.shape[0]
-    ncell = nx * ny
-    cell = np.empty(n, np.int64)
-    start = np.zeros(ncell + 1, np.int64)
-    cmax = np.full(ncell, -np.inf)
-    for i in range(n):
-        ix = min(max(int(math.floor((points[i, 0] - x0) / h)), 0), nx - 1)
-        iy = min(max(int(math.floor((points[i, 1] - y0) / h)), 0), ny - 1)
-        c = ix * ny + iy
-        cell[i] = c
-        start[c + 1] += 1
-        if points[i, 2] > cmax[c]:
-            cmax[c] = points[i, 2]
-    for c in range(ncell):
-        start[c + 1] += start[c]
-    nby = (ny + _BLOCK - 1) // _BLOCK
-    bmax = np.full(((nx + _BLOCK - 1) // _BLOCK) * nby, -np.inf)
-    for ix in range(nx):
-        for iy in range(ny):
-            c = ix * ny + iy
-            b = (ix // _BLOCK) * nby + iy // _BLOCK
-            if cmax[c] > bmax[b]:
-                bmax[b] = cmax[c]
-    fill = start[:-1].copy()
-    order = np.empty(n, np.int64)
-    pts = np.empty((n, 3))
-    for i in range(n):
-        c = cell[i]
-        s = fill[c]
-        fill[c] = s + 1
-        order[s] = i
-        pts[s, 0] = points[i, 0]
-        pts[s, 1] = points[i, 1]
-        pts[s, 2] = points[i, 2]
-    return pts, order, start, cmax, bmax, nby
 
 
 @njit(cache=True)
@@ -192,28 +154,53 @@ def _drop(pts, order, start, cmax, bmax, nby, xy, R, x0, y0, h, nx, ny, slack, z
         idx_out[k] = bi
 
 
+class DropSurface:
+    """The cloud ``points`` (N,3, mm, tool axis +Z) binned once for ball drops of radius
+    ``radius_mm``: call :meth:`drop` as often as needed (the raster is built here only).
+    ``cell_mm`` (default R/10) sets the raster cell and changes speed only."""
+
+    def __init__(self, points, radius_mm, *, cell_mm: Optional[float] = None):
+        points, _, R = _check(points, np.zeros((0, 2)), radius_mm)
+        h = R / 10.0 if cell_mm is None else float(cell_mm)
+        if not h > 0:
+            raise ParameterError("cell_mm must be > 0")
+        self.R = R
+        self.n = points.shape[0]
+        if self.n == 0:
+            return
+        lo = points[:, :2].min(axis=0) - R
+        hi = points[:, :2].max(axis=0) + R
+        h = max(h, float((hi - lo).max()) / 4000.0)           # at most ~16M cells
+        nx = int((hi[0] - lo[0]) / h) + 2
+        ny = int((hi[1] - lo[1]) / h) + 2
+        order, start, cmax, _ = bin_cells(points[:, 0], points[:, 1], points[:, 2], lo[0], lo[1], h, nx, ny)
+        # highest point of each block of _BLOCK x _BLOCK cells (padded with empty cells)
+        nbx, nby = -(-nx // _BLOCK), -(-ny // _BLOCK)
+        grid = np.full((nbx * _BLOCK, nby * _BLOCK), -np.inf)
+        grid[:nx, :ny] = cmax.reshape(nx, ny)
+        self._raster = (take_rows(points, order), order, start, cmax,
+                        grid.reshape(nbx, _BLOCK, nby, _BLOCK).max(axis=(1, 3)).ravel(), nby)
+        self._grid = (lo[0], lo[1], h, nx, ny)
+        self._scale = float(np.abs(points).max())
+
+    def drop(self, xy) -> BallDrop:
+        """Ball-centre heights on the vertical lines through ``xy`` (K,2) mm (module docstring)."""
+        _, xy, _ = _check(np.zeros((0, 3)), xy, self.R)
+        z = np.full(xy.shape[0], -np.inf)
+        idx = np.full(xy.shape[0], -1, dtype=np.int64)
+        if xy.shape[0] == 0 or self.n == 0:
+            return BallDrop(z, idx)
+        # rounding of the cell bounds, mm
+        slack = 1e-9 * max(self._scale, float(np.abs(xy).max()), 1.0)
+        _drop(*self._raster, xy, self.R, *self._grid, slack, z, idx)
+        return BallDrop(z, idx)
+
+
 def ball_drop(points, xy, radius_mm, *, cell_mm: Optional[float] = None) -> BallDrop:
     """Drop a ball-end cutter of radius ``radius_mm`` onto ``points`` (N,3), mm, frame with the tool
     axis along +Z, along the vertical lines through ``xy`` (K,2): the ball-centre height of each
     (Sood's point-based ball drop; exact, see the module docstring). ``cell_mm`` (default R/10)
-    sets the raster cell and changes speed only. Ties go to the lowest point index.
+    sets the raster cell and changes speed only. Ties go to the lowest point index. To drop many
+    times on one cloud, build a :class:`DropSurface` once.
     """
-    points, xy, R = _check(points, xy, radius_mm)
-    K = xy.shape[0]
-    z = np.full(K, -np.inf)
-    idx = np.full(K, -1, dtype=np.int64)
-    if K == 0 or points.shape[0] == 0:
-        return BallDrop(z, idx)
-    h = R / 10.0 if cell_mm is None else float(cell_mm)
-    if not h > 0:
-        raise ParameterError("cell_mm must be > 0")
-    lo = points[:, :2].min(axis=0) - R
-    hi = points[:, :2].max(axis=0) + R
-    ext = float((hi - lo).max())
-    h = max(h, ext / 4000.0)                  # at most ~16M cells
-    nx = int((hi[0] - lo[0]) / h) + 2
-    ny = int((hi[1] - lo[1]) / h) + 2
-    pts, order, start, cmax, bmax, nby = _bin(points, lo[0], lo[1], h, nx, ny)
-    slack = 1e-9 * max(float(np.abs(points).max()), float(np.abs(xy).max()), 1.0)   # rounding of the cell bounds
-    _drop(pts, order, start, cmax, bmax, nby, xy, R, lo[0], lo[1], h, nx, ny, slack, z, idx)
-    return BallDrop(z, idx)
+    return DropSurface(points, radius_mm, cell_mm=cell_mm).drop(xy)

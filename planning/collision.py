@@ -19,39 +19,37 @@ contact point and its surface neighbours lie at or below the centre for any admi
 ``brute_force_collision_free`` is the reference: every pair against every point, in numpy.
 
 ``cloud_collision_free`` is the fast method and gives the same answer pair for pair. Per axis
-the obstacles are projected onto the plane normal to the axis and binned into square cells (a
-counting sort, O(N)) keeping each cell's highest and lowest height along the axis; one raster
-per distinct segment radius, with cells of ``cell_fraction * r``. For each ball centre and
-segment, only the cells of the disk of radius ``r`` about the centre's projection are visited
-(row by row, the column interval that the disk covers, widened by a rounding slack); a cell is
-skipped when all its points are below ``lo`` or above ``hi`` by more than a rounding margin,
-otherwise its points get the exact test above, with the same floating-point expressions as the
-reference, and the pair stops at its first colliding point. This is the max-height raster of
-DESIGN.md ("Global visibility") evaluated per centre instead of per cell, so there is no
-undecided ring to re-check; it is compiled with numba and runs over the centres in parallel.
+the obstacles are projected onto the plane normal to the axis and binned into square cells of
+``cell_fraction * r``, one raster per distinct segment radius (:mod:`planning.raster`), keeping
+each cell's highest and lowest height along the axis. Two disk max filters over the cells (DESIGN.md
+"Global visibility"), read at each centre's cell, settle most pairs: "free" when no cell that may
+come within ``r`` of a centre anywhere in that cell rises above ``lo``, "hit" (unbounded segments)
+when a cell wholly within ``r`` does. The pairs left are scanned by a numba kernel: for the exact
+centre, the cells of its disk row by row (widened by a rounding slack), skipping cells wholly
+below ``lo`` or above ``hi``, the other cells' points tested with the same floating-point
+expressions as the reference, stopping at the first colliding point. Axes run on two threads.
 """
 
 from __future__ import annotations
 
 import math
 import os
-from typing import Callable, Optional, Sequence
+from typing import Callable, Optional
 
 import numpy as np
 from scipy import ndimage
 
+from numba import njit
+
 from planning.errors import ParameterError
-from planning.tool import Segment, ToolAssembly
+from planning.geometry import complete_basis
+from planning.raster import bin_cells, take_rows
+from planning.tool import ToolAssembly
 
 EPS_MM = 1e-6
 _MAX_GRID_CELLS = 8_000_000
 _THREADS = max(1, min(2, os.cpu_count() or 1))
 
-try:  # numba compiles the per-axis kernels; import cost only when the module is used
-    import numba
-    from numba import njit
-except ImportError:  # pragma: no cover - numba is a declared dependency
-    numba = None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -171,17 +169,6 @@ def brute_force_collision_free(points, sample_index, normals, axes, tool: ToolAs
 # ----------------------------------------------------------------------------------------------
 # fast method (numba kernels)
 
-def _basis(t: np.ndarray):
-    """Two unit vectors completing ``t`` to an orthonormal frame."""
-    k = int(np.argmin(np.abs(t)))
-    e = np.zeros(3)
-    e[k] = 1.0
-    u = np.cross(t, e)
-    u /= np.linalg.norm(u)
-    v = np.cross(t, u)
-    return u, v
-
-
 def _offsets(r_eff: float, h: float, slack: float):
     """Cell offsets of the over-reporting disk, the under-reporting disk, and the ring between."""
     k = int(np.ceil((r_eff + slack) / h)) + 2
@@ -225,143 +212,103 @@ def _disk_max(mz: np.ndarray, fp: np.ndarray) -> np.ndarray:
 
 
 
-if numba is not None:
-    @njit(cache=True, nogil=True)
-    def _project(x, u, v, t):
-        """Rows of ``x`` (k,3) as (x.u, x.v, x.t), the last in the reference's operation order."""
-        out = np.empty((x.shape[0], 3))
+@njit(cache=True, nogil=True)
+def _project(x, u, v, t):
+    """Rows of ``x`` (k,3) as (x.u, x.v, x.t), the last in the reference's operation order."""
+    out = np.empty((x.shape[0], 3))
+    for i in range(x.shape[0]):
+        a, b, c = x[i, 0], x[i, 1], x[i, 2]
+        out[i, 0] = a * u[0] + b * u[1] + c * u[2]
+        out[i, 1] = a * v[0] + b * v[1] + c * v[2]
+        out[i, 2] = a * t[0] + b * t[1] + c * t[2]
+    return out
+
+@njit(cache=True, nogil=True)
+def _bounds(a, b):
+    """Smallest and largest of columns 0 and 1 over the rows of ``a`` and ``b``."""
+    lo0 = lo1 = np.inf
+    hi0 = hi1 = -np.inf
+    for x in (a, b):
         for i in range(x.shape[0]):
-            a, b, c = x[i, 0], x[i, 1], x[i, 2]
-            out[i, 0] = a * u[0] + b * u[1] + c * u[2]
-            out[i, 1] = a * v[0] + b * v[1] + c * v[2]
-            out[i, 2] = a * t[0] + b * t[1] + c * t[2]
-        return out
+            lo0 = min(lo0, x[i, 0])
+            hi0 = max(hi0, x[i, 0])
+            lo1 = min(lo1, x[i, 1])
+            hi1 = max(hi1, x[i, 1])
+    return lo0, lo1, hi0, hi1
 
-    @njit(cache=True, nogil=True)
-    def _bounds(a, b):
-        """Smallest and largest of columns 0 and 1 over the rows of ``a`` and ``b``."""
-        lo0 = lo1 = np.inf
-        hi0 = hi1 = -np.inf
-        for x in (a, b):
-            for i in range(x.shape[0]):
-                lo0 = min(lo0, x[i, 0])
-                hi0 = max(hi0, x[i, 0])
-                lo1 = min(lo1, x[i, 1])
-                hi1 = max(hi1, x[i, 1])
-        return lo0, lo1, hi0, hi1
-
-    @njit(cache=True, nogil=True)
-    def _raster(obst, proj, x0, y0, h, nx, ny):
-        """Counting sort of the obstacle points into square cells of side h.
-
-        Returns the points in cell order with their projections (k,6: x y z pu pv pz), the
-        start of every cell's run (ncell+1), and every cell's highest and lowest pz."""
-        npt = obst.shape[0]
-        ncell = nx * ny
-        cell = np.empty(npt, np.int64)
-        start = np.zeros(ncell + 1, np.int64)
-        cmax = np.full(ncell, -np.inf)
-        cmin = np.full(ncell, np.inf)
-        for i in range(npt):
-            ix = min(max(int(math.floor((proj[i, 0] - x0) / h)), 0), nx - 1)
-            iy = min(max(int(math.floor((proj[i, 1] - y0) / h)), 0), ny - 1)
-            c = ix * ny + iy
-            cell[i] = c
-            start[c + 1] += 1
-            z = proj[i, 2]
-            if z > cmax[c]:
-                cmax[c] = z
-            if z < cmin[c]:
-                cmin[c] = z
-        for c in range(ncell):
-            start[c + 1] += start[c]
-        fill = start[:-1].copy()
-        pts = np.empty((npt, 6))
-        for i in range(npt):
-            c = cell[i]
-            s = fill[c]
-            fill[c] = s + 1
-            pts[s, 0] = obst[i, 0]
-            pts[s, 1] = obst[i, 1]
-            pts[s, 2] = obst[i, 2]
-            pts[s, 3] = proj[i, 0]
-            pts[s, 4] = proj[i, 1]
-            pts[s, 5] = proj[i, 2]
-        return pts, start, cmax, cmin
-
-    @njit(cache=True, nogil=True)
-    def _query(sorted_pts, centres, rows, t, cx, cy, cz, lo, hi, bounded, r, start, cmax, cmin,
-               x0, y0, h, nx, ny, slack, tol, hit):
-        """Set ``hit[k]`` when an obstacle point lies in segment (lo, hi, r) of centre rows[k]."""
-        rr = r - 1e-6 + slack
-        r_eff = r - 1e-6
-        rr2 = rr * rr
-        r2_in = r_eff * r_eff * (1.0 - 1e-12)
-        r2_out = r_eff * r_eff * (1.0 + 1e-12)
-        t0, t1, t2 = t[0], t[1], t[2]
-        for k in range(rows.shape[0]):
-            if hit[k]:
+@njit(cache=True, nogil=True)
+def _query(spts, sproj, centres, rows, t, cx, cy, cz, lo, hi, bounded, r, start, cmax, cmin,
+           x0, y0, h, nx, ny, slack, tol, hit):
+    """Set ``hit[k]`` when an obstacle point lies in segment (lo, hi, r) of centre rows[k]."""
+    rr = r - 1e-6 + slack
+    r_eff = r - 1e-6
+    rr2 = rr * rr
+    r2_in = r_eff * r_eff * (1.0 - 1e-12)
+    r2_out = r_eff * r_eff * (1.0 + 1e-12)
+    t0, t1, t2 = t[0], t[1], t[2]
+    for k in range(rows.shape[0]):
+        if hit[k]:
+            continue
+        i = rows[k]
+        c0, c1, c2 = centres[i, 0], centres[i, 1], centres[i, 2]
+        px, py = cx[k], cy[k]
+        thr_lo = cz[k] + lo - tol
+        thr_hi = cz[k] + hi + tol
+        ix0 = max(int(math.floor((px - rr - x0) / h)), 0)
+        ix1 = min(int(math.floor((px + rr - x0) / h)), nx - 1)
+        found = False
+        for ix in range(ix0, ix1 + 1):
+            if found:
+                break
+            xa = x0 + ix * h
+            gx = 0.0
+            if px < xa:
+                gx = xa - px
+            elif px > xa + h:
+                gx = px - (xa + h)
+            if gx >= rr:
                 continue
-            i = rows[k]
-            c0, c1, c2 = centres[i, 0], centres[i, 1], centres[i, 2]
-            px, py = cx[k], cy[k]
-            thr_lo = cz[k] + lo - tol
-            thr_hi = cz[k] + hi + tol
-            ix0 = max(int(math.floor((px - rr - x0) / h)), 0)
-            ix1 = min(int(math.floor((px + rr - x0) / h)), nx - 1)
-            found = False
-            for ix in range(ix0, ix1 + 1):
+            half = math.sqrt(rr * rr - gx * gx)
+            iy0 = max(int(math.floor((py - half - y0) / h)), 0)
+            iy1 = min(int(math.floor((py + half - y0) / h)), ny - 1)
+            base = ix * ny
+            for iy in range(iy0, iy1 + 1):
+                cc = base + iy
+                if cmax[cc] <= thr_lo:
+                    continue
+                if bounded and cmin[cc] > thr_hi:
+                    continue
+                for s in range(start[cc], start[cc + 1]):
+                    # projected prefilter, conservative by the rounding margins
+                    if sproj[s, 2] <= thr_lo:
+                        continue
+                    if bounded and sproj[s, 2] > thr_hi:
+                        continue
+                    e0 = sproj[s, 0] - px
+                    e1 = sproj[s, 1] - py
+                    if e0 * e0 + e1 * e1 >= rr2:
+                        continue
+                    d0 = spts[s, 0] - c0
+                    d1 = spts[s, 1] - c1
+                    d2 = spts[s, 2] - c2
+                    a = d0 * t0 + d1 * t1 + d2 * t2
+                    if a > lo and ((not bounded) or a <= hi):
+                        w0 = d0 - a * t0
+                        w1 = d1 - a * t1
+                        w2 = d2 - a * t2
+                        w = w0 * w0 + w1 * w1 + w2 * w2
+                        # rho < r_eff decided on the square where it is clear-cut (the
+                        # relative margin dwarfs rounding); sqrt, as the reference, otherwise
+                        if w < r2_in:
+                            found = True
+                            break
+                        if w <= r2_out and math.sqrt(w) < r_eff:
+                            found = True
+                            break
                 if found:
                     break
-                xa = x0 + ix * h
-                gx = 0.0
-                if px < xa:
-                    gx = xa - px
-                elif px > xa + h:
-                    gx = px - (xa + h)
-                if gx >= rr:
-                    continue
-                half = math.sqrt(rr * rr - gx * gx)
-                iy0 = max(int(math.floor((py - half - y0) / h)), 0)
-                iy1 = min(int(math.floor((py + half - y0) / h)), ny - 1)
-                base = ix * ny
-                for iy in range(iy0, iy1 + 1):
-                    cc = base + iy
-                    if cmax[cc] <= thr_lo:
-                        continue
-                    if bounded and cmin[cc] > thr_hi:
-                        continue
-                    for s in range(start[cc], start[cc + 1]):
-                        # projected prefilter, conservative by the rounding margins
-                        if sorted_pts[s, 5] <= thr_lo:
-                            continue
-                        if bounded and sorted_pts[s, 5] > thr_hi:
-                            continue
-                        e0 = sorted_pts[s, 3] - px
-                        e1 = sorted_pts[s, 4] - py
-                        if e0 * e0 + e1 * e1 >= rr2:
-                            continue
-                        d0 = sorted_pts[s, 0] - c0
-                        d1 = sorted_pts[s, 1] - c1
-                        d2 = sorted_pts[s, 2] - c2
-                        a = d0 * t0 + d1 * t1 + d2 * t2
-                        if a > lo and ((not bounded) or a <= hi):
-                            w0 = d0 - a * t0
-                            w1 = d1 - a * t1
-                            w2 = d2 - a * t2
-                            w = w0 * w0 + w1 * w1 + w2 * w2
-                            # rho < r_eff decided on the square where it is clear-cut (the
-                            # relative margin dwarfs rounding); sqrt, as the reference, otherwise
-                            if w < r2_in:
-                                found = True
-                                break
-                            if w <= r2_out and math.sqrt(w) < r_eff:
-                                found = True
-                                break
-                    if found:
-                        break
-            if found:
-                hit[k] = True
+        if found:
+            hit[k] = True
 
 
 def cloud_collision_free(points, sample_index, normals, axes, tool: ToolAssembly, *,
@@ -406,7 +353,7 @@ def cloud_collision_free(points, sample_index, normals, axes, tool: ToolAssembly
         rows = np.arange(n) if cand_t is None else np.flatnonzero(cand_t[j])
         if rows.size and segs:
             t = t_ref / np.linalg.norm(t_ref)
-            u, v = _basis(t)
+            u, v = complete_basis(t)
             proj = _project(obst, u, v, t_ref)
             cs = centres[rows]
             cproj = _project(cs, u, v, t_ref)
@@ -420,7 +367,8 @@ def cloud_collision_free(points, sample_index, normals, axes, tool: ToolAssembly
                 y0 = by0 - k_pad * h
                 nx = int((bx1 - x0) / h) + k_pad + 2
                 ny = int((by1 - y0) / h) + k_pad + 2
-                spts, start, cmax, cmin = _raster(obst, proj, x0, y0, h, nx, ny)
+                order, start, cmax, cmin = bin_cells(proj[:, 0], proj[:, 1], proj[:, 2], x0, y0, h, nx, ny)
+                spts, sproj = take_rows(obst, order), take_rows(proj, order)
                 # per centre cell: the highest point of every cell that may come within r of a
                 # centre anywhere in the cell (over-reports) and of the cells wholly within r of
                 # every such centre (under-reports)
@@ -444,7 +392,7 @@ def cloud_collision_free(points, sample_index, normals, axes, tool: ToolAssembly
                         continue
                     # neighbouring centres read the same cells: visit them in cell order
                     sub = np.zeros(sel.size, dtype=np.bool_)
-                    _query(spts, cs, sel, t_ref, cx[sel], cy[sel], cz[sel], lo,
+                    _query(spts, sproj, cs, sel, t_ref, cx[sel], cy[sel], cz[sel], lo,
                            0.0 if hi is None else hi, hi is not None, r, start, cmax, cmin,
                            x0, y0, h, nx, ny, slack, tol, sub)
                     hit[sel] |= sub

@@ -77,6 +77,7 @@ import fcl
 import numpy as np
 
 from planning.errors import InputError, ParameterError
+from planning.geometry import complete_basis
 from planning.tool import ToolAssembly
 
 #: Numpy decides "free"/"hit" only with at least this clearance/penetration, mm; closer pairs go to FCL.
@@ -281,12 +282,8 @@ def load_mesh(path, *, units: float = 1.0, name: str | None = None,
 
 def _frame(t: np.ndarray) -> np.ndarray:
     """Proper rotation whose third column is the unit vector ``t`` (FCL's cylinder axis is local z)."""
-    k = int(np.argmin(np.abs(t)))
-    e = np.zeros(3)
-    e[k] = 1.0
-    u = np.cross(t, e)
-    u /= np.linalg.norm(u)
-    return np.column_stack([u, np.cross(t, u), t])
+    u, v = complete_basis(t)
+    return np.column_stack([u, v, t])
 
 
 def _collide(obj, tf, other) -> bool:

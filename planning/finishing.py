@@ -26,10 +26,11 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from planning.balldrop import ball_drop
+from planning.balldrop import DropSurface
 from planning.errors import ParameterError
 
 RAPID, FEED = 0, 1
+_CHUNK = 256        # moves per KD-tree query in min_clearance (bounds the gathered points)
 
 
 @dataclass(frozen=True)
@@ -56,31 +57,39 @@ def step_over_mm(radius_mm: float, scallop_mm: float) -> float:
     return 2.0 * math.sqrt(2 * R * h - h * h)
 
 
-def min_clearance(cl_mm: np.ndarray, feed: np.ndarray, points: np.ndarray, radius_mm: float) -> np.ndarray:
+def min_clearance(cl_mm: np.ndarray, feed: np.ndarray, points: np.ndarray, radius_mm: float, *,
+                  tree: cKDTree | None = None) -> np.ndarray:
     """Per feed move i (from ``cl_mm[i-1]`` to ``cl_mm[i]`` where ``feed[i]``): the smallest distance
     from a cloud point to that segment (``inf`` where no point is within ``2 R``; NaN for non-feed
-    entries). Exact point-to-segment distances over the points a KD-tree finds near each move."""
+    entries). Exact point-to-segment distances over the points a KD-tree (``tree``, built on
+    ``points`` when not given) finds near each move, in chunks of moves."""
     cl = np.asarray(cl_mm, dtype=np.float64)
+    points = np.asarray(points, dtype=np.float64)
     out = np.full(cl.shape[0], np.nan)
     idx = np.flatnonzero(np.asarray(feed, dtype=bool))
     idx = idx[idx > 0]
     if idx.size == 0:
         return out
     out[idx] = np.inf
-    tree = cKDTree(points)
+    tree = cKDTree(points) if tree is None else tree
     a, b = cl[idx - 1], cl[idx]
     mid = 0.5 * (a + b)
-    half = 0.5 * np.linalg.norm(b - a, axis=1)
-    R = float(radius_mm)
-    for k in range(idx.size):
-        near = tree.query_ball_point(mid[k], half[k] + 2 * R)
-        if not near:
+    reach = 0.5 * np.linalg.norm(b - a, axis=1) + 2 * float(radius_mm)
+    for c0 in range(0, idx.size, _CHUNK):
+        c1 = min(c0 + _CHUNK, idx.size)
+        near = tree.query_ball_point(mid[c0:c1], reach[c0:c1])
+        counts = np.fromiter((len(x) for x in near), dtype=np.int64, count=c1 - c0)
+        if counts.sum() == 0:
             continue
-        q = points[near]
-        d = b[k] - a[k]
-        L2 = d @ d
-        u = np.zeros(q.shape[0]) if L2 == 0 else np.clip((q - a[k]) @ d / L2, 0.0, 1.0)
-        out[idx[k]] = float(np.sqrt(((q - (a[k] + u[:, None] * d)) ** 2).sum(axis=1)).min())
+        own = np.repeat(np.arange(c0, c1), counts)
+        q = points[np.concatenate([np.asarray(x, dtype=np.int64) for x in near])]
+        d = b[own] - a[own]
+        L2 = (d * d).sum(axis=1)
+        u = np.clip(np.where(L2 > 0, ((q - a[own]) * d).sum(axis=1) / np.where(L2 > 0, L2, 1.0), 0.0), 0.0, 1.0)
+        dist = np.sqrt(((q - (a[own] + u[:, None] * d)) ** 2).sum(axis=1))
+        has = np.flatnonzero(counts)
+        first = np.concatenate([[0], np.cumsum(counts)[:-1]])[has]
+        out[idx[c0 + has]] = np.minimum.reduceat(dist, first)
     return out
 
 
@@ -123,9 +132,11 @@ def finishing_passes(cloud_frame: np.ndarray, area_frame_points: np.ndarray, *, 
     n_pass = max(1, int(np.ceil((y1 - y0) / s)) + 1)
     ys = 0.5 * (y0 + y1) + (np.arange(n_pass) - (n_pass - 1) / 2.0) * s     # centred on the area
     xs = np.arange(lo[0], hi[0] + step, step)
-    cls, moves = [], []
+    surface = DropSurface(pts, R)
+    tree = cKDTree(pts)
+    cls, moves, clears = [], [], []
     n_done = 0
-    for p, y in enumerate(ys):
+    for y in ys:
         ix = np.floor((xs - lo[0]) / c).astype(np.int64)
         iy = int(np.floor((y - lo[1]) / c))
         inside = (ix >= 0) & (ix < nx) & (0 <= iy < ny)
@@ -133,53 +144,56 @@ def finishing_passes(cloud_frame: np.ndarray, area_frame_points: np.ndarray, *, 
             inside[inside] = occ[ix[inside], iy]
         if not inside.any():
             continue
-        # stretches of consecutive inside samples
+        # stretches of consecutive inside samples, reversed on every other pass (zig-zag)
         edges = np.flatnonzero(np.diff(np.concatenate([[0], inside.astype(np.int8), [0]])))
         runs = list(zip(edges[::2], edges[1::2]))
-        if zigzag and n_done % 2 == 1:
-            runs = [(a, b) for a, b in runs[::-1]]
-        for a, b in runs:
-            xr = xs[a:b]
-            if zigzag and n_done % 2 == 1:
-                xr = xr[::-1]
+        back = zigzag and n_done % 2 == 1
+        for a, b in (runs[::-1] if back else runs):
+            xr = xs[a:b][::-1] if back else xs[a:b]
             xy = np.stack([xr, np.full(xr.size, y)], 1)
-            z = ball_drop(pts, xy, R).z_mm
+            z = surface.drop(xy).z_mm
             ok = np.isfinite(z)                 # no point under the ball: nothing to cut there
             if not ok.any():
                 continue
-            line = np.column_stack([xy[ok], z[ok]])
-            line = _make_safe(pts, line, R, tol_mm, max_splits)
-            cls.append([[line[0, 0], line[0, 1], safe]])
-            moves.append([RAPID])
-            cls.append(line)
-            moves.append([FEED] * line.shape[0])
-            cls.append([[line[-1, 0], line[-1, 1], safe]])
-            moves.append([FEED])           # retract straight up at feed
+            line, clear = _make_safe(surface, tree, pts, np.column_stack([xy[ok], z[ok]]), R, tol_mm, max_splits)
+            # rapid above the start, plunge, the pass, retract straight up (plunge and retract
+            # are feed moves above ball-drop heights; their clearance is measured below)
+            cls += [[[line[0, 0], line[0, 1], safe]], line, [[line[-1, 0], line[-1, 1], safe]]]
+            moves += [[RAPID], [FEED] * line.shape[0], [FEED]]
+            clears += [[np.nan], clear, [np.nan]]
         n_done += 1
     if not cls:
         raise ParameterError("no finishing pass lies on the area")
     cl = np.concatenate([np.asarray(x, dtype=np.float64).reshape(-1, 3) for x in cls])
     mv = np.concatenate([np.asarray(m, dtype=np.int8) for m in moves])
-    clear = min_clearance(cl, mv == FEED, pts, R)
+    clear = np.concatenate([np.asarray(x, dtype=np.float64) for x in clears])
+    # the passes' moves were measured while making them safe; measure the plunges and retracts
     feed = mv == FEED
+    links = feed & np.isnan(clear)
+    clear[links] = min_clearance(cl, links, pts, R, tree=tree)[links]
     seg = np.linalg.norm(np.diff(cl, axis=0), axis=1)
+    worst = np.nanmin(clear)
     return FinishingPath(cl_mm=cl, move=mv, n_passes=n_done, step_over_mm=s,
-                         min_clearance_mm=float(np.nanmin(clear)) if np.isfinite(np.nanmin(clear)) else float("inf"),
-                         length_mm=float(seg[feed[1:]].sum()))
+                         min_clearance_mm=float(worst), length_mm=float(seg[feed[1:]].sum()))
 
-
-def _make_safe(pts, line, R, tol, max_splits):
+def _make_safe(surface, tree, pts, line, R, tol, max_splits):
     """Split the moves of a pass whose clearance is below R - tol at their midpoints (with a fresh
-    ball drop) until every move clears or ``max_splits`` rounds have run."""
+    ball drop) until every move clears or ``max_splits`` rounds have run; only the new moves are
+    measured again. Returns the pass and each point's move clearance (NaN for its first point)."""
+    feed = np.ones(line.shape[0], dtype=bool)
+    feed[0] = False
+    clear = min_clearance(line, feed, pts, R, tree=tree)
     for _ in range(max_splits):
-        feed = np.ones(line.shape[0], dtype=bool)
-        feed[0] = False
-        clear = min_clearance(line, feed, pts, R)
         bad = np.flatnonzero(clear < R - tol)
         if bad.size == 0:
-            return line
+            break
         mids = 0.5 * (line[bad - 1] + line[bad])
-        mz = ball_drop(pts, mids[:, :2], R).z_mm
-        mids[:, 2] = np.maximum(mz, mids[:, 2])
+        mids[:, 2] = np.maximum(surface.drop(mids[:, :2]).z_mm, mids[:, 2])
         line = np.insert(line, bad, mids, axis=0)
-    return line
+        clear = np.insert(clear, bad, np.nan)
+        at = bad + np.arange(bad.size)          # where the midpoints landed
+        redo = np.zeros(line.shape[0], dtype=bool)
+        redo[at] = True
+        redo[at + 1] = True
+        clear[redo] = min_clearance(line, redo, pts, R, tree=tree)[redo]
+    return line, clear

@@ -162,7 +162,7 @@ class VisibilityParams(_Strict):
         "all",
         description="Cloud points the collision test checks: 'all' = every input point (exact for the scan; time "
                     "grows with its size); 'sampled' = only the points that got a normal (one per throwing-grid "
-                    "square: about 10x faster on a dense scan, but a tool passing between samples is missed - on "
+                    "square: 5-8x faster on the femur-like scan, but a tool passing between samples is missed - on "
                     "the femur-like case 0.02 % of the pairs, 0.6 % of the collisions).")
 
     @field_validator("cone_deg")
@@ -198,6 +198,13 @@ class CylinderFixtureItem(_Strict):
     axis: Vec3 = Field((0.0, 0.0, 1.0), description="Direction from the base to the top (need not be unit).")
     radius_mm: float = Field(..., gt=0, le=10_000, description="Radius, mm.")
     height_mm: float = Field(..., gt=0, le=10_000, description="Height along the axis, mm.")
+
+    @field_validator("axis")
+    @classmethod
+    def _axis(cls, v: Vec3) -> Vec3:
+        if sum(c * c for c in v) < 1e-18:
+            raise ValueError("the cylinder axis is the zero vector")
+        return v
 
 
 class MeshFixtureItem(_Strict):

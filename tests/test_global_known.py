@@ -8,6 +8,7 @@ import pytest
 
 from planning import samples
 from planning.collision import brute_force_collision_free, cloud_collision_free
+from planning.gaussmap import candidate_axes
 from planning.globalvis import global_visibility
 from planning.machine import load_profile, machine_visibility
 from planning.tool import Segment, ToolAssembly, ball_tool
@@ -116,18 +117,23 @@ def test_deep_cavity_holder_collides_where_bare_cutter_does_not():
                           brute_force_collision_free(pts1, [i], [[0, 0, 1.0]], axes, tool))
 
 
-def test_visibility_stage_counts_and_order():
-    """global_visibility on the slot: the filters only remove pairs, their counts add up, and the
-    travel filter follows the placement (a part placed far off the table is out of travel)."""
-    s = samples.slot(density_per_mm2=0.5, seed=3)
-    idx = np.arange(0, s.points.shape[0], 3)
+def _slot_case(density, seed, every):
+    """A slot sample, every ``every``-th point sampled, the machine-feasible axes of a 15/45 deg grid
+    on the default trunnion, and the cone [10, 80] visibility."""
+    s = samples.slot(density_per_mm2=density, seed=seed)
+    idx = np.arange(0, s.points.shape[0], every)
     normals = s.normals[idx]
     prof = load_profile("compact_trunnion_bc")
-    from planning.gaussmap import candidate_axes
     cand = candidate_axes("phi_theta", phi_step_deg=15, theta_step_deg=45)
     mv = machine_visibility(cand.axes, prof)
     axes, angles = cand.axes[mv.feasible], np.asarray(mv.angles_deg)[mv.feasible]
-    cone = cone_visibility(normals, axes, (10, 80))
+    return s, idx, normals, prof, axes, angles, cone_visibility(normals, axes, (10, 80))
+
+
+def test_visibility_stage_counts_and_order():
+    """global_visibility on the slot: the filters only remove pairs, their counts add up, and the
+    travel filter follows the placement (a part placed far off the table is out of travel)."""
+    s, idx, normals, prof, axes, angles, cone = _slot_case(0.5, 3, 3)
     tool = ball_tool(3.0, flute_length_mm=12.0, stickout_mm=30.0, holder=[(12.5, 45.0, None)])
     gv = global_visibility(s.points, idx, normals, axes, angles, cone, tool=tool, profile=prof,
                            fixtures_params=FixturesParams())
@@ -145,23 +151,17 @@ def test_visibility_stage_counts_and_order():
                             fixtures_params=FixturesParams(), check_global=False, check_travel=False)
     assert np.array_equal(off.visible, cone)
     # a forbidden point cloud hovering over the block removes pairs, never adds any
-    hover = FixturesParams.model_validate({"items": [{"type": "points", "points_mm": [[x, y, 45.0] for x in range(-40, 41, 2) for y in range(-30, 31, 2)]}]})
-    hv = global_visibility(s.points, idx, normals, axes, angles, cone, tool=tool, profile=prof, fixtures_params=hover)
+    grid = [[x, y, 45.0] for x in range(-40, 41, 2) for y in range(-30, 31, 2)]
+    hover = FixturesParams.model_validate({"items": [{"type": "points", "points_mm": grid}]})
+    hv = global_visibility(s.points, idx, normals, axes, angles, cone, tool=tool, profile=prof,
+                           fixtures_params=hover)
     assert not np.any(hv.visible & ~gv.visible) and hv.visible.sum() < gv.visible.sum()
 
 
 def test_all_obstacles_never_free_more_than_sampled():
     """Every input point as an obstacle (default) is the exact answer; the sampled subset can only
     call more pairs free."""
-    s = samples.slot(density_per_mm2=1.0, seed=4)
-    idx = np.arange(0, s.points.shape[0], 4)
-    normals = s.normals[idx]
-    prof = load_profile("compact_trunnion_bc")
-    from planning.gaussmap import candidate_axes
-    cand = candidate_axes("phi_theta", phi_step_deg=15, theta_step_deg=45)
-    mv = machine_visibility(cand.axes, prof)
-    axes, angles = cand.axes[mv.feasible], np.asarray(mv.angles_deg)[mv.feasible]
-    cone = cone_visibility(normals, axes, (10, 80))
+    s, idx, normals, prof, axes, angles, cone = _slot_case(1.0, 4, 4)
     tool = ball_tool(3.0, flute_length_mm=20.0)
     kw = dict(tool=tool, profile=prof, fixtures_params=FixturesParams(), check_travel=False)
     full = global_visibility(s.points, idx, normals, axes, angles, cone, obstacles="all", **kw)

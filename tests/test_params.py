@@ -44,6 +44,8 @@ def test_defaults_follow_design():
     ({"fixtures": {"items": [{"type": "cone"}]}}, "fixtures.items.0"),
     ({"fixtures": {"items": [{"type": "cylinder", "base_mm": [0, 0, 0], "radius_mm": 0, "height_mm": 1}]}},
      "radius_mm"),
+    ({"fixtures": {"items": [{"type": "cylinder", "base_mm": [0, 0, 0], "axis": [0, 0, 0], "radius_mm": 1,
+                              "height_mm": 1}]}}, "zero vector"),
     ({"setups": {"functional_zones": [{"type": "box", "min_mm": [1, 1, 1], "max_mm": [0, 2, 2]}]}}, "must not exceed"),
 ])
 def test_bad_parameters_name_the_parameter(doc, needle):

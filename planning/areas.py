@@ -43,23 +43,20 @@ def assign_areas(points: np.ndarray, sample_index: np.ndarray, normals: np.ndarr
     k = len(selected)
     sub = np.asarray(visibility)[:, np.asarray(selected, dtype=np.int64)]  # (n,k)
     n_seen = sub.sum(axis=1)
-    middle = 0.5 * (float(cone_deg[0]) + float(cone_deg[1]))
-    # rounded so that equal angles up to float noise tie, and the tie goes to the lowest set-up id
-    score = np.round(np.abs(axis_normal_angles_deg(normals, selected_axes) - middle), 6)
-    score = np.where(sub, score, np.inf)
-    labels = np.argmin(score, axis=1).astype(np.int64)  # argmin returns the first (lowest id) on ties
     seen = n_seen > 0
     integrated = ~seen
-    if k == 0 or n == 0:
-        labels[:] = -1
-    elif integrated.any():
-        if seen.any():
+    labels = np.full(n, -1, dtype=np.int64)   # no set-up (k == 0) or no point seen: all -1
+    if seen.any():
+        middle = 0.5 * (float(cone_deg[0]) + float(cone_deg[1]))
+        # rounded so that equal angles up to float noise tie, and the tie goes to the lowest set-up id
+        score = np.round(np.abs(axis_normal_angles_deg(normals, selected_axes) - middle), 6)
+        score = np.where(sub, score, np.inf)
+        labels = np.argmin(score, axis=1).astype(np.int64)  # the first (lowest id) on ties
+        if integrated.any():
             sp = points[sample_index]
             tree = cKDTree(sp[seen])
             _, j = tree.query(sp[integrated], k=1, workers=-1)
             labels[integrated] = labels[seen][j]
-        else:
-            labels[:] = -1
     if n > 0 and k > 0:
         tree = cKDTree(points[sample_index])
         _, j = tree.query(points, k=1, workers=-1)

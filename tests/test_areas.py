@@ -53,3 +53,13 @@ def test_leftovers_match_brute_force_nearest():
     for i in range(400):
         d = np.linalg.norm(sp - pts[i], axis=1)
         assert a.input_labels[i] == a.labels[np.argmin(d)]
+
+
+def test_no_setup_chosen_labels_everything_uncovered():
+    # select_setups returns no axis when none is kept (e.g. nothing visible): nothing is machined
+    pts = np.random.default_rng(1).uniform(0, 10, size=(8, 3))
+    normals = np.tile([0, 0, 1.0], (4, 1))
+    a = assign_areas(pts, np.arange(4), normals, np.zeros((4, 3), bool), np.zeros(0, np.int64),
+                     np.zeros((0, 3)))
+    assert a.labels.tolist() == [-1] * 4 and a.input_labels.tolist() == [-1] * 8
+    assert a.integrated.all() and not a.overlap.any()

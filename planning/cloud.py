@@ -529,20 +529,22 @@ def _ply_vertices_plyfile(data: bytes) -> np.ndarray:
     return np.asarray(table[scalar])
 
 
+def _columns(table: np.ndarray, names) -> np.ndarray:
+    """The fields ``names`` of a structured table as an ``(N, len(names))`` float64 array."""
+    out = np.empty((table.shape[0], len(names)), dtype=np.float64)
+    for j, c in enumerate(names):
+        out[:, j] = table[c]
+    return out
+
+
 def _xyz(table: np.ndarray) -> np.ndarray:
-    pts = np.empty((table.shape[0], 3), dtype=np.float64)
-    for j, c in enumerate(("x", "y", "z")):
-        pts[:, j] = table[c]
-    return pts
+    return _columns(table, ("x", "y", "z"))
 
 
 def _normals_from(table: np.ndarray, names) -> np.ndarray | None:
     if not all(n in table.dtype.names for n in names):
         return None
-    nrm = np.empty((table.shape[0], 3), dtype=np.float64)
-    for j, c in enumerate(names):
-        nrm[:, j] = table[c]
-    return nrm
+    return _columns(table, names)
 
 
 # --------------------------------------------------------------------------------------------

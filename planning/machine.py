@@ -225,10 +225,10 @@ def part_to_tool_rotation(angles_deg, profile) -> np.ndarray:
     Makki §2.2.2). Travel limits are not checked.
     """
     p = _profile(profile)
+    if p.is_table_table:
+        return part_to_machine_rotation(angles_deg, p)
     a = _as_angles(angles_deg)
     tilt_rad, rotary_rad = np.radians(a[:, 0]), np.radians(a[:, 1])
-    if p.is_table_table:
-        return _rot(_tilt_axis(p), tilt_rad) @ _rot("z", rotary_rad)
     head = _rot("z", rotary_rad) @ _rot(_tilt_axis(p), tilt_rad)
     return np.swapaxes(head, -1, -2)
 

@@ -65,6 +65,7 @@ planar Poisson process), scaled by the subsampling fraction. At 45 points/mm^2 (
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -536,20 +537,15 @@ def sphere_throwing(points, *, sphere_diameter_mm: float = 7.0, grid_spacing_mm:
         _, _, _, _, _, lp, _, nrm, _ = _throw_direction(cols32, p, origin, dirs[i], r, g)
         return lp, nrm
 
-    results = [None] * k
+    results = []
     workers = _workers(k)
-    if workers == 1:
-        for i in range(k):
-            results[i] = one(i)
+    with ThreadPoolExecutor(max_workers=workers) if workers > 1 else contextlib.nullcontext() as pool:
+        # in direction order either way: deterministic progress messages
+        ordered = map(one, range(k)) if pool is None else pool.map(one, range(k))
+        for i, res in enumerate(ordered):
+            results.append(res)
             if progress is not None:
-                progress((i + 1) / k, _progress_message(i, k, dirs[i], results[i][0].size))
-    else:
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            futures = [pool.submit(one, i) for i in range(k)]
-            for i, fut in enumerate(futures):      # in order: deterministic progress messages
-                results[i] = fut.result()
-                if progress is not None:
-                    progress((i + 1) / k, _progress_message(i, k, dirs[i], results[i][0].size))
+                progress((i + 1) / k, _progress_message(i, k, dirs[i], res[0].size))
 
     lp = np.concatenate([res[0] for res in results])
     nrm = np.concatenate([res[1] for res in results])

@@ -15,7 +15,7 @@ import numpy as np
 
 from planning.cloud import atomic_path, write_ply
 from planning.pipeline import PlanOutcome
-from planning.preview import UNCOVERED_COLOR, area_colors, render_preview
+from planning.preview import point_colors, render_preview
 
 
 def _atomic_bytes(path: Path, data: bytes) -> None:
@@ -46,10 +46,7 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike) -> dict[str, Pa
     _atomic_bytes(paths["plan_npz"], buf.getvalue())
 
     labels = outcome.input_labels
-    k = len(outcome.result.setups)
-    palette = area_colors(max(k, 1))
-    colors = np.where((labels >= 0)[:, None], palette[np.clip(labels, 0, None) % max(k, 1)],
-                      np.asarray(UNCOVERED_COLOR, dtype=np.uint8)).astype(np.uint8)
+    colors = point_colors(labels, len(outcome.result.setups))
     write_ply(paths["segmentation_ply"], outcome.points, colors=colors, labels=labels, binary=True)
 
     a = outcome.arrays

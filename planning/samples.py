@@ -322,13 +322,6 @@ class _BentTube:
         return np.vstack(caps_p), np.vstack(caps_n)
 
 
-def _smin(a, b, k):
-    """Polynomial smooth minimum of blend radius k and its weight h: equals min(a, b) when
-    |a - b| >= k, never below min(a, b) - k/4."""
-    h = np.clip(0.5 + 0.5 * (b - a) / k, 0.0, 1.0)
-    return b * (1.0 - h) + a * h - k * h * (1.0 - h), h
-
-
 # ----------------------------------------------------------------------------------------------
 # the femur-like part (bone frame: x from the distal end to the head, y lateral, z anterior)
 
@@ -410,6 +403,7 @@ def _union_block(x, grad, cull, owner):
             else:
                 d, gd = prim.value(xs), None
         fa = f[idx]
+        # polynomial smooth min: min(d, fa) where |d - fa| >= k, never below it by more than k/4
         h = np.clip(0.5 + 0.5 * (d - fa) / max(k, 1e-12), 0.0, 1.0)   # fa = _FAR gives h = 0
         f[idx] = d * (1.0 - h) + fa * h - k * h * (1.0 - h)
         if grad:

@@ -219,11 +219,17 @@ def _unique_rows(B: np.ndarray):
     return first.astype(np.int64), counts.astype(np.int64)
 
 
+def _wgram(X: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted Gram matrix ``X^T diag(w) X`` (classes x axes -> axes x axes), as float64: entry
+    (a, b) is the weight of the classes both axes a and b see."""
+    return ((X * w[:, None]).T @ X).astype(np.float64)
+
+
 class _Problem:
     """The reduced instance: weighted classes x distinct kept axes (Makki §3.1 reduced matrix)."""
 
     def __init__(self, V: np.ndarray, zone: np.ndarray | None, min_points: int, required: int):
-        n, m = V.shape
+        n = V.shape[0]
         self.n = n
         self.required = required
         counts = V.sum(axis=0)
@@ -258,7 +264,7 @@ class _Problem:
         self.wf = self.w.astype(self.ftype)
         self.sizes = (self.wf @ self.Af).astype(np.float64) if self.m else np.zeros(0)
         if self.m:
-            self.gram = ((self.Af * self.wf[:, None]).T @ self.Af).astype(np.float64)
+            self.gram = _wgram(self.Af, self.wf)
         else:
             self.gram = np.zeros((0, 0))
         # zone conflicts: two axes that both see a zone class may not be chosen together
@@ -385,8 +391,8 @@ def _local_search(prob: _Problem, sel: list[int], mode: str, floor: int, max_rou
             else:
                 XU = prob.Af[U]
                 XD = prob.Af[D1]
-                P = ((XU * prob.wf[U][:, None]).T @ XU).astype(np.float64)
-                Q = ((XD * prob.wf[D1][:, None]).T @ XD).astype(np.float64)
+                P = _wgram(XU, prob.wf[U])
+                Q = _wgram(XD, prob.wf[D1])
                 covs = c0 + g[:, None] + g[None, :] - P
                 ovs = o0 + h[:, None] + h[None, :] - Q + P
                 ok = np.triu(free[:, None] & free[None, :], 1) & (covs >= floor)
@@ -760,8 +766,8 @@ class _Search:
             R2 = np.flatnonzero((deg == 1) & col)  # classes j turns into overlap
             X1 = np.take(np.take(p.Af, R1, axis=0), cand2, axis=1)
             X2 = np.take(np.take(p.Af, R2, axis=0), cand2, axis=1)
-            G1 = ((X1 * p.wf[R1][:, None]).T @ X1).astype(np.float64)
-            G2 = ((X2 * p.wf[R2][:, None]).T @ X2).astype(np.float64)
+            G1 = _wgram(X1, p.wf[R1])
+            G2 = _wgram(X2, p.wf[R2])
             ix = np.ix_(after, after)
             child["P"] = node["P"][ix] - G1
             child["Q"] = node["Q"][ix] + G1 - G2
@@ -803,12 +809,14 @@ def _progress_fn(progress, lo, hi, text):
 
 
 def _heuristics(prob: _Problem, K: int) -> dict[int, tuple[list[int], int, int]]:
+    """Greedy incumbent for every k <= K: the greedy run is deterministic, so its k-axis answer
+    is the first k picks of the longest run (absent where zone conflicts stop it earlier)."""
+    picks = _greedy(prob, min(K, prob.m))
     out = {}
-    for k in range(1, min(K, prob.m) + 1):
-        sel = _greedy(prob, k)
-        if len(sel) == k:
-            c, o = prob.evaluate(sel)
-            out[k] = (sel, c, o)
+    for k in range(1, len(picks) + 1):
+        sel = picks[:k]
+        c, o = prob.evaluate(sel)
+        out[k] = (sel, c, o)
     return out
 
 
@@ -955,6 +963,11 @@ def _cp_solve(model, deadline):
     return solver, status
 
 
+def _chosen(solver, x) -> list[int]:
+    """Reduced axis indices set in a CP-SAT solution."""
+    return [j for j, v in enumerate(x) if solver.Value(v)]
+
+
 def _hint(model, x, sel):
     model.ClearHints()
     s = set(sel)
@@ -971,9 +984,6 @@ def _solve_cpsat(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
     kmax = min(K, prob.m)
     builder = _CpModelBuilder(prob)
 
-    def chosen(solver, x):
-        return [j for j, v in enumerate(x) if solver.Value(v)]
-
     kstar, found = None, None
     for k in range(1, kmax + 1):
         if progress:
@@ -983,7 +993,7 @@ def _solve_cpsat(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
             _hint(model, x, heur[k][0])
         solver, st = _cp_solve(model, deadline)
         if st in (OPT, FEAS):
-            kstar, found = k, chosen(solver, x)
+            kstar, found = k, _chosen(solver, x)
             break
         if st != INF:  # time limit
             return _timeout_fallback(prob, heur, k, kmax)
@@ -1002,7 +1012,7 @@ def _solve_cpsat(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
     solver, st = _cp_solve(model, deadline)
     if st not in (OPT, FEAS):  # no time left at all: keep the stage-1 answer
         return _Outcome("feasible", start, None, "time limit reached")
-    sel = chosen(solver, x)
+    sel = _chosen(solver, x)
     if st == OPT:
         return _Outcome("optimal", sel, prob.evaluate(sel)[1])
     # covered <= n, so overlap >= bound / (n + 1)
@@ -1024,16 +1034,13 @@ def _cpsat_best_cover(prob, builder, K, deadline, heur) -> _Outcome:
     best_h = max(heur.values(), key=lambda t: (t[1], -len(t[0])))[0] if heur else []
     note = "time limit reached: the best coverage shown may not be the maximum"
 
-    def chosen(solver, x):
-        return [j for j, v in enumerate(x) if solver.Value(v)]
-
     model, x, cov_expr, _ = builder.build(kmax=kmax)
     model.Maximize(cov_expr)
     _hint(model, x, best_h)
     solver, st = _cp_solve(model, deadline)
     if st not in (OPT, FEAS):
         return _Outcome("infeasible", best_h, None, note)
-    sel = chosen(solver, x)
+    sel = _chosen(solver, x)
     if st != OPT:
         return _Outcome("infeasible", sel, None, note)
     cbest = prob.evaluate(sel)[0]
@@ -1044,9 +1051,9 @@ def _cpsat_best_cover(prob, builder, K, deadline, heur) -> _Outcome:
     _hint(model, x, sel)
     solver, st = _cp_solve(model, deadline)
     if st == OPT:
-        return _Outcome("infeasible", chosen(solver, x), None)
+        return _Outcome("infeasible", _chosen(solver, x), None)
     if st == FEAS:
-        sel2 = chosen(solver, x)
+        sel2 = _chosen(solver, x)
         if len(sel2) < len(sel) or (len(sel2) == len(sel) and prob.evaluate(sel2)[1] < prob.evaluate(sel)[1]):
             sel = sel2
     return _Outcome("infeasible", sel, None,

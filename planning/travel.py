@@ -58,7 +58,7 @@ from __future__ import annotations
 import numpy as np
 
 from planning.errors import ParameterError
-from planning.machine import load_profile, part_to_machine_rotation, tool_axis_from_angles
+from planning.machine import _profile, part_to_machine_rotation, tool_axis_from_angles
 from schemas.machine import MachineProfile
 
 __all__ = [
@@ -85,12 +85,6 @@ _CHUNK_ELEMS = 1 << 22
 
 # ----------------------------------------------------------------------------------------------
 # input checks
-
-
-def _profile(profile) -> MachineProfile:
-    if profile is None:
-        raise ParameterError("a machine profile is required", parameter="machine.profile")
-    return load_profile(profile)
 
 
 def _points(a, name: str) -> np.ndarray:

@@ -34,6 +34,8 @@ def main() -> None:
     ap.add_argument("--fixture-height", type=float, default=150.0,
                     help="part's lowest point above the table, mm (150: a riser; at 50 the table blocks the "
                          "underside and the plan is infeasible)")
+    ap.add_argument("--obstacles", choices=("all", "sampled"), default="all",
+                    help="cloud points the collision test checks (visibility.obstacles)")
     ap.add_argument("--travel", action="store_true",
                     help="check X/Y/Z travel on the default profile (the 400 mm femur does not fit it at 60 deg)")
     args = ap.parse_args()
@@ -75,7 +77,7 @@ def main() -> None:
               f"p95 {np.percentile(ang, 95):.2f} deg")
 
     cfg = parse_config({"visibility": {"cone_deg": list(args.cone), "global": not args.no_global,
-                                       "travel": args.travel},
+                                       "travel": args.travel, "obstacles": args.obstacles},
                         "fixtures": {"fixture_height_mm": args.fixture_height},
                         "setups": {"max_setups": args.max_setups, "coverage": 0.95},
                         "tool": {"diameter_mm": 6.0}})

@@ -35,10 +35,11 @@ def serve(*, host: str | None = None, port: int | None = None, data_dir: str | N
     import uvicorn
 
     from service.app import create_app
+    from service.auth import is_loopback
 
     logging.basicConfig(level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     if settings.anonymous:
-        where = "loopback clients only" if settings.host in ("127.0.0.1", "::1", "localhost") else \
+        where = "loopback clients only" if is_loopback(settings.host) else \
             f"loopback clients only, although it listens on {settings.host}"
         print(f"warning: SCANMILL_API_KEYS is empty: no authentication; anonymous requests accepted from {where}",
               file=sys.stderr)

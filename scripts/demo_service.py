@@ -74,8 +74,8 @@ def start_server(data_dir: Path, port: int, log_path: Path, workers: int | None)
     if workers:
         cmd += ["--workers", str(workers)]
     log_path.parent.mkdir(parents=True, exist_ok=True)
-    log = open(log_path, "wb")
-    return subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+    with open(log_path, "wb") as log:            # the server keeps its own copy of the descriptor
+        return subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
 
 
 def wait_ready(proc: subprocess.Popen, url: str, polls: int = 600) -> bool:

@@ -12,13 +12,13 @@ import logging
 from contextlib import asynccontextmanager
 
 import anyio
-from fastapi import FastAPI, Request
+from fastapi import FastAPI
 
 import scanmill
 from service.jobs import JobService
-from service.limits import BodyLimitMiddleware, RequestTooLarge
+from service.limits import BodyLimitMiddleware
 from service.openapi import build_openapi
-from service.problems import install_handlers, problem_response
+from service.problems import install_handlers
 from service.routers import jobs as jobs_routes
 from service.routers import system as system_routes
 from service.settings import Settings, load_settings
@@ -61,7 +61,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if settings.anonymous:
             log.warning("SCANMILL_API_KEYS is empty: anonymous requests are accepted from loopback clients only")
         runner.start()
-        app.state.settings, app.state.storage, app.state.store, app.state.runner = settings, storage, store, runner
+        app.state.storage, app.state.store, app.state.runner = storage, store, runner
         app.state.jobs = JobService(settings, store, storage, runner, anyio.CapacityLimiter(1))
         log.info("scanmill %s serving; data in %s; %d worker(s)", scanmill.__version__, storage.root,
                  settings.workers)
@@ -75,13 +75,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="scanmill", version=scanmill.__version__, description=DESCRIPTION, openapi_tags=TAGS,
                   lifespan=lifespan, separate_input_output_schemas=False, redirect_slashes=False)
     app.state.settings = settings
-    install_handlers(app)
-
-    @app.exception_handler(RequestTooLarge)
-    async def _too_large(request: Request, exc: RequestTooLarge):
-        return problem_response(413, "request_too_large", exc.detail, instance=request.url.path,
-                                limit=exc.limit_name, limit_value=exc.limit)
-
+    install_handlers(app)      # RequestTooLarge, raised while a body streams in, is an ApiError
     app.add_middleware(BodyLimitMiddleware, settings=settings)
     app.include_router(jobs_routes.router)
     app.include_router(system_routes.router)

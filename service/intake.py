@@ -36,6 +36,7 @@ from schemas.params import PlanConfig, parse_config
 from service.problems import ApiError
 from service.settings import Settings
 from service.storage import Storage, UploadTooLarge, cloud_suffix, copy_stream
+from service.workers import read_job_cloud
 
 MULTIPART_FIELDS = {"cloud", "parameters", "name", "format", "time_limit_s", "fixtures"}
 FORMATS = ("ply", "pcd", "xyz", "csv", "txt")
@@ -59,8 +60,11 @@ class Submission:
     config: PlanConfig
     input: dict[str, Any]                      # JobInput fields + internal path/fmt/fixture_paths
     time_limit_s: float
-    request_hash: str
     warnings: list[str] = field(default_factory=list)
+    request_hash: str = field(init=False)      # what an Idempotency-Key replay must match
+
+    def __post_init__(self) -> None:
+        self.request_hash = _request_hash(self.config, self.input, self.time_limit_s)
 
 
 def _clean_name(name: str | None) -> str | None:
@@ -123,7 +127,7 @@ def _time_limit(value: Any, settings: Settings) -> float:
     except (TypeError, ValueError):
         raise ApiError(422, "invalid_request", f"time_limit_s = {str(value)[:40]!r} is not a number of seconds.",
                        errors=["time_limit_s: not a number"]) from None
-    if not (t > 0) or t != t:
+    if not (t > 0):                 # also NaN
         raise ApiError(422, "invalid_request", f"time_limit_s = {t:g} must be a positive number of seconds.",
                        errors=["time_limit_s: must be > 0"])
     if t > settings.job_time_limit_s:
@@ -146,11 +150,8 @@ def check_idempotency_key(key: str | None) -> str | None:
 
 
 def _validate_cloud(path: Path, fmt: str | None, config: PlanConfig, settings: Settings) -> dict[str, Any]:
-    """Read the stored cloud once (in a worker thread) and describe it; raises planning errors."""
-    from planning.cloud import read_cloud
-    cloud = read_cloud(path, fmt=fmt, units=config.input.units,
-                       max_points=min(config.input.max_points, settings.max_points),
-                       max_extent_mm=config.input.max_extent_mm, min_points=config.input.min_points)
+    """Read the stored cloud once (in a worker thread), as the worker will, and describe it; raises planning errors."""
+    cloud = read_job_cloud(path, fmt, config, settings.max_points)
     if config.normals.method == "input" and cloud.normals is None:
         raise ParameterError("normals.method is 'input' but the file carries no normals (PLY nx ny nz, PCD "
                              "normal_x normal_y normal_z); use normals.method = sphere_throwing",
@@ -266,17 +267,17 @@ async def _receive_multipart(request: Request, settings: Settings, storage: Stor
                 fixture_sha.append(fsha)
         input_ = {"name": name, "size_bytes": size, "sha256": sha, "fmt": fmt, "path": f"input/{cloud_file}",
                   "fixtures": fixture_names, "fixture_paths": fixture_paths, "fixture_sha256": fixture_sha}
-        sub = Submission(staging=staging, config=config, input=input_, time_limit_s=time_limit,
-                         request_hash=_request_hash(config, input_, time_limit),
-                         warnings=[FIXTURES_WARNING] if fixtures else [])
-        return sub
+        return Submission(staging=staging, config=config, input=input_, time_limit_s=time_limit,
+                          warnings=[FIXTURES_WARNING] if fixtures else [])
     except BaseException:
         storage.discard(staging)
         raise
 
 
 def _inline_to_ply(body: bytes, settings: Settings, staging: Path) -> tuple[PlanConfig, dict[str, Any], float | None]:
-    """Parse and check an inline JSON submission and write its cloud as binary PLY (in a worker thread)."""
+    """Parse and check an inline JSON submission and write its cloud as binary PLY (in a worker thread).
+
+    Returns the configuration, the submission's ``input`` and the requested time limit (unchecked)."""
     import numpy as np
 
     from planning.cloud import write_ply
@@ -331,7 +332,11 @@ def _inline_to_ply(body: bytes, settings: Settings, staging: Path) -> tuple[Plan
                            f"cloud.normals has {normals.shape[0]} rows but cloud.points has {pts.shape[0]}; "
                            "give one normal per point.", errors=["cloud.normals: one row per point"])
     write_ply(staging / "cloud.ply", pts, normals=normals, binary=True)
-    return config, {"name": _clean_name(name) or "inline"}, tl
+    data = (staging / "cloud.ply").read_bytes()
+    input_ = {"name": _clean_name(name) or "inline", "size_bytes": len(data),
+              "sha256": hashlib.sha256(data).hexdigest(), "fmt": "ply", "path": "input/cloud.ply",
+              "fixtures": [], "fixture_paths": [], "fixture_sha256": []}
+    return config, input_, tl
 
 
 async def _receive_json(request: Request, settings: Settings, storage: Storage,
@@ -339,15 +344,9 @@ async def _receive_json(request: Request, settings: Settings, storage: Storage,
     body = await request.body()
     staging = storage.new_staging()
     try:
-        config, meta, tl = await anyio.to_thread.run_sync(lambda: _inline_to_ply(body, settings, staging),
-                                                          limiter=limiter)
-        time_limit = _time_limit(tl, settings)
-        data = (staging / "cloud.ply").read_bytes()
-        input_ = {"name": meta["name"], "size_bytes": len(data), "sha256": hashlib.sha256(data).hexdigest(),
-                  "fmt": "ply", "path": "input/cloud.ply", "fixtures": [], "fixture_paths": [], "fixture_sha256": []}
-        sub = Submission(staging=staging, config=config, input=input_, time_limit_s=time_limit,
-                         request_hash=_request_hash(config, input_, time_limit))
-        return sub
+        config, input_, tl = await anyio.to_thread.run_sync(lambda: _inline_to_ply(body, settings, staging),
+                                                            limiter=limiter)
+        return Submission(staging=staging, config=config, input=input_, time_limit_s=_time_limit(tl, settings))
     except BaseException:
         storage.discard(staging)
         raise

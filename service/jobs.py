@@ -41,8 +41,6 @@ from service.workers import JobRunner
 
 log = logging.getLogger("scanmill.service")
 
-_PUBLIC_INPUT = ("name", "format", "size_bytes", "n_points", "has_normals", "sha256", "fixtures")
-
 
 def job_view(job: JobRecord) -> Job:
     """The public resource of a stored job."""
@@ -57,7 +55,7 @@ def job_view(job: JobRecord) -> Job:
         started_at=datetime.fromisoformat(job.started_at) if job.started_at else None,
         finished_at=datetime.fromisoformat(job.finished_at) if job.finished_at else None,
         updated_at=datetime.fromisoformat(job.updated_at), attempts=job.attempts, time_limit_s=job.time_limit_s,
-        input=JobInput(**{k: job.input.get(k) for k in _PUBLIC_INPUT if k in job.input}),
+        input=JobInput(**{k: job.input[k] for k in JobInput.model_fields if k in job.input}),  # not the internal keys
         parameters=job.parameters, error=error,
         result=JobResultSummary(**job.result) if (done and job.result) else None,
         warnings=job.warnings,

@@ -1,11 +1,12 @@
 """Request-size limits enforced while the body streams in, before anything is written to disk.
 
 :class:`BodyLimitMiddleware` answers 413 (problem JSON naming the limit) when ``Content-Length``
-exceeds the limit, and raises :class:`RequestTooLarge` as soon as a streamed body (chunked, or
-lying about its length) grows past it. Multipart uploads are bounded by
-``SCANMILL_MAX_UPLOAD_BYTES``, JSON bodies by ``SCANMILL_MAX_JSON_BYTES``. Before answering, up to
-:data:`DRAIN_CAP` bytes of the rest of the body are read and dropped, so an ordinary client that
-sends its whole body before reading the answer still gets the 413 rather than a reset connection.
+exceeds the limit, and raises :class:`RequestTooLarge` (an :class:`~service.problems.ApiError`) as
+soon as a streamed body (chunked, or lying about its length) grows past it. Multipart uploads are
+bounded by ``SCANMILL_MAX_UPLOAD_BYTES``, JSON bodies by ``SCANMILL_MAX_JSON_BYTES``. Before
+answering, up to :data:`DRAIN_CAP` bytes of the rest of the body are read and dropped, so an ordinary
+client that sends its whole body before reading the answer still gets the 413 rather than a reset
+connection.
 """
 
 from __future__ import annotations
@@ -13,23 +14,20 @@ from __future__ import annotations
 from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.problems import problem_response
+from service.problems import ApiError, api_error_response
 from service.settings import Settings
 
 DRAIN_CAP = 64 * 1024 * 1024
 
 
-class RequestTooLarge(Exception):
-    """The request body is larger than the named limit."""
+class RequestTooLarge(ApiError):
+    """The request body is larger than the named limit: 413 ``request_too_large`` naming it."""
 
-    def __init__(self, limit_name: str, limit: int, received: int):
-        super().__init__(f"{limit_name} = {limit}")
-        self.limit_name, self.limit, self.received = limit_name, limit, received
-
-    @property
-    def detail(self) -> str:
-        return (f"The request body is larger than {self.limit:,} bytes, the limit of this service "
-                f"({self.limit_name}). Decimate the scan or save it as binary PLY, which is smaller.")
+    def __init__(self, limit_name: str, limit: int):
+        super().__init__(413, "request_too_large",
+                         f"The request body is larger than {limit:,} bytes, the limit of this service "
+                         f"({limit_name}). Decimate the scan or save it as binary PLY, which is smaller.",
+                         limit=limit_name, limit_value=limit)
 
 
 def limit_for(settings: Settings, content_type: str) -> tuple[int, str]:
@@ -66,9 +64,7 @@ class BodyLimitMiddleware:
         declared = headers.get("content-length", "")
         if declared.isdigit() and int(declared) > limit:
             await _drain(receive, DRAIN_CAP)
-            exc = RequestTooLarge(name, limit, int(declared))
-            response = problem_response(413, "request_too_large", exc.detail, instance=scope.get("path"),
-                                        limit=name, limit_value=limit)
+            response = api_error_response(RequestTooLarge(name, limit), instance=scope.get("path"))
             await response(scope, receive, send)
             return
         received = 0
@@ -81,7 +77,7 @@ class BodyLimitMiddleware:
                 if received > limit:
                     if message.get("more_body", False):
                         await _drain(receive, DRAIN_CAP)
-                    raise RequestTooLarge(name, limit, received)
+                    raise RequestTooLarge(name, limit)
             return message
 
         await self.app(scope, limited, send)

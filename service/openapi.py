@@ -15,6 +15,7 @@ from fastapi.openapi.utils import get_openapi
 from pydantic.json_schema import models_json_schema
 
 from schemas.api import JobCreateRequest, Problem
+from service.intake import FORMATS
 
 PROBLEM_REF = {"$ref": "#/components/schemas/Problem"}
 
@@ -70,7 +71,7 @@ JOB_CREATE_FORM = {
                                       "groups take their defaults. See the PlanConfig schema.",
                        "examples": ['{"normals": {"method": "input"}, "setups": {"max_setups": 2}}']},
         "name": {"type": "string", "maxLength": 200, "description": "A name for the cloud (default: its file name)."},
-        "format": {"type": "string", "enum": ["ply", "pcd", "xyz", "csv", "txt"],
+        "format": {"type": "string", "enum": list(FORMATS),
                    "description": "The file format; detected when left out."},
         "time_limit_s": {"type": "number", "exclusiveMinimum": 0,
                          "description": "Wall-clock limit of the job in seconds, at most the service's limit."},

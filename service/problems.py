@@ -44,10 +44,9 @@ class ApiError(Exception):
     def __init__(self, status: int, code: str, detail: str, *, title: str | None = None,
                  headers: dict[str, str] | None = None, **extra: Any):
         super().__init__(detail)
-        self.status, self.code, self.detail = status, code, detail
-        self.title = title or _TITLES.get(status, "Error")
+        self.status, self.code, self.detail, self.title = status, code, detail, title
         self.headers = headers or {}
-        self.extra = {k: v for k, v in extra.items() if v is not None}
+        self.extra = extra                      # None members are left out by problem_body
 
 
 def problem_body(status: int, code: str, detail: str | None, *, instance: str | None = None,
@@ -77,6 +76,12 @@ def problem_response(status: int, code: str, detail: str | None, *, instance: st
 # limits named in planning error details -> the setting that bounds them on this service
 _LIMIT_NAMES = {"max_points": "input.max_points / SCANMILL_MAX_POINTS", "max_bytes": "SCANMILL_MAX_UPLOAD_BYTES",
                 "min_points": "input.min_points"}
+
+
+def api_error_response(exc: ApiError, instance: str | None = None) -> JSONResponse:
+    """Answer an :class:`ApiError` (from a handler, or from a middleware outside them)."""
+    return problem_response(exc.status, exc.code, exc.detail, instance=instance, headers=exc.headers,
+                            title=exc.title, **exc.extra)
 
 
 def planning_problem(exc: PlanningError, instance: str | None = None) -> JSONResponse:
@@ -117,8 +122,7 @@ def install_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(ApiError)
     async def _api_error(request: Request, exc: ApiError):
-        return problem_response(exc.status, exc.code, exc.detail, instance=request.url.path,
-                                headers=exc.headers, title=exc.title, **exc.extra)
+        return api_error_response(exc, request.url.path)
 
     @app.exception_handler(PlanningError)
     async def _planning_error(request: Request, exc: PlanningError):

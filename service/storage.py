@@ -189,7 +189,7 @@ class Storage:
         """Move a staging folder to ``jobs/ID/input`` in one rename; return that folder."""
         job = self.job_dir(job_id)
         job.mkdir()
-        target = job / "input"
+        target = self.input_dir(job_id)
         os.replace(staging, target)
         fsync_dir(job)
         fsync_dir(self.jobs_dir)
@@ -204,10 +204,6 @@ class Storage:
         os.replace(work, result)
         fsync_dir(self.job_dir(job_id))
         return result
-
-    def has_result(self, job_id: str) -> bool:
-        """Whether a complete result exists (plan.json is written last)."""
-        return (self.result_dir(job_id) / "plan.json").is_file()
 
     def artifacts(self, job_id: str) -> list[Path]:
         """The artifact files of a job's result, sorted by name."""

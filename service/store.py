@@ -164,10 +164,6 @@ class JobStore:
             self._conns.clear()
         self._local = threading.local()
 
-    def ping(self) -> bool:
-        """A trivial query: the database answers."""
-        return self._conn().execute("SELECT 1").fetchone()[0] == 1
-
     # -- create and read -----------------------------------------------------------------------
     def create(self, *, job_id: str, owner: str, parameters: dict[str, Any], input: dict[str, Any],
                time_limit_s: float, warnings: list[str] | None = None, idempotency_key: str | None = None,
@@ -176,20 +172,19 @@ class JobStore:
         t = now_iso()
         try:
             with self._tx() as c:
-                c.execute(
+                row = c.execute(
                     "INSERT INTO jobs (id, owner, status, progress, created_at, updated_at, time_limit_s, parameters, "
                     "input, warnings, idempotency_key, request_hash, message) "
-                    "VALUES (?, ?, 'queued', 0, ?, ?, ?, ?, ?, ?, ?, ?, 'waiting for a worker')",
+                    "VALUES (?, ?, 'queued', 0, ?, ?, ?, ?, ?, ?, ?, ?, 'waiting for a worker') "
+                    f"RETURNING {_COLUMNS}",
                     (job_id, owner, t, t, float(time_limit_s), json.dumps(parameters), json.dumps(input),
-                     json.dumps(warnings or []), idempotency_key, request_hash))
+                     json.dumps(warnings or []), idempotency_key, request_hash)).fetchone()
         except sqlite3.IntegrityError:
             existing = self.find_by_idempotency_key(owner, idempotency_key) if idempotency_key else None
             if existing is None:
                 raise
             raise IdempotencyConflict(existing) from None
-        job = self.get(job_id)
-        assert job is not None
-        return job
+        return JobRecord.from_row(row)
 
     def get(self, job_id: str, owner: str | None = None) -> JobRecord | None:
         """The job, or None (also when ``owner`` is given and is not the job's owner)."""

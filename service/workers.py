@@ -34,7 +34,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from planning.errors import PlanningError
 from schemas.api import JOB_STAGES
@@ -42,6 +42,10 @@ from schemas.plan import PlanResult
 from service.settings import Settings
 from service.storage import Storage
 from service.store import JobRecord, JobStore
+
+if TYPE_CHECKING:
+    from planning.cloud import Cloud
+    from schemas.params import PlanConfig
 
 log = logging.getLogger("scanmill.service")
 
@@ -62,6 +66,22 @@ def overall_progress(stage: str, fraction: float) -> float | None:
         return None
     f = max(0.0, min(1.0, float(fraction)))
     return round(min(1.0, _STAGE_START[stage] + STAGE_WEIGHTS[stage] * f), 4)
+
+
+def plan_summary(r: PlanResult) -> dict[str, Any]:
+    """The job's ``result`` headline (:class:`schemas.api.JobResultSummary` fields) of a finished plan."""
+    return {"status": r.status, "message": r.message, "n_setups": len(r.setups),
+            "coverage": float(r.coverage), "overlap_points": int(r.overlap_points)}
+
+
+def read_job_cloud(path: str | os.PathLike, fmt: str | None, config: PlanConfig, max_points: int) -> Cloud:
+    """Read a job's cloud with its configuration's input limits, ``max_points`` capped by the service's.
+
+    Submission validates the cloud with this very call, so the worker reads it the same way.
+    """
+    from planning.cloud import read_cloud
+    return read_cloud(path, fmt=fmt, units=config.input.units, max_points=min(config.input.max_points, max_points),
+                      max_extent_mm=config.input.max_extent_mm, min_points=config.input.min_points)
 
 
 def pin_thread_env(threads: int, env: dict[str, str] | None = None) -> None:
@@ -129,7 +149,6 @@ def run_job(spec: dict[str, Any], conn) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # Ctrl-C in the terminal goes to the server, which stops us
     report = _Reporter(conn)
     try:
-        from planning.cloud import read_cloud
         from planning.pipeline import run_plan
         from planning.report import write_plan
         from schemas.params import parse_config
@@ -138,9 +157,7 @@ def run_job(spec: dict[str, Any], conn) -> None:
         if spec.get("start_delay_s"):
             time.sleep(float(spec["start_delay_s"]))
         config = parse_config(spec["parameters"])
-        cloud = read_cloud(spec["input_path"], fmt=spec.get("fmt"), units=config.input.units,
-                           max_points=min(config.input.max_points, spec["max_points"]),
-                           max_extent_mm=config.input.max_extent_mm, min_points=config.input.min_points)
+        cloud = read_job_cloud(spec["input_path"], spec.get("fmt"), config, spec["max_points"])
         report("read", 1.0, f"{cloud.points.shape[0]} points ({cloud.source_format})")
         outcome = run_plan(cloud, config, name=spec.get("name"), progress=report)
         report("write", 0.0, "writing the artifacts")
@@ -149,9 +166,7 @@ def run_job(spec: dict[str, Any], conn) -> None:
         write_plan(outcome, work)
         report("write", 1.0, "artifacts written")
         r = outcome.result
-        summary = {"status": r.status, "message": r.message, "n_setups": len(r.setups),
-                   "coverage": float(r.coverage), "overlap_points": int(r.overlap_points)}
-        conn.send(("done", summary, list(r.warnings)))
+        conn.send(("done", plan_summary(r), list(r.warnings)))
     except Exception as exc:  # noqa: BLE001 - every failure becomes a job error with a reason
         if isinstance(exc, PlanningError):
             conn.send(("error", exc.code, exc.message))
@@ -244,9 +259,7 @@ class JobRunner:
                 try:
                     r = PlanResult.model_validate(json.loads((work / "plan.json").read_text()))
                     self.storage.publish_result(job.id, job.attempts)
-                    summary = {"status": r.status, "message": r.message, "n_setups": len(r.setups),
-                               "coverage": float(r.coverage), "overlap_points": int(r.overlap_points)}
-                    if self.store.succeed(job.id, job.attempts, summary, list(r.warnings)):
+                    if self.store.succeed(job.id, job.attempts, plan_summary(r), list(r.warnings)):
                         out["succeeded"].append(job.id)
                         continue
                 except Exception:  # noqa: BLE001 - an unreadable plan is simply run again
@@ -401,23 +414,7 @@ class JobRunner:
 
     def _finish(self, a: _Active, outcome: tuple | None) -> None:
         job = a.job
-        if a.killed_for == "shutdown":
-            self.storage.remove_work(job.id, job.attempts)
-            self.store.requeue(job.id, job.attempts, "queued again: the service was stopped while it ran",
-                               count_attempt=False)
-            return
-        if a.killed_for == "cancel":
-            self.storage.remove_work(job.id, job.attempts)
-            return
-        if a.killed_for == "time_limit":
-            self.storage.remove_work(job.id, job.attempts)
-            self.store.fail(job.id, job.attempts, "time_limit_exceeded",
-                            f"the job ran longer than its time limit of {job.time_limit_s:g} s and was stopped "
-                            "(time_limit_s, at most SCANMILL_JOB_TIME_LIMIT_S); decimate the cloud or coarsen "
-                            "the orientations and submit it again")
-            log.info("job %s: stopped at its time limit", job.id)
-            return
-        if outcome is not None and outcome[0] == "done":
+        if a.killed_for is None and outcome is not None and outcome[0] == "done":
             _, summary, warnings = outcome
             warnings = list(job.warnings) + [w for w in warnings if w not in job.warnings]
             st = self.store.status_of(job.id)
@@ -431,7 +428,20 @@ class JobRunner:
             else:
                 log.info("job %s: succeeded (%s)", job.id, summary.get("message"))
             return
-        self.storage.remove_work(job.id, job.attempts)
+        self.storage.remove_work(job.id, job.attempts)          # killed or failed: nothing to publish
+        if a.killed_for == "shutdown":
+            self.store.requeue(job.id, job.attempts, "queued again: the service was stopped while it ran",
+                               count_attempt=False)
+            return
+        if a.killed_for == "cancel":
+            return
+        if a.killed_for == "time_limit":
+            self.store.fail(job.id, job.attempts, "time_limit_exceeded",
+                            f"the job ran longer than its time limit of {job.time_limit_s:g} s and was stopped "
+                            "(time_limit_s, at most SCANMILL_JOB_TIME_LIMIT_S); decimate the cloud or coarsen "
+                            "the orientations and submit it again")
+            log.info("job %s: stopped at its time limit", job.id)
+            return
         if outcome is not None and outcome[0] == "error":
             _, code, message = outcome
             self.store.fail(job.id, job.attempts, code, message)

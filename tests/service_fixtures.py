@@ -8,6 +8,7 @@ Every wait here is a loop bounded in count; nothing asserts on elapsed time.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -59,6 +60,12 @@ class ServerProcess:
         self.proc: subprocess.Popen | None = None
         self.port: int | None = None
         self.starts = 0
+
+    def __enter__(self) -> "ServerProcess":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()                                # a no-op after kill9()
 
     @property
     def url(self) -> str:
@@ -141,7 +148,6 @@ class ServerProcess:
 def submit(client: httpx.Client, cloud_path: Path, params: dict | None = None, *, headers=None,
            **fields) -> httpx.Response:
     """POST /jobs as multipart with the cloud file and the parameters as JSON text."""
-    import json
     data = {"parameters": json.dumps(params if params is not None else HALF_SPHERE_PARAMS)}
     data.update({k: str(v) for k, v in fields.items()})
     with open(cloud_path, "rb") as fh:

@@ -58,7 +58,6 @@ class Settings(BaseModel):
     max_points: int = Field(20_000_000, ge=10, description="Most points accepted in a cloud (caps input.max_points).")
     max_inline_points: int = Field(100_000, ge=10, description="Most points in an inline (JSON) cloud.")
     max_fixtures: int = Field(8, ge=0, le=64, description="Most fixture files per job.")
-    page_size_max: int = Field(100, ge=1, le=1000, description="Largest page of GET /jobs.")
     log_level: str = Field("info", pattern="^(critical|error|warning|info|debug)$")
     worker_start_delay_s: float = Field(
         0.0, ge=0, le=3600,

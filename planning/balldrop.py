@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit, prange
 
 from planning.errors import ParameterError
-from planning.raster import bin_cells, take_rows
+from planning.raster import bin_cells, rows_in_order
 
 _BLOCK = 4      # raster cells per side of the blocks pruned as a whole
 
@@ -173,12 +173,12 @@ class DropSurface:
         h = max(h, float((hi - lo).max()) / 4000.0)           # at most ~16M cells
         nx = int((hi[0] - lo[0]) / h) + 2
         ny = int((hi[1] - lo[1]) / h) + 2
-        order, start, cmax, _ = bin_cells(points[:, 0], points[:, 1], points[:, 2], lo[0], lo[1], h, nx, ny)
+        order, rank, start, cmax, _ = bin_cells(points[:, 0], points[:, 1], points[:, 2], lo[0], lo[1], h, nx, ny)
         # highest point of each block of _BLOCK x _BLOCK cells (padded with empty cells)
         nbx, nby = -(-nx // _BLOCK), -(-ny // _BLOCK)
         grid = np.full((nbx * _BLOCK, nby * _BLOCK), -np.inf)
         grid[:nx, :ny] = cmax.reshape(nx, ny)
-        self._raster = (take_rows(points, order), order, start, cmax,
+        self._raster = (rows_in_order(points, rank), order, start, cmax,
                         grid.reshape(nbx, _BLOCK, nby, _BLOCK).max(axis=(1, 3)).ravel(), nby)
         self._grid = (lo[0], lo[1], h, nx, ny)
         self._scale = float(np.abs(points).max())

@@ -20,7 +20,8 @@ contact point and its surface neighbours lie at or below the centre for any admi
 
 ``cloud_collision_free`` is the fast method and gives the same answer pair for pair. Per axis
 the obstacles are projected onto the plane normal to the axis and binned into square cells of
-``cell_fraction * r``, one raster per distinct segment radius (:mod:`planning.raster`), keeping
+``cell_fraction`` times the smallest segment radius (:mod:`planning.raster`; radii more than 4x
+that get a raster of their own), keeping
 each cell's highest and lowest height along the axis. Two disk max filters over the cells (DESIGN.md
 "Global visibility"), read at each centre's cell, settle most pairs: "free" when no cell that may
 come within ``r`` of a centre anywhere in that cell rises above ``lo``, "hit" (unbounded segments)
@@ -43,12 +44,13 @@ from numba import njit
 
 from planning.errors import ParameterError
 from planning.geometry import complete_basis
-from planning.raster import bin_cells, take_rows
+from planning.raster import bin_cells, rows_in_order
 from planning.tool import ToolAssembly
 
 EPS_MM = 1e-6
 _MAX_GRID_CELLS = 8_000_000
 _THREADS = max(1, min(2, os.cpu_count() or 1))
+_RADII_PER_RASTER = 4.0   # segment radii up to this multiple of the smallest share one raster
 
 
 
@@ -214,30 +216,34 @@ def _disk_max(mz: np.ndarray, fp: np.ndarray) -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def _project(x, u, v, t):
-    """Rows of ``x`` (k,3) as (x.u, x.v, x.t), the last in the reference's operation order."""
-    out = np.empty((x.shape[0], 3))
+    """Rows of ``x`` (k,3) with their projections: (k,6) = (x, y, z, x.u, x.v, x.t), the last in the
+    reference's operation order. One row per point keeps the scan's reads in one place."""
+    out = np.empty((x.shape[0], 6))
     for i in range(x.shape[0]):
         a, b, c = x[i, 0], x[i, 1], x[i, 2]
-        out[i, 0] = a * u[0] + b * u[1] + c * u[2]
-        out[i, 1] = a * v[0] + b * v[1] + c * v[2]
-        out[i, 2] = a * t[0] + b * t[1] + c * t[2]
+        out[i, 0] = a
+        out[i, 1] = b
+        out[i, 2] = c
+        out[i, 3] = a * u[0] + b * u[1] + c * u[2]
+        out[i, 4] = a * v[0] + b * v[1] + c * v[2]
+        out[i, 5] = a * t[0] + b * t[1] + c * t[2]
     return out
 
 @njit(cache=True, nogil=True)
 def _bounds(a, b):
-    """Smallest and largest of columns 0 and 1 over the rows of ``a`` and ``b``."""
+    """Smallest and largest of the projections (columns 3 and 4) over the rows of ``a`` and ``b``."""
     lo0 = lo1 = np.inf
     hi0 = hi1 = -np.inf
     for x in (a, b):
         for i in range(x.shape[0]):
-            lo0 = min(lo0, x[i, 0])
-            hi0 = max(hi0, x[i, 0])
-            lo1 = min(lo1, x[i, 1])
-            hi1 = max(hi1, x[i, 1])
+            lo0 = min(lo0, x[i, 3])
+            hi0 = max(hi0, x[i, 3])
+            lo1 = min(lo1, x[i, 4])
+            hi1 = max(hi1, x[i, 4])
     return lo0, lo1, hi0, hi1
 
 @njit(cache=True, nogil=True)
-def _query(spts, sproj, centres, rows, t, cx, cy, cz, lo, hi, bounded, r, start, cmax, cmin,
+def _query(spts, centres, rows, t, cx, cy, cz, lo, hi, bounded, r, start, cmax, cmin,
            x0, y0, h, nx, ny, slack, tol, hit):
     """Set ``hit[k]`` when an obstacle point lies in segment (lo, hi, r) of centre rows[k]."""
     rr = r - 1e-6 + slack
@@ -280,12 +286,12 @@ def _query(spts, sproj, centres, rows, t, cx, cy, cz, lo, hi, bounded, r, start,
                     continue
                 for s in range(start[cc], start[cc + 1]):
                     # projected prefilter, conservative by the rounding margins
-                    if sproj[s, 2] <= thr_lo:
+                    if spts[s, 5] <= thr_lo:
                         continue
-                    if bounded and sproj[s, 2] > thr_hi:
+                    if bounded and spts[s, 5] > thr_hi:
                         continue
-                    e0 = sproj[s, 0] - px
-                    e1 = sproj[s, 1] - py
+                    e0 = spts[s, 3] - px
+                    e1 = spts[s, 4] - py
                     if e0 * e0 + e1 * e1 >= rr2:
                         continue
                     d0 = spts[s, 0] - c0
@@ -327,7 +333,7 @@ def cloud_collision_free(points, sample_index, normals, axes, tool: ToolAssembly
 
     ``candidates`` (n,m) bool, optional: only these pairs are evaluated, the others are False.
     ``progress(done_axes, m)`` is called after each axis. ``cell_fraction`` sets the raster cell
-    to that fraction of each segment radius (speed only, never the answer). Agrees with
+    to that fraction of the smallest segment radius of each raster (speed only, never the answer). Agrees with
     :func:`brute_force_collision_free` pair for pair: it never calls a colliding pair free.
     """
     points, obst, sample_index, normals, axes, R, segs, candidates = _validate(
@@ -346,6 +352,12 @@ def cloud_collision_free(points, sample_index, normals, axes, tool: ToolAssembly
     ext = float(max(np.ptp(obst, axis=0).max(), np.ptp(centres, axis=0).max())) + 1.0
     segs = _as_queries(segs)
     radii = sorted({r for _, _, r in segs})
+    groups: list[list[float]] = []          # radii sharing a raster: at most 4x the smallest
+    for r in radii:
+        if groups and r <= _RADII_PER_RASTER * groups[-1][0]:
+            groups[-1].append(r)
+        else:
+            groups.append([r])
     cand_t = None if candidates is None else np.ascontiguousarray(candidates.T)
 
     def one_axis(j):
@@ -357,45 +369,46 @@ def cloud_collision_free(points, sample_index, normals, axes, tool: ToolAssembly
             proj = _project(obst, u, v, t_ref)
             cs = centres[rows]
             cproj = _project(cs, u, v, t_ref)
-            cx, cy, cz = cproj[:, 0], cproj[:, 1], cproj[:, 2]
+            cx, cy, cz = cproj[:, 3], cproj[:, 4], cproj[:, 5]
             bx0, by0, bx1, by1 = _bounds(proj, cproj)
             hit = np.zeros(rows.size, dtype=np.bool_)
-            for r in radii:
-                h = max(cell_fraction * r, ext / math.sqrt(_MAX_GRID_CELLS))
-                k_pad = int(math.ceil((r + slack) / h)) + 3
+            for group in groups:
+                # one raster per group of radii, its cell set by the group's smallest radius
+                # (sorting the obstacles is the dominant cost on a large cloud)
+                h = max(cell_fraction * group[0], ext / math.sqrt(_MAX_GRID_CELLS))
+                k_pad = int(math.ceil((group[-1] + slack) / h)) + 3
                 x0 = bx0 - k_pad * h
                 y0 = by0 - k_pad * h
                 nx = int((bx1 - x0) / h) + k_pad + 2
                 ny = int((by1 - y0) / h) + k_pad + 2
-                order, start, cmax, cmin = bin_cells(proj[:, 0], proj[:, 1], proj[:, 2], x0, y0, h, nx, ny)
-                spts, sproj = take_rows(obst, order), take_rows(proj, order)
-                # per centre cell: the highest point of every cell that may come within r of a
-                # centre anywhere in the cell (over-reports) and of the cells wholly within r of
-                # every such centre (under-reports)
-                _, _, _, over, under = _offsets(r - EPS_MM, h, slack)
+                _, rank, start, cmax, cmin = bin_cells(proj[:, 3], proj[:, 4], proj[:, 5], x0, y0, h, nx, ny)
+                spts = rows_in_order(proj, rank)
                 mz = cmax.reshape(nx, ny)
-                ccell = np.floor((cx - x0) / h).astype(np.int64) * ny \
-                    + np.floor((cy - y0) / h).astype(np.int64)
-                m_over = _disk_max(mz, over).ravel()[ccell]
-                m_under = _disk_max(mz, under).ravel()[ccell] if under.any() else None
-                for lo, hi, rs in segs:
-                    if rs != r:
-                        continue
-                    thr = cz + lo
-                    todo = ~hit & (m_over > thr - tol)          # the others are surely free
-                    if hi is None and m_under is not None:
-                        sure = todo & (m_under > thr + tol)     # a point surely inside
-                        hit |= sure
-                        todo &= ~sure
-                    sel = np.flatnonzero(todo)
-                    if sel.size == 0:
-                        continue
-                    # neighbouring centres read the same cells: visit them in cell order
-                    sub = np.zeros(sel.size, dtype=np.bool_)
-                    _query(spts, sproj, cs, sel, t_ref, cx[sel], cy[sel], cz[sel], lo,
-                           0.0 if hi is None else hi, hi is not None, r, start, cmax, cmin,
-                           x0, y0, h, nx, ny, slack, tol, sub)
-                    hit[sel] |= sub
+                ccell = np.floor((cx - x0) / h).astype(np.int64) * ny + np.floor((cy - y0) / h).astype(np.int64)
+                for r in group:
+                    # per centre cell: the highest point of every cell that may come within r of a
+                    # centre anywhere in the cell (over-reports) and of the cells wholly within r of
+                    # every such centre (under-reports)
+                    _, _, _, over, under = _offsets(r - EPS_MM, h, slack)
+                    m_over = _disk_max(mz, over).ravel()[ccell]
+                    m_under = _disk_max(mz, under).ravel()[ccell] if under.any() else None
+                    for lo, hi, rs in segs:
+                        if rs != r:
+                            continue
+                        thr = cz + lo
+                        todo = ~hit & (m_over > thr - tol)          # the others are surely free
+                        if hi is None and m_under is not None:
+                            sure = todo & (m_under > thr + tol)     # a point surely inside
+                            hit |= sure
+                            todo &= ~sure
+                        sel = np.flatnonzero(todo)
+                        if sel.size == 0:
+                            continue
+                        sub = np.zeros(sel.size, dtype=np.bool_)
+                        _query(spts, cs, sel, t_ref, cx[sel], cy[sel], cz[sel], lo,
+                               0.0 if hi is None else hi, hi is not None, r, start, cmax, cmin,
+                               x0, y0, h, nx, ny, slack, tol, sub)
+                        hit[sel] |= sub
             return rows, hit
         return rows, np.zeros(rows.size, dtype=np.bool_)
 

@@ -2,9 +2,11 @@
 
 :func:`bin_cells` is a counting sort (O(N)) of points by the cell ``(floor((x - x0) / h),
 floor((y - y0) / h))`` of an ``nx`` x ``ny`` grid (indices clipped into the grid), cell index
-``ix * ny + iy``. It returns the point order, every cell's run ``start[c]:start[c + 1]`` in that
-order, and every cell's highest and lowest ``z`` (-inf / +inf when empty). :func:`take_rows`
-gathers rows in that order into a contiguous array (contiguous reads in the scanning kernels).
+``ix * ny + iy``. It returns the point order and its inverse (the rank of each point in that order), every cell's run
+``start[c]:start[c + 1]`` in that order, and every cell's highest and lowest ``z`` (-inf / +inf
+when empty). :func:`rows_in_order` puts rows in that order in a contiguous array (contiguous reads
+in the scanning kernels), reading the input sequentially: with a million points this is several
+times faster than gathering by ``order``.
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ from numba import njit
 
 @njit(cache=True, nogil=True)
 def bin_cells(x, y, z, x0, y0, h, nx, ny):
-    """Counting sort of points (x, y, z) into square cells of side ``h``: (order, start, cmax, cmin)."""
+    """Counting sort of points (x, y, z) into square cells of side ``h``:
+    (order, rank, start, cmax, cmin), ``order[rank[i]] == i``."""
     n = x.shape[0]
     ncell = nx * ny
     cell = np.empty(n, np.int64)
@@ -38,19 +41,21 @@ def bin_cells(x, y, z, x0, y0, h, nx, ny):
         start[c + 1] += start[c]
     fill = start[:-1].copy()
     order = np.empty(n, np.int64)
+    rank = cell                         # reused: cell[i] is not needed once read
     for i in range(n):
         c = cell[i]
-        order[fill[c]] = i
-        fill[c] += 1
-    return order, start, cmax, cmin
+        r = fill[c]
+        fill[c] = r + 1
+        order[r] = i
+        rank[i] = r
+    return order, rank, start, cmax, cmin
 
 
 @njit(cache=True, nogil=True)
-def take_rows(a, order):
-    """``a[order]`` for a 2-D array, as a new C-contiguous array."""
-    out = np.empty((order.shape[0], a.shape[1]))
-    for s in range(order.shape[0]):
-        q = order[s]
-        for j in range(a.shape[1]):
-            out[s, j] = a[q, j]
+def rows_in_order(a, rank):
+    """``a[order]`` for a 2-D array (``rank`` from :func:`bin_cells`), as a new C-contiguous array,
+    written by scattering each input row to its rank."""
+    out = np.empty((rank.shape[0], a.shape[1]))
+    for i in range(rank.shape[0]):
+        out[rank[i], :] = a[i, :]
     return out

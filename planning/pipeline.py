@@ -215,6 +215,13 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     sel_axes = axes[selected]
     if sel.status in ("infeasible", "unknown"):
         warnings.append(sel.message)
+        removed = {k: v for k, v in vsum.removed_total.items() if v}
+        if removed:
+            warnings.append(
+                "of the " + f"{vsum.pairs_cone:,} (point, axis) pairs in the tool cone, "
+                + ", ".join(f"{k.replace('_', ' ')} removed {v:,}" for k, v in removed.items())
+                + " (per axis in plan.json 'visibility'): check fixtures.fixture_height_mm, the tool and holder "
+                  "lengths and the machine profile's travel")
     elif sel.status == "feasible":
         warnings.append(f"the set-up search hit setups.time_limit_s = {s.time_limit_s} s before proving "
                         f"optimality (gap {sel.gap:.1%}); the best plan found is returned")

@@ -83,6 +83,12 @@ def test_half_sphere_infeasible_with_one_setup():
     assert r.selection.best_coverage_at_max == pytest.approx(best_single)
     assert "max_setups" in r.message
     assert len(r.setups) == 1  # the best single orientation is still segmented and reported
+    # the warning says which visibility filters removed pairs, with the counts of plan.json
+    filt = [w for w in r.warnings if "pairs in the tool cone" in w]
+    removed = {k: v for k, v in r.visibility.removed_total.items() if v}
+    assert removed and len(filt) == 1
+    for k, v in removed.items():
+        assert f"{k.replace('_', ' ')} removed {v:,}" in filt[0]
 
 
 def test_functional_zone_has_no_overlap(half_sphere_plan):

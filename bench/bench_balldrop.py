@@ -22,7 +22,7 @@ import opencamlib as ocl
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
 from test_balldrop import _mesh, _sample_triangles  # noqa: E402
 
-from planning.balldrop import ball_drop  # noqa: E402
+from planning.toolpath.balldrop import ball_drop  # noqa: E402
 
 
 def main() -> None:

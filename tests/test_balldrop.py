@@ -1,4 +1,4 @@
-"""Point-based ball drop (planning.balldrop): exact against brute force, analytic answers, and
+"""Point-based ball drop (planning.toolpath.balldrop): exact against brute force, analytic answers, and
 OpenCAMLib's BatchDropCutter on a triangle mesh of the same surface."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planning.balldrop import ball_drop, brute_force_ball_drop
+from planning.toolpath.balldrop import ball_drop, brute_force_ball_drop
 from planning.errors import ParameterError
 
 

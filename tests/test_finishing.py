@@ -1,13 +1,13 @@
-"""Ball-end finishing passes by ball drop (planning.finishing)."""
+"""Ball-end finishing passes by ball drop (planning.toolpath.finishing)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from planning.balldrop import ball_drop
+from planning.toolpath.balldrop import ball_drop
 from planning.errors import ParameterError
-from planning.finishing import FEED, RAPID, finishing_passes, min_clearance, step_over_mm
+from planning.toolpath.finishing import FEED, RAPID, finishing_passes, min_clearance, step_over_mm
 
 
 def _plane(half=20.0, spacing=0.2, z=-10.0):

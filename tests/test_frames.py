@@ -1,4 +1,4 @@
-"""Per-area frames (planning.frames)."""
+"""Per-area frames (planning.toolpath.frames)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from planning.errors import ParameterError
-from planning.frames import area_frame
+from planning.toolpath.frames import area_frame
 
 
 @pytest.mark.parametrize("seed", range(5))

@@ -1,14 +1,14 @@
 """Ball-end finishing passes of one area by ball drop on the cloud (issue 5 item 2; Sood's
 point-based ball drop, Makki 2010 §4: 3-axis paths at the area's fixed orientation).
 
-All in the area frame (:mod:`planning.frames`: tool axis +Z, X along the footprint's longer side,
+All in the area frame (:mod:`planning.toolpath.frames`: tool axis +Z, X along the footprint's longer side,
 every cloud point at z <= 0). Parallel planes y = const (passes along X), zig-zag or one-way:
 
 * step-over from the target scallop height ``h`` on a plane: ``s = 2 sqrt(2 R h - h^2)``;
 * the footprint: the area's points in (x, y) on a square raster of ``s / 2`` cells, grown by
   ``margin_mm`` into the neighbours (the overlap band); passes keep the stretches inside it;
 * along a pass, CL points every ``step_mm``; the CL height is the exact ball drop on the WHOLE
-  cloud (all areas are obstacles, :func:`planning.balldrop.ball_drop`);
+  cloud (all areas are obstacles, :func:`planning.toolpath.balldrop.ball_drop`);
 * gouge safety of the straight moves between CL points: :func:`min_clearance` measures the
   smallest distance from any cloud point to the ball-centre polyline; a move closer than
   ``R - tol_mm`` is split at its midpoint with a fresh ball drop until it clears (bounded), and
@@ -26,7 +26,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from planning.balldrop import DropSurface
+from planning.toolpath.balldrop import DropSurface
 from planning.errors import ParameterError
 
 RAPID, FEED = 0, 1

@@ -1,0 +1,179 @@
+"""The move list every tool path stage produces and every post-processor reads (issue 5 item 6).
+
+A :class:`Toolpath` is a 3-axis program for one operation of one area, in that area's frame
+(:mod:`planning.toolpath.frames`: tool axis +Z, mm). Move ``i`` goes from ``xyz_mm[i-1]`` to
+``xyz_mm[i]``; move 0 is a rapid to the start, from wherever the machine is (the post comes down
+from its safe height).
+
+* ``kind``: :data:`RAPID` (G0), :data:`FEED` (G1 straight line), :data:`ARC_CW` (G2) or
+  :data:`ARC_CCW` (G3). Arcs are circular, with centre ``centre_mm[i]``, in the plane ``plane[i]``
+  (:data:`PLANE_XY` G17, :data:`PLANE_ZX` G18, :data:`PLANE_YZ` G19: the plane through the start
+  point normal to Z, Y or X). Clockwise / counter-clockwise as seen from the positive end of that
+  normal axis looking towards the origin (ISO 6983), so :data:`ARC_CCW` is a right-hand turn about
+  +Z, +Y or +X respectively. Arcs turn by less than 360 degrees; start and end are equidistant
+  from the centre (within the fitting tolerance).
+* ``use``: what the move is for, which sets its feed rate in the post: :data:`USE_RAPID`,
+  :data:`USE_CUT`, :data:`USE_PLUNGE` (plunges, ramps and lead moves into the material),
+  :data:`USE_RETRACT`.
+* ``tip_offset_mm``: the path's points are the tool's reference point; the tool tip (the point
+  a control's length offset G43 drives) is ``xyz - (0, 0, tip_offset_mm)``. Ball-end finishing
+  records ball centres (offset R); roughing with a flat or bull-nose mill records the tip (offset 0).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+RAPID, FEED, ARC_CW, ARC_CCW = 0, 1, 2, 3
+PLANE_NONE, PLANE_XY, PLANE_ZX, PLANE_YZ = 0, 17, 18, 19
+USE_RAPID, USE_CUT, USE_PLUNGE, USE_RETRACT = 0, 1, 2, 3
+
+#: For each arc plane: the indices of its two in-plane axes (first, second) and of its normal, such
+#: that (first, second, normal) is right-handed (G17: X, Y, Z; G18: Z, X, Y; G19: Y, Z, X).
+PLANE_AXES = {PLANE_XY: (0, 1, 2), PLANE_ZX: (2, 0, 1), PLANE_YZ: (1, 2, 0)}
+
+
+@dataclass(frozen=True)
+class Toolpath:
+    """Moves of one operation in an area frame (mm; see the module docstring).
+
+    ``xyz_mm`` (P,3) float64 end points; ``kind`` (P,) int8; ``centre_mm`` (P,3) arc centres (NaN
+    on straight moves); ``plane`` (P,) int8 (0 on straight moves); ``use`` (P,) int8;
+    ``tip_offset_mm``: reference point to tool tip along -Z.
+    """
+
+    xyz_mm: np.ndarray
+    kind: np.ndarray
+    centre_mm: np.ndarray
+    plane: np.ndarray
+    use: np.ndarray
+    tip_offset_mm: float = 0.0
+
+    def __post_init__(self):
+        p = self.xyz_mm.shape[0]
+        if self.xyz_mm.shape != (p, 3) or self.centre_mm.shape != (p, 3):
+            raise ValueError("xyz_mm and centre_mm must be (P,3)")
+        for name in ("kind", "plane", "use"):
+            if getattr(self, name).shape != (p,):
+                raise ValueError(f"{name} must be (P,)")
+
+    @property
+    def n_moves(self) -> int:
+        return int(self.xyz_mm.shape[0])
+
+    def tip_mm(self) -> np.ndarray:
+        """(P,3) tool-tip end points (what the post's X Y Z drive)."""
+        return self.xyz_mm - np.array([0.0, 0.0, self.tip_offset_mm])
+
+
+def lines(xyz_mm, use, *, tip_offset_mm: float = 0.0, kind=None) -> Toolpath:
+    """A toolpath of straight moves: ``kind`` FEED except where ``use`` is USE_RAPID (RAPID), unless
+    given."""
+    xyz = np.ascontiguousarray(xyz_mm, dtype=np.float64).reshape(-1, 3)
+    use = np.asarray(use, dtype=np.int8).reshape(-1)
+    if use.shape[0] != xyz.shape[0]:
+        raise ValueError("use must have one entry per point")
+    k = np.where(use == USE_RAPID, RAPID, FEED).astype(np.int8) if kind is None else np.asarray(kind, np.int8)
+    p = xyz.shape[0]
+    return Toolpath(xyz_mm=xyz, kind=k, centre_mm=np.full((p, 3), np.nan), plane=np.zeros(p, np.int8),
+                    use=use, tip_offset_mm=float(tip_offset_mm))
+
+
+def concatenate(paths: list[Toolpath]) -> Toolpath:
+    """Paths one after another (same tip offset required)."""
+    if not paths:
+        raise ValueError("nothing to concatenate")
+    off = {p.tip_offset_mm for p in paths}
+    if len(off) != 1:
+        raise ValueError("paths with different tip offsets cannot be joined")
+    return Toolpath(xyz_mm=np.concatenate([p.xyz_mm for p in paths]),
+                    kind=np.concatenate([p.kind for p in paths]),
+                    centre_mm=np.concatenate([p.centre_mm for p in paths]),
+                    plane=np.concatenate([p.plane for p in paths]),
+                    use=np.concatenate([p.use for p in paths]), tip_offset_mm=off.pop())
+
+
+def arc_sweep_rad(start, end, centre, plane: int, ccw: bool) -> tuple[float, float, float]:
+    """(start angle, signed sweep, radius) of one arc in its plane's (first, second) coordinates;
+    the sweep is positive for counter-clockwise (right-hand about the normal) and in (-2pi, 2pi)."""
+    a, b, _ = PLANE_AXES[int(plane)]
+    u0, v0 = start[a] - centre[a], start[b] - centre[b]
+    u1, v1 = end[a] - centre[a], end[b] - centre[b]
+    t0, t1 = math.atan2(v0, u0), math.atan2(v1, u1)
+    sweep = (t1 - t0) % (2 * math.pi) if ccw else -((t0 - t1) % (2 * math.pi))
+    if sweep == 0.0:
+        sweep = 2 * math.pi if ccw else -2 * math.pi
+    return t0, sweep, math.hypot(u0, v0)
+
+
+def densify(tp: Toolpath, max_step_mm: float = 0.05, *, start_index: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Points along the path from move ``start_index`` on, arcs sampled every ``max_step_mm`` of arc
+    length (the helix component along the normal interpolated linearly). Returns ``(points (Q,3),
+    move (Q,))``: each point with the index of the move it lies on (end points included, the
+    first point is ``xyz_mm[start_index - 1]`` with move ``start_index - 1``)."""
+    xyz = tp.xyz_mm
+    out = [xyz[start_index - 1:start_index]]
+    mv = [np.array([start_index - 1])]
+    i = start_index
+    P = tp.n_moves
+    while i < P:
+        if tp.kind[i] in (ARC_CW, ARC_CCW):
+            s, e, c = xyz[i - 1], xyz[i], tp.centre_mm[i]
+            a, b, n = PLANE_AXES[int(tp.plane[i])]
+            t0, sw, r = arc_sweep_rad(s, e, c, tp.plane[i], tp.kind[i] == ARC_CCW)
+            m = max(2, int(math.ceil(abs(sw) * max(r, 1e-9) / max_step_mm)))
+            t = np.linspace(0.0, 1.0, m + 1)[1:]
+            q = np.empty((m, 3))
+            r1 = math.hypot(e[a] - c[a], e[b] - c[b])
+            rr = r + (r1 - r) * t
+            q[:, a] = c[a] + rr * np.cos(t0 + sw * t)
+            q[:, b] = c[b] + rr * np.sin(t0 + sw * t)
+            q[:, n] = s[n] + (e[n] - s[n]) * t
+            q[-1] = e
+            out.append(q)
+            mv.append(np.full(m, i))
+            i += 1
+        else:
+            j = i
+            while j < P and tp.kind[j] not in (ARC_CW, ARC_CCW):
+                j += 1
+            out.append(xyz[i:j])
+            mv.append(np.arange(i, j))
+            i = j
+    return np.concatenate(out), np.concatenate(mv)
+
+
+def path_length_mm(tp: Toolpath, *, kinds=(FEED, ARC_CW, ARC_CCW)) -> float:
+    """Length of the moves of the given kinds (arcs by their true arc length), mm."""
+    total = 0.0
+    d = np.linalg.norm(np.diff(tp.xyz_mm, axis=0), axis=1)
+    straight = np.isin(tp.kind[1:], [k for k in kinds if k in (RAPID, FEED)])
+    total += float(d[straight].sum())
+    for i in np.flatnonzero(np.isin(tp.kind, [k for k in kinds if k in (ARC_CW, ARC_CCW)])):
+        if i == 0:
+            continue
+        s, e, c = tp.xyz_mm[i - 1], tp.xyz_mm[i], tp.centre_mm[i]
+        _, sw, r = arc_sweep_rad(s, e, c, tp.plane[i], tp.kind[i] == ARC_CCW)
+        n = PLANE_AXES[int(tp.plane[i])][2]
+        total += math.hypot(abs(sw) * r, e[n] - s[n])
+    return total
+
+
+def machining_time_s(tp: Toolpath, *, feed_mm_min: float, plunge_mm_min: float,
+                     rapid_mm_min: float) -> float:
+    """Time to run the path at the given rates (no acceleration limits), seconds."""
+    segs = np.zeros(tp.n_moves)
+    d = np.linalg.norm(np.diff(tp.xyz_mm, axis=0), axis=1)
+    segs[1:] = d
+    arc = np.flatnonzero(np.isin(tp.kind, [ARC_CW, ARC_CCW]))
+    for i in arc[arc > 0]:
+        s, e, c = tp.xyz_mm[i - 1], tp.xyz_mm[i], tp.centre_mm[i]
+        _, sw, r = arc_sweep_rad(s, e, c, tp.plane[i], tp.kind[i] == ARC_CCW)
+        n = PLANE_AXES[int(tp.plane[i])][2]
+        segs[i] = math.hypot(abs(sw) * r, e[n] - s[n])
+    rate = np.where(tp.use == USE_RAPID, rapid_mm_min,
+                    np.where(tp.use == USE_CUT, feed_mm_min, plunge_mm_min)).astype(np.float64)
+    return float((segs / rate).sum() * 60.0)

@@ -7,7 +7,8 @@ import pytest
 
 from planning.toolpath.balldrop import ball_drop
 from planning.errors import ParameterError
-from planning.toolpath.finishing import FEED, RAPID, finishing_passes, min_clearance, step_over_mm
+from planning.toolpath.finishing import finishing_passes, min_clearance, step_over_mm
+from planning.toolpath.moves import FEED, RAPID, USE_PLUNGE, USE_RETRACT
 
 
 def _plane(half=20.0, spacing=0.2, z=-10.0):
@@ -30,8 +31,7 @@ def test_plane_area_passes():
     area = pts[(np.abs(pts[:, 0]) <= 10) & (np.abs(pts[:, 1]) <= 5)]
     R = 3.0
     path = finishing_passes(pts, area, radius_mm=R, scallop_mm=0.01, margin_mm=1.0)
-    feed = path.cl_mm[path.move == FEED]
-    on = feed[feed[:, 2] < 0]                       # the cutting moves (not the retracts)
+    on = path.cl_mm[path.pass_index >= 0]           # the passes (not links, leads, retracts)
     # R above the plane, less the point-sampling error: the nearest point is within spacing/sqrt(2)
     # of the line, so the drop is at most (0.2 / sqrt(2))^2 / (2 R) low
     assert np.all(on[:, 2] <= -10.0 + R + 1e-12)
@@ -45,6 +45,9 @@ def test_plane_area_passes():
     assert np.all(np.abs(on[:, 1]) <= 5 + 1.0 + path.step_over_mm)
     assert R - 1e-3 <= path.min_clearance_mm <= R + 1e-9      # default tol_mm = 1e-3
     assert path.move[0] == RAPID and path.n_passes == ys.size
+    # zig-zag on a plane: neighbouring passes are linked on the surface, one lead-in, one lead-out
+    assert path.n_retracts == 0
+    assert (path.toolpath.use == USE_PLUNGE).sum() == 1 and (path.toolpath.use == USE_RETRACT).sum() == 1
 
 
 def test_gouge_free_on_a_bumpy_surface_and_zigzag():
@@ -65,7 +68,7 @@ def test_gouge_free_on_a_bumpy_surface_and_zigzag():
     z = ball_drop(pts, feed[:, :2], R).z_mm
     assert np.all(feed[:, 2] >= z - 1e-12)
     # zig-zag: consecutive passes run in opposite directions
-    on = feed[feed[:, 2] < 0]
+    on = path.cl_mm[path.pass_index >= 0]
     dirs = []
     for y in np.unique(np.round(on[:, 1], 9))[:4]:
         xs = on[np.isclose(on[:, 1], y), 0]
@@ -86,3 +89,35 @@ def test_min_clearance_against_brute_force():
         ref = np.sqrt(((pts - (a + u[:, None] * (b - a))) ** 2).sum(1)).min()
         assert got[i] == pytest.approx(ref)
     assert np.isnan(got[0])
+
+
+def test_one_way_retracts_between_passes_and_rapids_never_touch():
+    rng = np.random.default_rng(1)
+    g = np.arange(-12, 12.001, 0.25)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    Z = 1.5 * np.cos(X / 3.0) + 0.5 * np.sin(Y / 2.0) + rng.normal(scale=0.01, size=X.shape)
+    pts = np.stack([X.ravel(), Y.ravel(), Z.ravel() - 4.0], 1)
+    area = pts[(np.abs(pts[:, 0]) < 6) & (np.abs(pts[:, 1]) < 3)]
+    R = 2.0
+    zig = finishing_passes(pts, area, radius_mm=R, scallop_mm=0.05, lead_mm=2.0)
+    one = finishing_passes(pts, area, radius_mm=R, scallop_mm=0.05, lead_mm=2.0, zigzag=False)
+    assert one.n_passes == zig.n_passes
+    assert one.n_retracts == one.n_passes - 1 and zig.n_retracts < one.n_retracts
+    for path in (zig, one):
+        tp = path.toolpath
+        # every move the ball makes at feed keeps R - tol; rapids keep the full R
+        assert path.min_clearance_mm >= R - 1e-3
+        rapid = tp.kind == RAPID
+        rapid[0] = False
+        clear_rapid = min_clearance(tp.xyz_mm, rapid, pts, R)
+        assert np.nanmin(clear_rapid) >= R - 1e-9
+        # one-way: every pass runs the same way (+X)
+        if path is one:
+            for p in np.unique(path.pass_index[path.pass_index >= 0]):
+                x = tp.xyz_mm[path.pass_index == p, 0]
+                assert np.all(np.diff(x) > 0)
+        # lead-in ramps end on a pass start and are 45 degrees or vertical
+        for i in np.flatnonzero(tp.use == USE_PLUNGE):
+            d = tp.xyz_mm[i] - tp.xyz_mm[i - 1]
+            assert d[2] < 0 and (np.isclose(np.hypot(d[0], d[1]), -d[2]) or np.hypot(d[0], d[1]) < 1e-12)
+            assert path.pass_index[i] >= 0

@@ -13,8 +13,13 @@ every cloud point at z <= 0). Parallel planes y = const (passes along X), zig-za
   smallest distance from any cloud point to the ball-centre polyline; a move closer than
   ``R - tol_mm`` is split at its midpoint with a fresh ball drop until it clears (bounded), and
   the final clearance is reported;
-* links: retract to ``safe_z_mm`` (default R + 5 mm above the cloud's top: the frame's z = 0)
-  between stretches. Fixtures are not yet obstacles of the links: see the issue notes.
+* links: in zig-zag, the end of a stretch and the start of the next one less than ``link_max_mm``
+  apart (neighbouring passes) are joined on the surface by a ball-drop link made safe like a pass;
+  otherwise a lead-out ramp, a retract to ``safe_z_mm`` (the caller puts it above the cloud and the
+  fixtures; default R + 5 mm above the cloud's top, the frame's z = 0), a rapid, and a lead-in
+  ramp. Ramps are 45 degrees in the pass direction, or vertical where a ramp would come closer
+  than R - tol to the cloud. Vertical moves above a ball-drop height never touch the cloud with
+  the ball (the drop height is the lowest free one on that line).
 """
 
 from __future__ import annotations
@@ -28,24 +33,36 @@ from scipy.spatial import cKDTree
 
 from planning.toolpath.balldrop import DropSurface
 from planning.errors import ParameterError
-
-RAPID, FEED = 0, 1
+from planning.toolpath.moves import FEED, RAPID, USE_CUT, USE_PLUNGE, USE_RAPID, USE_RETRACT, Toolpath, lines
 _CHUNK = 256        # moves per KD-tree query in min_clearance (bounds the gathered points)
 
 
 @dataclass(frozen=True)
 class FinishingPath:
-    """``cl_mm`` (P,3) ball-centre positions in the area frame, ``move`` (P,) the move that reaches
-    each (RAPID 0 or FEED 1), ``n_passes``, ``step_over_mm``, ``min_clearance_mm`` (smallest
-    distance from a cloud point to the feed moves; >= R - tol when gouge free), ``length_mm``
-    (feed length)."""
+    """``toolpath``: the moves (:class:`planning.toolpath.moves.Toolpath`, ball centres, tip offset
+    R), ``n_passes``, ``step_over_mm``, ``min_clearance_mm`` (smallest distance from a cloud point
+    to the feed moves; >= R - tol when gouge free), ``length_mm`` (feed length), ``n_retracts``
+    (retracts to the safe height between stretches), ``pass_index`` (P,) the pass each point of a
+    stretch lies on (-1 for links, leads, retracts and rapids)."""
 
-    cl_mm: np.ndarray
-    move: np.ndarray
+    toolpath: Toolpath
     n_passes: int
     step_over_mm: float
     min_clearance_mm: float
     length_mm: float
+    n_retracts: int
+    pass_index: np.ndarray
+
+
+    @property
+    def cl_mm(self) -> np.ndarray:
+        """(P,3) ball-centre positions in the area frame."""
+        return self.toolpath.xyz_mm
+
+    @property
+    def move(self) -> np.ndarray:
+        """(P,) RAPID 0 or FEED 1: the move that reaches each point."""
+        return self.toolpath.kind
 
 
 def step_over_mm(radius_mm: float, scallop_mm: float) -> float:
@@ -96,24 +113,32 @@ def min_clearance(cl_mm: np.ndarray, feed: np.ndarray, points: np.ndarray, radiu
 def finishing_passes(cloud_frame: np.ndarray, area_frame_points: np.ndarray, *, radius_mm: float,
                      scallop_mm: float = 0.01, step_mm: float | None = None, margin_mm: float = 1.0,
                      zigzag: bool = True, tol_mm: float = 1e-3, safe_z_mm: float | None = None,
+                     lead_mm: float = 1.0, link_max_mm: float | None = None,
                      max_splits: int = 12) -> FinishingPath:
     """Ball-end finishing of one area (mm, area frame; see the module docstring).
 
-    ``cloud_frame`` (N,3): every cloud point; ``area_frame_points`` (k,3): this area's points;
-    ``radius_mm``: ball radius R; ``scallop_mm``: target scallop on a plane; ``step_mm``: forward
-    step (default R / 4); ``margin_mm``: overlap band into the neighbours; ``zigzag``: alternate
-    pass directions (else one-way, rapid back); ``tol_mm``: gouge tolerance.
+    ``cloud_frame`` (N,3): every cloud point (and forbidden point); ``area_frame_points`` (k,3):
+    this area's points; ``radius_mm``: ball radius R; ``scallop_mm``: target scallop on a plane;
+    ``step_mm``: forward step (default R / 4); ``margin_mm``: overlap band into the neighbours;
+    ``zigzag``: alternate pass directions (else one-way, rapid back); ``tol_mm``: gouge tolerance;
+    ``safe_z_mm``: ball-centre height of retracts and rapids (default R + 5 above the cloud top);
+    ``lead_mm``: length of the 45-degree lead-in / lead-out ramps in the pass direction (vertical
+    when a ramp would come closer than R - tol to the cloud; 0 = plunge straight down);
+    ``link_max_mm``: the longest xy gap between the end of a stretch and the start of the next that
+    is joined by a ball-drop link on the surface instead of a retract (default 2.5 step-overs,
+    zig-zag only).
     """
     pts = np.asarray(cloud_frame, dtype=np.float64)
     area = np.asarray(area_frame_points, dtype=np.float64)
     R = float(radius_mm)
     s = step_over_mm(R, scallop_mm)
     step = R / 4.0 if step_mm is None else float(step_mm)
-    if not step > 0 or margin_mm < 0 or tol_mm <= 0:
-        raise ParameterError("step_mm and tol_mm must be > 0 and margin_mm >= 0")
+    if not step > 0 or margin_mm < 0 or tol_mm <= 0 or lead_mm < 0:
+        raise ParameterError("step_mm and tol_mm must be > 0, margin_mm and lead_mm >= 0")
     if area.shape[0] == 0:
         raise ParameterError("the area has no points")
     safe = (R + 5.0) if safe_z_mm is None else float(safe_z_mm)
+    link_max = 2.5 * s if link_max_mm is None else float(link_max_mm)
     # footprint raster (cells of s/2), grown by the margin
     c = s / 2.0
     lo = area[:, :2].min(axis=0) - margin_mm - c
@@ -134,7 +159,7 @@ def finishing_passes(cloud_frame: np.ndarray, area_frame_points: np.ndarray, *, 
     xs = np.arange(lo[0], hi[0] + step, step)
     surface = DropSurface(pts, R)
     tree = cKDTree(pts)
-    cls, moves, clears = [], [], []
+    stretches = []                      # (pass number, (L,3) safe CL line, clearances)
     n_done = 0
     for y in ys:
         ix = np.floor((xs - lo[0]) / c).astype(np.int64)
@@ -156,25 +181,123 @@ def finishing_passes(cloud_frame: np.ndarray, area_frame_points: np.ndarray, *, 
             if not ok.any():
                 continue
             line, clear = _make_safe(surface, tree, pts, np.column_stack([xy[ok], z[ok]]), R, tol_mm, max_splits)
-            # rapid above the start, plunge, the pass, retract straight up (plunge and retract
-            # are feed moves above ball-drop heights; their clearance is measured below)
-            cls += [[[line[0, 0], line[0, 1], safe]], line, [[line[-1, 0], line[-1, 1], safe]]]
-            moves += [[RAPID], [FEED] * line.shape[0], [FEED]]
-            clears += [[np.nan], clear, [np.nan]]
+            stretches.append((n_done, line, clear))
         n_done += 1
-    if not cls:
+    if not stretches:
         raise ParameterError("no finishing pass lies on the area")
-    cl = np.concatenate([np.asarray(x, dtype=np.float64).reshape(-1, 3) for x in cls])
-    mv = np.concatenate([np.asarray(m, dtype=np.int8) for m in moves])
-    clear = np.concatenate([np.asarray(x, dtype=np.float64) for x in clears])
-    # the passes' moves were measured while making them safe; measure the plunges and retracts
-    feed = mv == FEED
-    links = feed & np.isnan(clear)
-    clear[links] = min_clearance(cl, links, pts, R, tree=tree)[links]
+    xyz, use, clr, pid = [], [], [], []
+    n_retracts = 0
+
+    def add(p, u, cl=np.nan, pass_no=-1):
+        xyz.append(np.asarray(p, dtype=np.float64).reshape(-1, 3))
+        n = xyz[-1].shape[0]
+        use.append(np.full(n, u, dtype=np.int8))
+        clr.append(np.broadcast_to(np.asarray(cl, dtype=np.float64), (n,)).copy())
+        pid.append(np.full(n, pass_no, dtype=np.int32))
+
+    prev = None
+    for k, (pass_no, line, clear) in enumerate(stretches):
+        if prev is not None:
+            gap = float(np.hypot(*(line[0, :2] - prev[-1, :2])))
+            link = None
+            if zigzag and gap <= link_max:
+                link = _link(surface, tree, pts, prev[-1], line[0], R, step, tol_mm, max_splits)
+            if link is not None:
+                add(link[0], USE_CUT, link[1])
+            else:
+                _lead_out(add, surface, tree, pts, prev, R, tol_mm, lead_mm, safe)
+                n_retracts += 1
+                _lead_in(add, surface, tree, pts, line, R, tol_mm, lead_mm, safe)
+        else:
+            _lead_in(add, surface, tree, pts, line, R, tol_mm, lead_mm, safe)
+        pid[-1][-1] = pass_no                      # the stretch's first point ends the plunge or link
+        add(line[1:], USE_CUT, clear[1:], pass_no)
+        prev = line
+    _lead_out(add, surface, tree, pts, prev, R, tol_mm, lead_mm, safe)
+    cl = np.concatenate(xyz)
+    u = np.concatenate(use)
+    clear = np.concatenate(clr)
+    pass_index = np.concatenate(pid)
+    tp = lines(cl, u, tip_offset_mm=R)
+    # moves not measured while being made safe (leads, plunges, retracts): measure them now
+    feed = tp.kind == FEED
+    todo = feed & np.isnan(clear)
+    todo[0] = False
+    if todo.any():
+        clear[todo] = min_clearance(cl, todo, pts, R, tree=tree)[todo]
     seg = np.linalg.norm(np.diff(cl, axis=0), axis=1)
-    worst = np.nanmin(clear)
-    return FinishingPath(cl_mm=cl, move=mv, n_passes=n_done, step_over_mm=s,
-                         min_clearance_mm=float(worst), length_mm=float(seg[feed[1:]].sum()))
+    worst = float(np.nanmin(clear)) if np.isfinite(clear).any() else float("inf")
+    return FinishingPath(toolpath=tp, n_passes=n_done, step_over_mm=s, min_clearance_mm=worst,
+                         length_mm=float(seg[feed[1:]].sum()), n_retracts=n_retracts, pass_index=pass_index)
+
+
+def _ramp_ok(surface, tree, pts, a, b, R, tol) -> bool:
+    """Whether the straight ball-centre move a -> b keeps R - tol from every cloud point and starts
+    above the ball-drop height at a (so the vertical rapid onto ``a`` is clear)."""
+    za = surface.drop(a[None, :2]).z_mm[0]
+    if np.isfinite(za) and a[2] < za:
+        return False
+    line = np.stack([a, b])
+    c = min_clearance(line, np.array([False, True]), pts, R, tree=tree)[1]
+    return bool(c >= R - tol)
+
+
+def _lead_in(add, surface, tree, pts, line, R, tol, lead, safe):
+    """Rapid above the stretch's start at the safe height, rapid down to the lead-in start, then a
+    45-degree ramp (or a vertical plunge) at plunge feed onto the first CL point."""
+    p0 = line[0]
+    d = (line[1] - line[0])[:2] if line.shape[0] > 1 else np.array([1.0, 0.0])
+    d = d / max(np.hypot(*d), 1e-12)
+    start = None
+    if lead > 0:
+        ramp = p0 + np.array([-d[0] * lead, -d[1] * lead, lead])
+        if ramp[2] < safe and _ramp_ok(surface, tree, pts, ramp, p0, R, tol):
+            start = ramp
+        else:
+            start = p0 + np.array([0.0, 0.0, lead])
+    if start is not None and start[2] < safe:
+        add([start[0], start[1], safe], USE_RAPID)
+        add(start, USE_RAPID)
+    else:
+        add([p0[0], p0[1], safe], USE_RAPID)
+    add(p0, USE_PLUNGE)
+
+
+def _lead_out(add, surface, tree, pts, line, R, tol, lead, safe):
+    """A 45-degree ramp (or vertical move) up from the stretch's last CL point at feed, then a
+    rapid retract to the safe height."""
+    p1 = line[-1]
+    d = (line[-1] - line[-2])[:2] if line.shape[0] > 1 else np.array([1.0, 0.0])
+    d = d / max(np.hypot(*d), 1e-12)
+    if lead > 0:
+        ramp = p1 + np.array([d[0] * lead, d[1] * lead, lead])
+        end = ramp if (ramp[2] < safe and _ramp_ok(surface, tree, pts, ramp, p1, R, tol)) \
+            else p1 + np.array([0.0, 0.0, min(lead, max(safe - p1[2], 0.0))])
+        add(end, USE_RETRACT)
+        add([end[0], end[1], safe], USE_RAPID)
+    else:
+        add([p1[0], p1[1], safe], USE_RETRACT)
+
+
+def _link(surface, tree, pts, a, b, R, step, tol, max_splits):
+    """A link on the surface from CL point ``a`` to ``b``: the ball dropped along the straight xy line
+    every ``step`` mm, made safe like a pass. None where the ball finds nothing under it."""
+    L = float(np.hypot(*(b[:2] - a[:2])))
+    n = max(1, int(np.ceil(L / step)))
+    t = np.linspace(0.0, 1.0, n + 1)[1:-1]
+    if t.size == 0:
+        line = np.stack([a, b])
+    else:
+        xy = a[None, :2] + t[:, None] * (b[:2] - a[:2])[None, :]
+        z = surface.drop(xy).z_mm
+        if not np.all(np.isfinite(z)):
+            return None
+        line = np.concatenate([a[None], np.column_stack([xy, z]), b[None]])
+    line, clear = _make_safe(surface, tree, pts, line, R, tol, max_splits)
+    if np.nanmin(clear) < R - tol:
+        return None
+    return line[1:], clear[1:]
+
 
 def _make_safe(surface, tree, pts, line, R, tol, max_splits):
     """Split the moves of a pass whose clearance is below R - tol at their midpoints (with a fresh

@@ -340,11 +340,36 @@ def cloud_collision_free(points, sample_index, normals, axes, tool: ToolAssembly
         points, sample_index, normals, axes, tool, candidates, obstacles)
     if not 0 < float(cell_fraction) <= 2:
         raise ParameterError("cell_fraction must be in (0, 2]")
-    n, m = normals.shape[0], axes.shape[0]
+    return _collision_free(obst, np.ascontiguousarray(points[sample_index] + R * normals), axes, segs, candidates,
+                           progress, cell_fraction)
+
+
+def centres_collision_free(obstacles, centres, axes, tool: ToolAssembly, *, candidates=None,
+                           progress: Optional[Callable] = None, cell_fraction: float = 0.35) -> np.ndarray:
+    """Bool (n, m): True where the tool assembly with its ball centre at ``centres[i]`` (part frame,
+    mm) and axis ``axes[j]`` leaves every point of ``obstacles`` (K,3) outside the cutter, shank and
+    holder segments above the ball centre (the rule of the module docstring; the ball itself is not
+    tested). Used on tool path CL points (the ball drop keeps the ball itself clear); same method
+    and same exactness as :func:`cloud_collision_free`."""
+    centres = np.ascontiguousarray(centres, dtype=np.float64).reshape(-1, 3)
+    obst, _, _, _, axes, _, segs, candidates = _validate(
+        obstacles, np.zeros(0, np.int64), np.zeros((0, 3)), axes, tool, None, None)
+    if not np.all(np.isfinite(centres)):
+        raise ParameterError("centres must be finite")
+    if not 0 < float(cell_fraction) <= 2:
+        raise ParameterError("cell_fraction must be in (0, 2]")
+    if candidates is not None:
+        candidates = np.asarray(candidates, dtype=bool)
+        if candidates.shape != (centres.shape[0], axes.shape[0]):
+            raise ParameterError(f"candidates must be ({centres.shape[0]},{axes.shape[0]}), got {candidates.shape}")
+    return _collision_free(np.ascontiguousarray(obst), centres, axes, segs, candidates, progress, cell_fraction)
+
+
+def _collision_free(obst, centres, axes, segs, candidates, progress, cell_fraction):
+    n, m = centres.shape[0], axes.shape[0]
     out = np.zeros((n, m), dtype=bool)
     if n == 0 or m == 0:
         return out
-    centres = np.ascontiguousarray(points[sample_index] + R * normals)
     obst = np.ascontiguousarray(obst)
     scale = float(max(np.abs(obst).max(), np.abs(centres).max(), 1.0))
     slack = 1e-9 * scale     # rounding of projections and of the cell assignment, mm

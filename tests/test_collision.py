@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planning.collision import brute_force_collision_free, cloud_collision_free
+from planning.collision import brute_force_collision_free, centres_collision_free, cloud_collision_free
 from planning.errors import ParameterError
 from planning.tool import Segment, ToolAssembly, ball_tool
 
@@ -246,3 +246,25 @@ def test_ball_tool_geometry():
         assert r_top - 1e-9 <= s.radius_mm <= r_top + 0.1 + 1e-9
     assert t.gauge_length_mm == pytest.approx(30.0 + 60.0)
     assert t.top_mm == pytest.approx(87.0)
+
+
+def test_centres_match_the_rule_point_by_point():
+    """Tool path CL points: centres given directly, checked against the collision rule written out
+    in numpy for every (centre, axis, point)."""
+    rng = np.random.default_rng(7)
+    pts, _ = _bumpy(rng, 900)
+    tool = ball_tool(3.0, flute_length_mm=8.0, stickout_mm=15.0, holder=[(8.0, 10.0, None)])
+    centres = pts[rng.choice(pts.shape[0], 150, replace=False)] + rng.normal(scale=2.0, size=(150, 3))
+    centres[:, 2] += 3.0
+    axes = _axes(rng, 5, max_deg=50.0)
+    got = centres_collision_free(pts, centres, axes, tool)
+    ref = np.ones_like(got)
+    for j, t in enumerate(axes):
+        d = pts[None, :, :] - centres[:, None, :]
+        a = d @ t
+        rho = np.linalg.norm(d - a[..., None] * t, axis=2)
+        for s in tool.segments:
+            hi = np.inf if s.hi_mm is None else s.hi_mm
+            ref[:, j] &= ~np.any((a > s.lo_mm) & (a <= hi) & (rho < s.radius_mm - 1e-6), axis=1)
+    assert got.any() and (~got).any()
+    assert np.array_equal(got, ref)

@@ -4,9 +4,13 @@ point-based ball drop, Makki 2010 §4: 3-axis paths at the area's fixed orientat
 All in the area frame (:mod:`planning.toolpath.frames`: tool axis +Z, X along the footprint's longer side,
 every cloud point at z <= 0). Parallel planes y = const (passes along X), zig-zag or one-way:
 
-* step-over from the target scallop height ``h`` on a plane: ``s = 2 sqrt(2 R h - h^2)``;
-* the footprint: the area's points in (x, y) on a square raster of ``s / 2`` cells, grown by
-  ``margin_mm`` into the neighbours (the overlap band); passes keep the stretches inside it;
+* step-over from the target scallop height ``h`` on a plane: ``s = 2 sqrt(2 R h - h^2)``; with
+  ``adaptive`` (default) each side step is shortened so that neighbouring ball centres, at every
+  x, stay at most ``s`` apart in the cross-section, which keeps the scallop at ``h`` on slopes
+  across the passes too (Sood ch. 5 adapts the side step per line);
+* the band: the area's points in (x, y) on a square raster of ``s / 2`` cells, grown by
+  ``margin_mm`` into the neighbours (the overlap band); a pass keeps the stretches where the dropped
+  ball's contact point lies in the band (on a slope the contact is up to R from the centre);
 * along a pass, CL points every ``step_mm``; the CL height is the exact ball drop on the WHOLE
   cloud (all areas are obstacles, :func:`planning.toolpath.balldrop.ball_drop`);
 * gouge safety of the straight moves between CL points: :func:`min_clearance` measures the
@@ -35,6 +39,14 @@ from planning.toolpath.balldrop import DropSurface
 from planning.errors import ParameterError
 from planning.toolpath.moves import FEED, RAPID, USE_CUT, USE_PLUNGE, USE_RAPID, USE_RETRACT, Toolpath, lines
 _CHUNK = 256        # moves per KD-tree query in min_clearance (bounds the gathered points)
+_MAX_DENSER = 20    # adaptive side steps are at least step-over / 20 (a vertical wall would need 0)
+_ADAPT_ROUNDS = 8   # fixed-point rounds of an adaptive side step
+
+
+def _max_dz(z_prev: np.ndarray, z_next: np.ndarray) -> float:
+    """Largest height difference of two passes' ball centres at the same x (0 where none overlap)."""
+    both = np.isfinite(z_prev) & np.isfinite(z_next)
+    return float(np.abs(z_next[both] - z_prev[both]).max()) if both.any() else 0.0
 
 
 @dataclass(frozen=True)
@@ -110,15 +122,17 @@ def min_clearance(cl_mm: np.ndarray, feed: np.ndarray, points: np.ndarray, radiu
     return out
 
 
-def finishing_passes(cloud_frame: np.ndarray, area_frame_points: np.ndarray, *, radius_mm: float,
+def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_mm: float,
                      scallop_mm: float = 0.01, step_mm: float | None = None, margin_mm: float = 1.0,
                      zigzag: bool = True, tol_mm: float = 1e-3, safe_z_mm: float | None = None,
-                     lead_mm: float = 1.0, link_max_mm: float | None = None,
+                     lead_mm: float = 1.0, link_max_mm: float | None = None, adaptive: bool = True,
                      max_splits: int = 12) -> FinishingPath:
     """Ball-end finishing of one area (mm, area frame; see the module docstring).
 
-    ``cloud_frame`` (N,3): every cloud point (and forbidden point); ``area_frame_points`` (k,3):
-    this area's points; ``radius_mm``: ball radius R; ``scallop_mm``: target scallop on a plane;
+    ``cloud_frame`` (N,3): every cloud point (and forbidden point); ``area_mask`` (N,) bool: the
+    points of this area. A CL point is kept where the ball dropped there rests on a point of the
+    area or of the band ``margin_mm`` around it in (x, y) (its contact point, not its centre, decides:
+    on a slope the two are up to R apart); ``radius_mm``: ball radius R; ``scallop_mm``: target scallop on a plane;
     ``step_mm``: forward step (default R / 4); ``margin_mm``: overlap band into the neighbours;
     ``zigzag``: alternate pass directions (else one-way, rapid back); ``tol_mm``: gouge tolerance;
     ``safe_z_mm``: ball-centre height of retracts and rapids (default R + 5 above the cloud top);
@@ -126,10 +140,16 @@ def finishing_passes(cloud_frame: np.ndarray, area_frame_points: np.ndarray, *, 
     when a ramp would come closer than R - tol to the cloud; 0 = plunge straight down);
     ``link_max_mm``: the longest xy gap between the end of a stretch and the start of the next that
     is joined by a ball-drop link on the surface instead of a retract (default 2.5 step-overs,
-    zig-zag only).
+    zig-zag only); ``adaptive``: choose each side step so that neighbouring ball centres stay at
+    most the plane step-over apart in the cross-section (the scallop on a slope across the passes
+    stays at the target; at most :data:`_MAX_DENSER` times denser than on a plane), else a constant
+    step-over (the target holds on a plane only).
     """
     pts = np.asarray(cloud_frame, dtype=np.float64)
-    area = np.asarray(area_frame_points, dtype=np.float64)
+    mask = np.asarray(area_mask, dtype=bool).reshape(-1)
+    if pts.ndim != 2 or pts.shape[1] != 3 or mask.shape[0] != pts.shape[0]:
+        raise ParameterError("cloud_frame must be (N,3) and area_mask (N,) bool")
+    area = pts[mask]
     R = float(radius_mm)
     s = step_over_mm(R, scallop_mm)
     step = R / 4.0 if step_mm is None else float(step_mm)
@@ -139,7 +159,7 @@ def finishing_passes(cloud_frame: np.ndarray, area_frame_points: np.ndarray, *, 
         raise ParameterError("the area has no points")
     safe = (R + 5.0) if safe_z_mm is None else float(safe_z_mm)
     link_max = 2.5 * s if link_max_mm is None else float(link_max_mm)
-    # footprint raster (cells of s/2), grown by the margin
+    # footprint raster (cells of s/2), grown by the margin: the band of points the ball may touch
     c = s / 2.0
     lo = area[:, :2].min(axis=0) - margin_mm - c
     hi = area[:, :2].max(axis=0) + margin_mm + c
@@ -153,20 +173,48 @@ def finishing_passes(cloud_frame: np.ndarray, area_frame_points: np.ndarray, *, 
         r = int(np.ceil(margin_mm / c))
         yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
         occ = ndimage.binary_dilation(occ, structure=(xx * xx + yy * yy) * c * c <= margin_mm ** 2)
-    y0, y1 = area[:, 1].min(), area[:, 1].max()
-    n_pass = max(1, int(np.ceil((y1 - y0) / s)) + 1)
-    ys = 0.5 * (y0 + y1) + (np.arange(n_pass) - (n_pass - 1) / 2.0) * s     # centred on the area
-    xs = np.arange(lo[0], hi[0] + step, step)
+    ij = np.floor((pts[:, :2] - lo) / c).astype(np.int64)
+    inr = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
+    band = mask.copy()
+    band[inr] |= occ[ij[inr, 0], ij[inr, 1]]
+    # ball centres touching the band lie within R of it in (x, y)
+    y0, y1 = area[:, 1].min() - margin_mm - R, area[:, 1].max() + margin_mm + R
+    xs = np.arange(lo[0] - R, hi[0] + R + step, step)
     surface = DropSurface(pts, R)
     tree = cKDTree(pts)
+
+    def drop_pass(y):
+        """Which samples of the pass at y rest on the band, and their ball-drop heights (NaN elsewhere)."""
+        res = surface.drop(np.stack([xs, np.full(xs.size, y)], 1))
+        inside = res.contact >= 0
+        inside[inside] = band[res.contact[inside]]
+        return inside, np.where(inside, res.z_mm, np.nan)
+
+    passes = []                                 # (y, inside, z)
+    if adaptive:
+        y, cur = y0, drop_pass(y0)
+        while True:
+            passes.append((y, *cur))
+            if y >= y1 - 1e-9:
+                break
+            # the largest side step (<= s) whose neighbouring ball centres, at every x, are at most s
+            # apart in the cross-section: the scallop between them is then <= h (Sood ch. 5 adapts the side step per line)
+            dy = min(s, y1 - y)
+            for _ in range(_ADAPT_ROUNDS):
+                nxt = drop_pass(y + dy)
+                dz = _max_dz(cur[1], nxt[1])
+                if dy * dy + dz * dz <= s * s * (1 + 1e-9) or dy <= s / _MAX_DENSER:
+                    break
+                # fixed point of dy = sqrt(s^2 - dz(dy)^2): dz ~ dy tan(slope) converges in a few rounds
+                dy = max(min(math.sqrt(max(s * s - dz * dz, 0.0)), 0.999 * dy), s / _MAX_DENSER)
+            y, cur = y + dy, nxt
+    else:
+        n_pass = max(1, int(np.ceil((y1 - y0) / s)) + 1)
+        for y in 0.5 * (y0 + y1) + (np.arange(n_pass) - (n_pass - 1) / 2.0) * s:   # centred on the area
+            passes.append((y, *drop_pass(y)))
     stretches = []                      # (pass number, (L,3) safe CL line, clearances)
     n_done = 0
-    for y in ys:
-        ix = np.floor((xs - lo[0]) / c).astype(np.int64)
-        iy = int(np.floor((y - lo[1]) / c))
-        inside = (ix >= 0) & (ix < nx) & (0 <= iy < ny)
-        if inside.any():
-            inside[inside] = occ[ix[inside], iy]
+    for y, inside, z_all in passes:
         if not inside.any():
             continue
         # stretches of consecutive inside samples, reversed on every other pass (zig-zag)
@@ -174,13 +222,13 @@ def finishing_passes(cloud_frame: np.ndarray, area_frame_points: np.ndarray, *, 
         runs = list(zip(edges[::2], edges[1::2]))
         back = zigzag and n_done % 2 == 1
         for a, b in (runs[::-1] if back else runs):
-            xr = xs[a:b][::-1] if back else xs[a:b]
-            xy = np.stack([xr, np.full(xr.size, y)], 1)
-            z = surface.drop(xy).z_mm
+            sl = slice(a, b)
+            xr, z = (xs[sl][::-1], z_all[sl][::-1]) if back else (xs[sl], z_all[sl])
             ok = np.isfinite(z)                 # no point under the ball: nothing to cut there
             if not ok.any():
                 continue
-            line, clear = _make_safe(surface, tree, pts, np.column_stack([xy[ok], z[ok]]), R, tol_mm, max_splits)
+            line = np.column_stack([xr[ok], np.full(int(ok.sum()), y), z[ok]])
+            line, clear = _make_safe(surface, tree, pts, line, R, tol_mm, max_splits)
             stretches.append((n_done, line, clear))
         n_done += 1
     if not stretches:

@@ -154,6 +154,11 @@ def _drop(pts, order, start, cmax, bmax, nby, xy, R, x0, y0, h, nx, ny, slack, z
         idx_out[k] = bi
 
 
+#: Fewer query lines than this run on one thread (starting the thread pool costs more).
+_PARALLEL_MIN = 2048
+_drop_serial = njit(cache=True, nogil=True)(_drop.py_func)
+
+
 class DropSurface:
     """The cloud ``points`` (N,3, mm, tool axis +Z) binned once for ball drops of radius
     ``radius_mm``: call :meth:`drop` as often as needed (the raster is built here only).
@@ -192,7 +197,8 @@ class DropSurface:
             return BallDrop(z, idx)
         # rounding of the cell bounds, mm
         slack = 1e-9 * max(self._scale, float(np.abs(xy).max()), 1.0)
-        _drop(*self._raster, xy, self.R, *self._grid, slack, z, idx)
+        kernel = _drop if xy.shape[0] >= _PARALLEL_MIN else _drop_serial
+        kernel(*self._raster, xy, self.R, *self._grid, slack, z, idx)
         return BallDrop(z, idx)
 
 

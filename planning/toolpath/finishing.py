@@ -13,8 +13,9 @@ every cloud point at z <= 0). Parallel planes y = const (passes along X), zig-za
   ball's contact point lies in the band (on a slope the contact is up to R from the centre);
 * along a pass, CL points every ``step_mm``; the CL height is the exact ball drop on the WHOLE
   cloud (all areas are obstacles, :func:`planning.toolpath.balldrop.ball_drop`);
-* gouge safety of the straight moves between CL points: :func:`min_clearance` measures the
-  smallest distance from any cloud point to the ball-centre polyline; a move closer than
+* gouge safety of the straight moves between CL points:
+  :func:`planning.toolpath.verify.move_clearance` measures the smallest distance from any cloud
+  point to each move of the ball-centre polyline (capped at R); a move closer than
   ``R - tol_mm`` is split at its midpoint with a fresh ball drop until it clears (bounded), and
   the final clearance is reported;
 * links: in zig-zag, the end of a stretch and the start of the next one less than ``link_max_mm``
@@ -38,8 +39,8 @@ from scipy.spatial import cKDTree
 from planning.toolpath.balldrop import DropSurface
 from planning.errors import ParameterError
 from planning.toolpath.moves import FEED, RAPID, USE_CUT, USE_PLUNGE, USE_RAPID, USE_RETRACT, Toolpath, lines
+from planning.toolpath.verify import BinnedCloud, move_clearance
 _CHUNK = 256        # moves per KD-tree query in min_clearance (bounds the gathered points)
-_MAX_DENSER = 20    # adaptive side steps are at least step-over / 20 (a vertical wall would need 0)
 _ADAPT_ROUNDS = 8   # fixed-point rounds of an adaptive side step
 
 
@@ -88,7 +89,8 @@ def step_over_mm(radius_mm: float, scallop_mm: float) -> float:
 
 def min_clearance(cl_mm: np.ndarray, feed: np.ndarray, points: np.ndarray, radius_mm: float, *,
                   tree: cKDTree | None = None) -> np.ndarray:
-    """Per feed move i (from ``cl_mm[i-1]`` to ``cl_mm[i]`` where ``feed[i]``): the smallest distance
+    """Reference (KD-tree, numpy) for the numba clearance of :mod:`planning.toolpath.verify`, used by the
+    tests. Per feed move i (from ``cl_mm[i-1]`` to ``cl_mm[i]`` where ``feed[i]``): the smallest distance
     from a cloud point to that segment (``inf`` where no point is within ``2 R``; NaN for non-feed
     entries). Exact point-to-segment distances over the points a KD-tree (``tree``, built on
     ``points`` when not given) finds near each move, in chunks of moves."""
@@ -126,7 +128,7 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
                      scallop_mm: float = 0.01, step_mm: float | None = None, margin_mm: float = 1.0,
                      zigzag: bool = True, tol_mm: float = 1e-3, safe_z_mm: float | None = None,
                      lead_mm: float = 1.0, link_max_mm: float | None = None, adaptive: bool = True,
-                     max_splits: int = 12) -> FinishingPath:
+                     max_slope_deg: float = 87.0, max_splits: int = 12) -> FinishingPath:
     """Ball-end finishing of one area (mm, area frame; see the module docstring).
 
     ``cloud_frame`` (N,3): every cloud point (and forbidden point); ``area_mask`` (N,) bool: the
@@ -142,8 +144,9 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
     is joined by a ball-drop link on the surface instead of a retract (default 2.5 step-overs,
     zig-zag only); ``adaptive``: choose each side step so that neighbouring ball centres stay at
     most the plane step-over apart in the cross-section (the scallop on a slope across the passes
-    stays at the target; at most :data:`_MAX_DENSER` times denser than on a plane), else a constant
-    step-over (the target holds on a plane only).
+    stays at the target), never shorter than ``s cos(max_slope_deg)`` (the steepest surface the
+    area has: the tool cone's upper angle; this also keeps a sparse cloud's ball-drop noise from
+    crowding the passes), else a constant step-over (the target holds on a plane only).
     """
     pts = np.asarray(cloud_frame, dtype=np.float64)
     mask = np.asarray(area_mask, dtype=bool).reshape(-1)
@@ -181,7 +184,7 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
     y0, y1 = area[:, 1].min() - margin_mm - R, area[:, 1].max() + margin_mm + R
     xs = np.arange(lo[0] - R, hi[0] + R + step, step)
     surface = DropSurface(pts, R)
-    tree = cKDTree(pts)
+    tree = BinnedCloud(pts, R / 4.0)        # the clearance queries' raster (verify.move_clearance)
 
     def drop_pass(y):
         """Which samples of the pass at y rest on the band, and their ball-drop heights (NaN elsewhere)."""
@@ -191,6 +194,9 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
         return inside, np.where(inside, res.z_mm, np.nan)
 
     passes = []                                 # (y, inside, z)
+    if not 0.0 <= max_slope_deg < 90.0:
+        raise ParameterError(f"max_slope_deg = {max_slope_deg}: must be in [0, 90)")
+    dy_min = s * math.cos(math.radians(max_slope_deg))
     if adaptive:
         y, cur = y0, drop_pass(y0)
         while True:
@@ -203,10 +209,10 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
             for _ in range(_ADAPT_ROUNDS):
                 nxt = drop_pass(y + dy)
                 dz = _max_dz(cur[1], nxt[1])
-                if dy * dy + dz * dz <= s * s * (1 + 1e-9) or dy <= s / _MAX_DENSER:
+                if dy * dy + dz * dz <= s * s * (1 + 1e-9) or dy <= dy_min:
                     break
                 # fixed point of dy = sqrt(s^2 - dz(dy)^2): dz ~ dy tan(slope) converges in a few rounds
-                dy = max(min(math.sqrt(max(s * s - dz * dz, 0.0)), 0.999 * dy), s / _MAX_DENSER)
+                dy = max(min(math.sqrt(max(s * s - dz * dz, 0.0)), 0.999 * dy), dy_min)
             y, cur = y + dy, nxt
     else:
         n_pass = max(1, int(np.ceil((y1 - y0) / s)) + 1)
@@ -272,11 +278,23 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
     todo = feed & np.isnan(clear)
     todo[0] = False
     if todo.any():
-        clear[todo] = min_clearance(cl, todo, pts, R, tree=tree)[todo]
+        clear[todo] = _clr(cl, todo, tree, R)[todo]
     seg = np.linalg.norm(np.diff(cl, axis=0), axis=1)
     worst = float(np.nanmin(clear)) if np.isfinite(clear).any() else float("inf")
     return FinishingPath(toolpath=tp, n_passes=n_done, step_over_mm=s, min_clearance_mm=worst,
                          length_mm=float(seg[feed[1:]].sum()), n_retracts=n_retracts, pass_index=pass_index)
+
+
+def _clr(cl: np.ndarray, mask: np.ndarray, binned: BinnedCloud, R: float) -> np.ndarray:
+    """Per straight move of the polyline ``cl`` selected by ``mask``: the exact distance to the
+    nearest cloud point, capped at R (:func:`planning.toolpath.verify.move_clearance`); NaN elsewhere."""
+    mask = np.asarray(mask, dtype=bool).copy()
+    mask[0] = False
+    out = np.full(cl.shape[0], np.nan)
+    if mask.any():
+        tp = lines(cl, np.full(cl.shape[0], USE_CUT, dtype=np.int8))
+        out = move_clearance(tp, binned, R, moves=mask)
+    return out
 
 
 def _ramp_ok(surface, tree, pts, a, b, R, tol) -> bool:
@@ -286,7 +304,7 @@ def _ramp_ok(surface, tree, pts, a, b, R, tol) -> bool:
     if np.isfinite(za) and a[2] < za:
         return False
     line = np.stack([a, b])
-    c = min_clearance(line, np.array([False, True]), pts, R, tree=tree)[1]
+    c = _clr(line, np.array([False, True]), tree, R)[1]
     return bool(c >= R - tol)
 
 
@@ -353,7 +371,7 @@ def _make_safe(surface, tree, pts, line, R, tol, max_splits):
     measured again. Returns the pass and each point's move clearance (NaN for its first point)."""
     feed = np.ones(line.shape[0], dtype=bool)
     feed[0] = False
-    clear = min_clearance(line, feed, pts, R, tree=tree)
+    clear = _clr(line, feed, tree, R)
     for _ in range(max_splits):
         bad = np.flatnonzero(clear < R - tol)
         if bad.size == 0:
@@ -366,5 +384,5 @@ def _make_safe(surface, tree, pts, line, R, tol, max_splits):
         redo = np.zeros(line.shape[0], dtype=bool)
         redo[at] = True
         redo[at + 1] = True
-        clear[redo] = min_clearance(line, redo, pts, R, tree=tree)[redo]
+        clear[redo] = _clr(line, redo, tree, R)[redo]
     return line, clear

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 from numba import njit, prange
@@ -99,7 +98,7 @@ def _drop(pts, order, start, cmax, bmax, nby, xy, R, x0, y0, h, nx, ny, slack, z
         bx1 = min(int(math.floor((x + rr - x0) / hb)), nbx - 1)
         span = max(bxc - bx0, bx1 - bxc)
         # block rows from the line's own outwards: a high point nearby prunes more early
-        for off in range(0, span + 1):
+        for off in range(span + 1):
             for sgn in (1, -1):
                 if off == 0 and sgn == -1:
                     continue
@@ -164,7 +163,7 @@ class DropSurface:
     ``radius_mm``: call :meth:`drop` as often as needed (the raster is built here only).
     ``cell_mm`` (default R/10) sets the raster cell and changes speed only."""
 
-    def __init__(self, points, radius_mm, *, cell_mm: Optional[float] = None):
+    def __init__(self, points, radius_mm, *, cell_mm: float | None = None):
         points, _, R = _check(points, np.zeros((0, 2)), radius_mm)
         h = R / 10.0 if cell_mm is None else float(cell_mm)
         if not h > 0:
@@ -202,7 +201,7 @@ class DropSurface:
         return BallDrop(z, idx)
 
 
-def ball_drop(points, xy, radius_mm, *, cell_mm: Optional[float] = None) -> BallDrop:
+def ball_drop(points, xy, radius_mm, *, cell_mm: float | None = None) -> BallDrop:
     """Drop a ball-end cutter of radius ``radius_mm`` onto ``points`` (N,3), mm, frame with the tool
     axis along +Z, along the vertical lines through ``xy`` (K,2): the ball-centre height of each
     (Sood's point-based ball drop; exact, see the module docstring). ``cell_mm`` (default R/10)

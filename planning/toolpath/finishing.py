@@ -36,10 +36,19 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from planning.toolpath.balldrop import DropSurface
 from planning.errors import ParameterError
-from planning.toolpath.moves import FEED, RAPID, USE_CUT, USE_PLUNGE, USE_RAPID, USE_RETRACT, Toolpath, lines
+from planning.toolpath.balldrop import DropSurface
+from planning.toolpath.moves import (
+    FEED,
+    USE_CUT,
+    USE_PLUNGE,
+    USE_RAPID,
+    USE_RETRACT,
+    Toolpath,
+    lines,
+)
 from planning.toolpath.verify import BinnedCloud, move_clearance
+
 _CHUNK = 256        # moves per KD-tree query in min_clearance (bounds the gathered points)
 _ADAPT_ROUNDS = 8   # fixed-point rounds of an adaptive side step
 
@@ -128,7 +137,8 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
                      scallop_mm: float = 0.01, step_mm: float | None = None, margin_mm: float = 1.0,
                      zigzag: bool = True, tol_mm: float = 1e-3, safe_z_mm: float | None = None,
                      lead_mm: float = 1.0, link_max_mm: float | None = None, adaptive: bool = True,
-                     max_slope_deg: float = 87.0, max_splits: int = 12) -> FinishingPath:
+                     max_slope_deg: float = 87.0, max_splits: int = 12,
+                     binned: BinnedCloud | None = None) -> FinishingPath:
     """Ball-end finishing of one area (mm, area frame; see the module docstring).
 
     ``cloud_frame`` (N,3): every cloud point (and forbidden point); ``area_mask`` (N,) bool: the
@@ -146,7 +156,8 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
     most the plane step-over apart in the cross-section (the scallop on a slope across the passes
     stays at the target), never shorter than ``s cos(max_slope_deg)`` (the steepest surface the
     area has: the tool cone's upper angle; this also keeps a sparse cloud's ball-drop noise from
-    crowding the passes), else a constant step-over (the target holds on a plane only).
+    crowding the passes), else a constant step-over (the target holds on a plane only);
+    ``binned``: ``cloud_frame`` already binned for the clearance queries (built here if None).
     """
     pts = np.asarray(cloud_frame, dtype=np.float64)
     mask = np.asarray(area_mask, dtype=bool).reshape(-1)
@@ -184,7 +195,8 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
     y0, y1 = area[:, 1].min() - margin_mm - R, area[:, 1].max() + margin_mm + R
     xs = np.arange(lo[0] - R, hi[0] + R + step, step)
     surface = DropSurface(pts, R)
-    tree = BinnedCloud(pts, R / 4.0)        # the clearance queries' raster (verify.move_clearance)
+    # the clearance queries' raster (verify.move_clearance); the caller may share one
+    tree = BinnedCloud(pts, R / 4.0) if binned is None else binned
 
     def drop_pass(y):
         """Which samples of the pass at y rest on the band, and their ball-drop heights (NaN elsewhere)."""
@@ -233,12 +245,13 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
             ok = np.isfinite(z)                 # no point under the ball: nothing to cut there
             if not ok.any():
                 continue
-            line = np.column_stack([xr[ok], np.full(int(ok.sum()), y), z[ok]])
-            line, clear = _make_safe(surface, tree, pts, line, R, tol_mm, max_splits)
-            stretches.append((n_done, line, clear))
+            stretches.append((n_done, np.column_stack([xr[ok], np.full(int(ok.sum()), y), z[ok]])))
         n_done += 1
     if not stretches:
         raise ParameterError("no finishing pass lies on the area")
+    safe_lines = _make_safe_many(surface, tree, [ln for _, ln in stretches], R, tol_mm, max_splits)
+    stretches = [(p, ln, cl) for (p, _), (ln, cl) in zip(stretches, safe_lines)]
+    ramp_in, ramp_out = _ramps(surface, tree, [ln for _, ln, _ in stretches], R, tol_mm, lead_mm, safe)
     xyz, use, clr, pid = [], [], [], []
     n_retracts = 0
 
@@ -249,25 +262,24 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
         clr.append(np.broadcast_to(np.asarray(cl, dtype=np.float64), (n,)).copy())
         pid.append(np.full(n, pass_no, dtype=np.int32))
 
+    links = _links(surface, tree, [ln for _, ln, _ in stretches], R, step, tol_mm, max_splits,
+                   link_max if zigzag else -1.0)
     prev = None
     for k, (pass_no, line, clear) in enumerate(stretches):
         if prev is not None:
-            gap = float(np.hypot(*(line[0, :2] - prev[-1, :2])))
-            link = None
-            if zigzag and gap <= link_max:
-                link = _link(surface, tree, pts, prev[-1], line[0], R, step, tol_mm, max_splits)
+            link = links[k]
             if link is not None:
                 add(link[0], USE_CUT, link[1])
             else:
-                _lead_out(add, surface, tree, pts, prev, R, tol_mm, lead_mm, safe)
+                _lead_out(add, prev, ramp_out[k - 1], lead_mm, safe)
                 n_retracts += 1
-                _lead_in(add, surface, tree, pts, line, R, tol_mm, lead_mm, safe)
+                _lead_in(add, line, ramp_in[k], lead_mm, safe)
         else:
-            _lead_in(add, surface, tree, pts, line, R, tol_mm, lead_mm, safe)
+            _lead_in(add, line, ramp_in[k], lead_mm, safe)
         pid[-1][-1] = pass_no                      # the stretch's first point ends the plunge or link
         add(line[1:], USE_CUT, clear[1:], pass_no)
         prev = line
-    _lead_out(add, surface, tree, pts, prev, R, tol_mm, lead_mm, safe)
+    _lead_out(add, prev, ramp_out[len(stretches) - 1], lead_mm, safe)
     cl = np.concatenate(xyz)
     u = np.concatenate(use)
     clear = np.concatenate(clr)
@@ -297,30 +309,47 @@ def _clr(cl: np.ndarray, mask: np.ndarray, binned: BinnedCloud, R: float) -> np.
     return out
 
 
-def _ramp_ok(surface, tree, pts, a, b, R, tol) -> bool:
-    """Whether the straight ball-centre move a -> b keeps R - tol from every cloud point and starts
-    above the ball-drop height at a (so the vertical rapid onto ``a`` is clear)."""
-    za = surface.drop(a[None, :2]).z_mm[0]
-    if np.isfinite(za) and a[2] < za:
-        return False
-    line = np.stack([a, b])
-    c = _clr(line, np.array([False, True]), tree, R)[1]
-    return bool(c >= R - tol)
+def _direction(line: np.ndarray, at_end: bool) -> np.ndarray:
+    """Unit xy direction of a stretch at its start (or end)."""
+    if line.shape[0] < 2:
+        return np.array([1.0, 0.0])
+    d = (line[-1] - line[-2])[:2] if at_end else (line[1] - line[0])[:2]
+    return d / max(float(np.hypot(*d)), 1e-12)
 
 
-def _lead_in(add, surface, tree, pts, line, R, tol, lead, safe):
+def _ramps(surface, tree, stretch_lines, R, tol, lead, safe):
+    """Lead-in and lead-out ramp ends of every stretch: the 45-degree ramp's far end where the ramp
+    keeps R - tol from the cloud and its far end lies above the ball-drop height there (so the
+    vertical rapid onto it is clear), else None (vertical). All checked in two kernel calls."""
+    n = len(stretch_lines)
+    if lead <= 0 or n == 0:
+        return [None] * n, [None] * n
+    ends, starts = [], []
+    for ln in stretch_lines:
+        d0, d1 = _direction(ln, False), _direction(ln, True)
+        starts.append(ln[0] + np.array([-d0[0] * lead, -d0[1] * lead, lead]))
+        ends.append(ln[-1] + np.array([d1[0] * lead, d1[1] * lead, lead]))
+    far = np.array(starts + ends)
+    near = np.array([ln[0] for ln in stretch_lines] + [ln[-1] for ln in stretch_lines])
+    za = surface.drop(far[:, :2]).z_mm
+    ok = (far[:, 2] < safe) & ~(np.isfinite(za) & (far[:, 2] < za))
+    pairs = np.empty((2 * far.shape[0], 3))
+    pairs[0::2], pairs[1::2] = far, near
+    mask = np.zeros(pairs.shape[0], dtype=bool)
+    mask[1::2] = True
+    c = _clr(pairs, mask, tree, R)[1::2]
+    ok &= c >= R - tol
+    return ([far[i] if ok[i] else None for i in range(n)], [far[n + i] if ok[n + i] else None for i in range(n)])
+
+
+def _lead_in(add, line, ramp, lead, safe):
     """Rapid above the stretch's start at the safe height, rapid down to the lead-in start, then a
-    45-degree ramp (or a vertical plunge) at plunge feed onto the first CL point."""
+    45-degree ramp (``ramp``: its checked far end) or a vertical plunge at plunge feed onto the
+    first CL point."""
     p0 = line[0]
-    d = (line[1] - line[0])[:2] if line.shape[0] > 1 else np.array([1.0, 0.0])
-    d = d / max(np.hypot(*d), 1e-12)
     start = None
     if lead > 0:
-        ramp = p0 + np.array([-d[0] * lead, -d[1] * lead, lead])
-        if ramp[2] < safe and _ramp_ok(surface, tree, pts, ramp, p0, R, tol):
-            start = ramp
-        else:
-            start = p0 + np.array([0.0, 0.0, lead])
+        start = ramp if ramp is not None else p0 + np.array([0.0, 0.0, lead])
     if start is not None and start[2] < safe:
         add([start[0], start[1], safe], USE_RAPID)
         add(start, USE_RAPID)
@@ -329,60 +358,79 @@ def _lead_in(add, surface, tree, pts, line, R, tol, lead, safe):
     add(p0, USE_PLUNGE)
 
 
-def _lead_out(add, surface, tree, pts, line, R, tol, lead, safe):
-    """A 45-degree ramp (or vertical move) up from the stretch's last CL point at feed, then a
-    rapid retract to the safe height."""
+def _lead_out(add, line, ramp, lead, safe):
+    """A 45-degree ramp (``ramp``: its checked far end) or a vertical move up from the stretch's last
+    CL point at feed, then a rapid retract to the safe height."""
     p1 = line[-1]
-    d = (line[-1] - line[-2])[:2] if line.shape[0] > 1 else np.array([1.0, 0.0])
-    d = d / max(np.hypot(*d), 1e-12)
     if lead > 0:
-        ramp = p1 + np.array([d[0] * lead, d[1] * lead, lead])
-        end = ramp if (ramp[2] < safe and _ramp_ok(surface, tree, pts, ramp, p1, R, tol)) \
-            else p1 + np.array([0.0, 0.0, min(lead, max(safe - p1[2], 0.0))])
+        end = ramp if ramp is not None else p1 + np.array([0.0, 0.0, min(lead, max(safe - p1[2], 0.0))])
         add(end, USE_RETRACT)
         add([end[0], end[1], safe], USE_RAPID)
     else:
         add([p1[0], p1[1], safe], USE_RETRACT)
 
 
-def _link(surface, tree, pts, a, b, R, step, tol, max_splits):
-    """A link on the surface from CL point ``a`` to ``b``: the ball dropped along the straight xy line
-    every ``step`` mm, made safe like a pass. None where the ball finds nothing under it."""
-    L = float(np.hypot(*(b[:2] - a[:2])))
-    n = max(1, int(np.ceil(L / step)))
-    t = np.linspace(0.0, 1.0, n + 1)[1:-1]
-    if t.size == 0:
-        line = np.stack([a, b])
-    else:
-        xy = a[None, :2] + t[:, None] * (b[:2] - a[:2])[None, :]
-        z = surface.drop(xy).z_mm
-        if not np.all(np.isfinite(z)):
-            return None
-        line = np.concatenate([a[None], np.column_stack([xy, z]), b[None]])
-    line, clear = _make_safe(surface, tree, pts, line, R, tol, max_splits)
-    if np.nanmin(clear) < R - tol:
-        return None
-    return line[1:], clear[1:]
+def _links(surface, tree, stretch_lines, R, step, tol, max_splits, link_max):
+    """Surface links between consecutive stretches whose ends are at most ``link_max`` apart in
+    (x, y): the ball dropped along the straight xy line every ``step`` mm and made safe like a pass
+    (all links together). ``links[k]`` joins stretch k-1 to k: ``(points after the start, their
+    clearances)``, or None where the ball finds nothing under it or the link would not clear."""
+    n = len(stretch_lines)
+    out = [None] * n
+    todo, raw = [], []
+    for k in range(1, n):
+        a, b = stretch_lines[k - 1][-1], stretch_lines[k][0]
+        L = float(np.hypot(*(b[:2] - a[:2])))
+        if L > link_max:
+            continue
+        m = max(1, int(np.ceil(L / step)))
+        t = np.linspace(0.0, 1.0, m + 1)[1:-1]
+        todo.append(k)
+        raw.append((a, b, a[None, :2] + t[:, None] * (b[:2] - a[:2])[None, :]))
+    if not todo:
+        return out
+    xy = np.concatenate([r[2] for r in raw])
+    z = surface.drop(xy).z_mm if xy.size else np.zeros(0)
+    cut = np.cumsum([r[2].shape[0] for r in raw])[:-1]
+    keep, lines_ = [], []
+    for k, (a, b, _), pxy, pz in zip(todo, raw, np.split(xy, cut), np.split(z, cut)):
+        if not np.all(np.isfinite(pz)):
+            continue
+        keep.append(k)
+        lines_.append(np.concatenate([a[None], np.column_stack([pxy, pz]), b[None]]))
+    for k, (line, clear) in zip(keep, _make_safe_many(surface, tree, lines_, R, tol, max_splits)):
+        if line.shape[0] < 2 or np.nanmin(clear) >= R - tol:
+            out[k] = (line[1:], clear[1:])
+    return out
 
 
-def _make_safe(surface, tree, pts, line, R, tol, max_splits):
-    """Split the moves of a pass whose clearance is below R - tol at their midpoints (with a fresh
-    ball drop) until every move clears or ``max_splits`` rounds have run; only the new moves are
-    measured again. Returns the pass and each point's move clearance (NaN for its first point)."""
-    feed = np.ones(line.shape[0], dtype=bool)
-    feed[0] = False
-    clear = _clr(line, feed, tree, R)
+def _make_safe_many(surface, tree, stretch_lines, R, tol, max_splits):
+    """Split the moves of the stretches whose clearance is below R - tol at their midpoints (with a
+    fresh ball drop) until every move clears or ``max_splits`` rounds have run; only the new moves
+    are measured again, all stretches together (one clearance call per round). Returns
+    ``[(line, clearance of the move reaching each point (NaN for its first))]`` in order."""
+    if not stretch_lines:
+        return []
+    sizes = np.array([ln.shape[0] for ln in stretch_lines])
+    line = np.concatenate(stretch_lines)
+    lid = np.repeat(np.arange(sizes.size), sizes)
+    first = np.zeros(line.shape[0], dtype=bool)
+    first[np.concatenate([[0], np.cumsum(sizes)[:-1]])] = True
+    clear = _clr(line, ~first, tree, R)
     for _ in range(max_splits):
-        bad = np.flatnonzero(clear < R - tol)
+        bad = np.flatnonzero(clear < R - tol)           # never a first point (NaN there)
         if bad.size == 0:
             break
         mids = 0.5 * (line[bad - 1] + line[bad])
         mids[:, 2] = np.maximum(surface.drop(mids[:, :2]).z_mm, mids[:, 2])
         line = np.insert(line, bad, mids, axis=0)
+        lid = np.insert(lid, bad, lid[bad])
+        first = np.insert(first, bad, False)
         clear = np.insert(clear, bad, np.nan)
-        at = bad + np.arange(bad.size)          # where the midpoints landed
+        at = bad + np.arange(bad.size)
         redo = np.zeros(line.shape[0], dtype=bool)
         redo[at] = True
         redo[at + 1] = True
         clear[redo] = _clr(line, redo, tree, R)[redo]
-    return line, clear
+    cut = np.flatnonzero(np.diff(lid)) + 1
+    return list(zip(np.split(line, cut), np.split(clear, cut)))

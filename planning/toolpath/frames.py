@@ -16,7 +16,6 @@ Conventions (part frame in, area frame out; mm):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 
@@ -39,7 +38,7 @@ class AreaFrame:
         return np.asarray(points, dtype=np.float64) @ self.rotation + self.origin_mm
 
 
-def area_frame(tool_axis, cloud_points, area_points: Optional[np.ndarray] = None) -> AreaFrame:
+def area_frame(tool_axis, cloud_points, area_points: np.ndarray | None = None) -> AreaFrame:
     """The frame of one area: tool axis as +Z, X along the footprint's longer side (see the module
     docstring). ``cloud_points`` (N,3): the whole cloud (for the origin height); ``area_points``
     (k,3): the area's points (for X and the origin in the plane; default the whole cloud)."""

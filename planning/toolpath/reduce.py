@@ -42,15 +42,32 @@ Everything runs in numba, parallel over runs; the cloud is binned once
 from __future__ import annotations
 
 import math
-from typing import Optional
 
 import numpy as np
 from numba import njit, prange
 
 from planning.errors import ParameterError
-from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, PLANE_AXES, PLANE_ZX, USE_CUT, Toolpath
-from planning.toolpath.verify import (_NF, BinnedCloud, _arc_dist, _binned, _check_radius, _fill_arc,
-                                      _fill_line, _mod2pi, _move_min, _seg_d2)
+from planning.toolpath.moves import (
+    ARC_CCW,
+    ARC_CW,
+    FEED,
+    PLANE_AXES,
+    PLANE_ZX,
+    USE_CUT,
+    Toolpath,
+)
+from planning.toolpath.verify import (
+    _NF,
+    BinnedCloud,
+    _arc_dist,
+    _binned,
+    _check_radius,
+    _fill_arc,
+    _fill_line,
+    _mod2pi,
+    _move_min,
+    _seg_d2,
+)
 
 _BACKOFF_STEPS = 8          # single-point back-offs before halving, when a move would gouge
 _GN_STEPS = 3               # Gauss-Newton refinements of an arc's centre
@@ -331,7 +348,7 @@ def _reduce(tp, points, radius_mm, tol_mm, *, lines_, arcs, plane, min_points, m
 
 
 def reduce_cl(tp: Toolpath, points, radius_mm: float, *, tol_mm: float, uses=(USE_CUT,),
-              pass_index: Optional[np.ndarray] = None, cell_mm: Optional[float] = None) -> Toolpath:
+              pass_index: np.ndarray | None = None, cell_mm: float | None = None) -> Toolpath:
     """Drop CL points of ``tp`` (ball centres, area frame, mm) whose straight replacement passes
     within ``tol_mm`` (3-D) of every dropped point and keeps clearance >= R - tol from every point
     of ``points`` (N,3, or a :class:`planning.toolpath.verify.BinnedCloud`); Sood 2015 §4.4 made
@@ -347,7 +364,7 @@ def reduce_cl(tp: Toolpath, points, radius_mm: float, *, tol_mm: float, uses=(US
 def fit_arcs(tp: Toolpath, points, radius_mm: float, *, tol_mm: float, plane: int = PLANE_ZX,
              min_points: int = 4, min_radius_mm: float = 0.5, max_radius_mm: float = 1.0e4,
              plane_tol_mm: float = 1e-6, reduce_lines: bool = True, uses=(USE_CUT,),
-             pass_index: Optional[np.ndarray] = None, cell_mm: Optional[float] = None) -> Toolpath:
+             pass_index: np.ndarray | None = None, cell_mm: float | None = None) -> Toolpath:
     """Replace runs of consecutive FEED moves of ``tp`` (ball centres, area frame, mm) that lie in
     one plane of kind ``plane`` (default G18: y const, passes along X; points within
     ``plane_tol_mm`` of the run start's plane) by circular arcs (ARC_CW / ARC_CCW, centre, that
@@ -363,4 +380,4 @@ def fit_arcs(tp: Toolpath, points, radius_mm: float, *, tol_mm: float, plane: in
                    plane_tol_mm=plane_tol_mm, uses=uses, pass_index=pass_index, cell_mm=cell_mm)
 
 
-__all__ = ["reduce_cl", "fit_arcs", "BinnedCloud"]
+__all__ = ["BinnedCloud", "fit_arcs", "reduce_cl"]

@@ -40,14 +40,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Optional, Union
 
 import numpy as np
 from numba import njit, prange
 
 from planning.errors import ParameterError
 from planning.raster import bin_cells, rows_in_order
-from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, PLANE_AXES, Toolpath
+from planning.toolpath.moves import (
+    ARC_CCW,
+    ARC_CW,
+    FEED,
+    PLANE_AXES,
+    PLANE_XY,
+    PLANE_YZ,
+    PLANE_ZX,
+    Toolpath,
+)
 
 _TWO_PI = 2.0 * math.pi
 
@@ -66,8 +74,7 @@ _LINE, _ARC = 0, 1
 def _mod2pi(x):
     """x mod 2 pi in [0, 2 pi)."""
     r = x - _TWO_PI * math.floor(x / _TWO_PI)
-    if r < 0.0:
-        r = 0.0
+    r = max(r, 0.0)
     if r >= _TWO_PI:
         r -= _TWO_PI
     return r
@@ -416,7 +423,8 @@ def _check_radius(radius_mm) -> float:
 def _selected(tp: Toolpath, moves) -> np.ndarray:
     P = tp.n_moves
     if moves is None:
-        sel = np.flatnonzero(np.isin(tp.kind, (FEED, ARC_CW, ARC_CCW)))
+        k = tp.kind
+        sel = np.flatnonzero((k == FEED) | (k == ARC_CW) | (k == ARC_CCW))
     else:
         m = np.asarray(moves)
         if m.dtype == bool:
@@ -430,9 +438,9 @@ def _selected(tp: Toolpath, moves) -> np.ndarray:
     return sel[sel > 0]
 
 
-def move_clearance(tp: Toolpath, points: Union[np.ndarray, BinnedCloud], radius_mm: float, *,
-                   moves=None, cutoff_mm: Optional[float] = None,
-                   cell_mm: Optional[float] = None) -> np.ndarray:
+def move_clearance(tp: Toolpath, points: np.ndarray | BinnedCloud, radius_mm: float, *,
+                   moves=None, cutoff_mm: float | None = None,
+                   cell_mm: float | None = None) -> np.ndarray:
     """Per move of ``tp`` (ball centres, area frame, mm): the smallest distance (mm) from any point
     of ``points`` (N,3, or a :class:`BinnedCloud`) to the ball-centre curve of the move (straight
     segment, circular arc or helix; exact, see the module docstring), capped at ``cutoff_mm``
@@ -448,8 +456,10 @@ def move_clearance(tp: Toolpath, points: Union[np.ndarray, BinnedCloud], radius_
     out = np.full(tp.n_moves, np.nan)
     if sel.size == 0:
         return out
-    arcs = np.isin(tp.kind[sel], (ARC_CW, ARC_CCW))
-    bad = arcs & ~np.isin(tp.plane[sel], list(PLANE_AXES))
+    ks = tp.kind[sel]
+    arcs = (ks == ARC_CW) | (ks == ARC_CCW)
+    pl = tp.plane[sel]
+    bad = arcs & ~((pl == PLANE_XY) | (pl == PLANE_ZX) | (pl == PLANE_YZ))
     if bad.any():
         raise ParameterError(f"move {int(sel[bad][0])}: an arc needs plane 17, 18 or 19")
     xyz = np.ascontiguousarray(tp.xyz_mm, dtype=np.float64)
@@ -457,7 +467,9 @@ def move_clearance(tp: Toolpath, points: Union[np.ndarray, BinnedCloud], radius_
         raise ParameterError("the measured moves must have finite end points")
     if not np.all(np.isfinite(tp.centre_mm[sel[arcs]])):
         raise ParameterError("arc moves need finite centres (centre_mm)")
-    cen = np.ascontiguousarray(np.nan_to_num(tp.centre_mm, nan=0.0), dtype=np.float64)
+    cen = np.zeros((tp.n_moves, 3))
+    if arcs.any():
+        cen[sel[arcs]] = tp.centre_mm[sel[arcs]]
     ax = np.zeros((3, tp.n_moves), np.int64)
     for pl, axes in PLANE_AXES.items():
         ax[:, tp.plane == pl] = np.array(axes)[:, None]
@@ -492,7 +504,7 @@ class ClearanceReport:
 
 
 def clearance_report(tp: Toolpath, points, radius_mm: float, tol_mm: float, *, moves=None,
-                     cutoff_mm: Optional[float] = None, cell_mm: Optional[float] = None) -> ClearanceReport:
+                     cutoff_mm: float | None = None, cell_mm: float | None = None) -> ClearanceReport:
     """Measure the path's move clearances (:func:`move_clearance`) and sum them up against the
     gouge threshold R - ``tol_mm`` (mm)."""
     R = _check_radius(radius_mm)

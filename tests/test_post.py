@@ -722,3 +722,329 @@ def test_every_post_takes_the_same_arguments_and_a_program_level_gauge_length():
         tip = np.array(d["moves"]["tip_machine_mm"])
         assert d["tool"]["gauge_length_mm"] == 123.0
         assert np.abs(np.array(d["controlled_machine_mm"]) - (tip + (123.0 + p.pivot_length_mm) * axis)).max() <= 2e-4
+
+
+# ----------------------------------------------------------------------------------------------
+# the whole-array posts against the per-move reference (byte for byte)
+
+
+def random_toolpath(seed: int, n: int, *, tip_offset: float = 0.0, scale: float = 50.0, quant=None) -> Toolpath:
+    """``n`` random moves of every kind and use: rapids, lines (tiny to long), repeated points, arcs
+    in the three planes (helices, 90-degree and longer sweeps, and the degenerate ones: sweeps of
+    1e-6 rad or 360 - 1e-6 degrees, radii at the output resolution, end = start). ``quant``: snap
+    every coordinate to multiples of 1/quant (binary fractions: exact rounding ties)."""
+    rng = np.random.default_rng(seed)
+    xyz = np.zeros((n, 3))
+    kind = np.zeros(n, np.int8)
+    cen = np.full((n, 3), np.nan)
+    plane = np.zeros(n, np.int8)
+    use = np.zeros(n, np.int8)
+    cur = rng.uniform(-scale, scale, 3)
+    xyz[0] = cur
+    for i in range(1, n):
+        r = rng.uniform()
+        if r < 0.08:
+            kind[i], use[i] = RAPID, USE_RAPID
+            cur = cur + rng.uniform(-scale / 5, scale / 5, 3)
+        elif r < 0.12:                                              # the same point again
+            kind[i], use[i] = rng.choice([RAPID, FEED]), rng.integers(0, 4)
+        elif r < 0.5:
+            kind[i], use[i] = FEED, rng.choice([USE_CUT, USE_PLUNGE, USE_RETRACT, USE_RAPID])
+            cur = cur + rng.normal(scale=rng.choice([1e-5, 1e-3, 0.5, 5.0]), size=3)
+        else:
+            p = int(rng.choice([17, 18, 19]))
+            a, b, nn = PLANE_AXES[p]
+            typ = rng.uniform()
+            if typ < 0.05:
+                rad, sweep = rng.uniform(1, 10), rng.choice([-1, 1]) * 1e-6
+            elif typ < 0.10:
+                rad, sweep = rng.uniform(1, 10), rng.choice([-1, 1]) * (2 * math.pi - 1e-6)
+            elif typ < 0.13:
+                rad, sweep = rng.uniform(1e-6, 3e-4), rng.uniform(-6, 6)
+            elif typ < 0.15:
+                rad, sweep = rng.uniform(1, 10), 0.0
+            else:
+                rad = 10 ** rng.uniform(-2, 1.3)
+                sweep = rng.uniform(-6.2, 6.2) if rng.uniform() < 0.2 else rng.uniform(-0.6, 0.6)
+            phi0 = rng.uniform(-math.pi, math.pi)
+            c = cur.copy()
+            c[a] -= rad * math.cos(phi0)
+            c[b] -= rad * math.sin(phi0)
+            e = cur.copy()
+            e[a] = c[a] + rad * math.cos(phi0 + sweep)
+            e[b] = c[b] + rad * math.sin(phi0 + sweep)
+            if typ >= 0.15 and rng.uniform() < 0.3:
+                e[nn] += rng.uniform(-2, 2)                         # helix
+            if typ < 0.15 and sweep != 0.0 and rng.uniform() < 0.5:
+                e[a], e[b] = cur[a], cur[b]                         # end exactly on the start
+            kind[i] = ARC_CCW if sweep > 0 or (sweep == 0 and rng.uniform() < 0.5) else ARC_CW
+            use[i] = rng.choice([USE_CUT, USE_PLUNGE])
+            plane[i], cen[i], cur = p, c, e
+        if quant is not None:
+            cur = np.round(cur * quant) / quant
+            if kind[i] in (ARC_CW, ARC_CCW):
+                cen[i] = np.round(cen[i] * quant) / quant
+        xyz[i] = cur
+    return Toolpath(xyz, kind, cen, plane, use, float(tip_offset))
+
+
+def random_ops(seed: int, n: int = 200, **kw) -> list[Operation]:
+    return [Operation("roughing", random_toolpath(seed, n, **kw), 1, 10.0, "flat", 8000, 1200.0, 300.0,
+                      gauge_length_mm=GAUGE[1]),
+            Operation("finishing", random_toolpath(seed + 1, n, tip_offset=3.0, **kw), 2, 6.0, "ball", 12000,
+                      1500.0, 1500.0, gauge_length_mm=GAUGE[2])]
+
+
+def reference_text(post, *args, **kw) -> str:
+    """The post's text with every operation printed by the per-move MotionEmitter."""
+    from planning.post import common
+
+    common._REFERENCE_MOTION = True
+    try:
+        return post(*args, **kw)
+    finally:
+        common._REFERENCE_MOTION = False
+
+
+BULK_OPTIONS = [
+    PostOptions(),
+    PostOptions(line_numbers=True, line_number_step=997, coolant=False, program_number=7),
+    PostOptions(decimals=3, rotary_sign=(-1, 1), safe_z_mm=25.0),
+    PostOptions(decimals=0, chord_tol_mm=0.6, rotary_sign=(1, -1)),
+    PostOptions(decimals=2, chord_tol_mm=0.01, line_numbers=True),
+    PostOptions(decimals=6, angle_decimals=3, rotary_sign=(-1, -1)),
+]
+
+
+@pytest.mark.parametrize("k", range(len(BULK_OPTIONS)))
+def test_bulk_posts_match_the_per_move_reference(k):
+    """Random moves of every kind (degenerate arcs included) on tilted and principal frames, every
+    profile: the whole-array posts print exactly the per-move MotionEmitter's text."""
+    o = BULK_OPTIONS[k]
+    ops = random_ops(31 + k, quant=64 if k % 2 else None)
+    axis = unit(AXES[k % len(AXES)])
+    frames = [(area_frame(axis, cloud(k)), axis),
+              (AreaFrame(rotation=np.array([[0.0, 0, 1], [0, -1, 0], [1, 0, 0]]), origin_mm=np.zeros(3)),
+               np.array([1.0, 0, 0])),
+              (AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3)), np.array([0.0, 0, 1]))]
+    for frame, t in frames[:2] if k % 2 else frames:
+        text = iso_program(ops, frame, tool_axis=t, options=o)
+        assert text == reference_text(iso_program, ops, frame, tool_axis=t, options=o)
+        for name in PROFILES:
+            mv = machine_visibility(t, name)
+            if not mv.feasible[0]:
+                continue
+            kw = {"tool_axis": t, "rotary_deg": mv.angles_deg[0], "profile": name,
+                  "placement_mm": [1.0, -2.0, 60.0], "options": o}
+            text = linuxcnc_program(ops, frame, **kw)
+            assert text == reference_text(linuxcnc_program, ops, frame, **kw), (name, k)
+
+
+def test_bulk_posts_on_a_finishing_path_and_on_huge_coordinates():
+    """A zig-zag finishing path with G18 arcs (the benchmark's), and coordinates beyond the
+    whole-array formatter's range (printed by MotionEmitter itself): identical to the reference."""
+    sys_path_bench()
+    from bench_post import finishing_like
+
+    axis = unit(AXES[1])
+    frame = area_frame(axis, cloud(2))
+    ops = [Operation("finishing", finishing_like(3000), 2, 6.0, "ball", 12000, 1500.0, 400.0, gauge_length_mm=110.0)]
+    name = "compact_trunnion_bc"
+    kw = {"tool_axis": axis, "rotary_deg": machine_visibility(axis, name).angles_deg[0], "profile": name,
+          "placement_mm": [0, 0, 60]}
+    for o in (PostOptions(), PostOptions(line_numbers=True, decimals=3)):
+        assert iso_program(ops, frame, tool_axis=axis, options=o) == \
+            reference_text(iso_program, ops, frame, tool_axis=axis, options=o)
+        assert linuxcnc_program(ops, frame, options=o, **kw) == reference_text(linuxcnc_program, ops, frame,
+                                                                               options=o, **kw)
+    huge = [Operation("x", random_toolpath(5, 60, scale=3e11), 1, 6, "flat", 1000, 100, 50)]
+    ident = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
+    assert iso_program(huge, ident, tool_axis=[0, 0, 1]) == reference_text(iso_program, huge, ident,
+                                                                            tool_axis=[0, 0, 1])
+
+
+def sys_path_bench():
+    import os
+    import sys
+
+    here = os.path.join(os.path.dirname(__file__), "..", "bench")
+    if here not in sys.path:
+        sys.path.insert(0, here)
+
+
+def test_bulk_number_formatting_matches_fmt():
+    """The whole-array formatter prints what fmt prints: random magnitudes from 1e-9 to near its
+    2^51 limit, both signs, values that round to zero (never '-0.'), and exact rounding ties (binary
+    fractions), at every number of decimals."""
+    from planning.post.common import _Q_MAX, _quantise, _Rows, fmt
+
+    rng = np.random.default_rng(0)
+    for d in range(7):
+        top = _Q_MAX / 10 ** d
+        v = np.concatenate([
+            rng.uniform(-1, 1, 20000) * 10.0 ** rng.uniform(-9, math.log10(top) - 1e-9, 20000),
+            rng.integers(-10 ** 6, 10 ** 6, 10000) / 2.0 ** rng.integers(0, 12, 10000),   # ties and near ties
+            (rng.integers(-10 ** 5, 10 ** 5, 5000) + 0.5) / 10 ** d,                       # decimal "ties"
+            rng.uniform(-0.6, 0.6, 2000) * 10.0 ** -d, [0.0, -0.0, 10.0, -10.0, top * 0.999, -top * 0.999],
+        ])
+        q = _quantise(v, d)
+        rows = _Rows(v.size)
+        rows.number("X", q, d, np.ones(v.size, dtype=bool))
+        got = rows.text().splitlines()
+        want = ["X" + fmt(x, d) for x in v.tolist()]
+        assert got == want, next((g, w_) for g, w_ in zip(got, want) if g != w_)
+        assert np.array_equal(q / 10.0 ** d if d else q.astype(float), [float(s[1:]) for s in want])
+    assert _quantise(np.array([_Q_MAX]), 0) is None
+
+
+def test_line_numbers_in_bulk_follow_block_by_block_numbering():
+    from planning.post.common import BlockWriter
+
+    for step, before, count in ((10, 0, 25), (997, 95, 400), (1, 99990, 30), (1000, 99, 1)):
+        one, bulk = BlockWriter(PostOptions(line_numbers=True, line_number_step=step)), \
+            BlockWriter(PostOptions(line_numbers=True, line_number_step=step))
+        for w in (one, bulk):
+            for _ in range(before):
+                w.block("M0")
+        for _ in range(count):
+            one.block("G0")
+        got = bulk.take_numbers(count)
+        assert [f"N{v} G0" for v in got] == one.lines[before:] and bulk.n == one.n
+
+
+def test_safe_height_matches_the_per_arc_reference():
+    from planning.post.common import _reference_safe_height_mm, safe_height_mm
+
+    for seed in range(4):
+        for op in random_ops(60 + seed, 300):
+            for z in (0.01, 10.0, 1e3):
+                o = PostOptions(safe_z_mm=z)
+                assert safe_height_mm(op, o) == _reference_safe_height_mm(op, o)
+
+
+def _reference_neutral_moves(operations, frame, *, tool_axis, rotary_deg, profile, placement_mm, setup_id=None,
+                             area_id=None, gauge_length_mm=None, decimals: int = 4) -> dict:
+    """neutral_moves as first written, one move at a time (the reference of the whole-array one)."""
+    from planning.machine import _profile, part_to_machine_rotation
+    from planning.post.common import (
+        check_frame,
+        check_gauge,
+        check_operations,
+        check_placement,
+        check_rotary,
+        feed_for,
+        gauge_of,
+        scanmill_version,
+    )
+    from planning.post.neutral import (
+        _TYPE,
+        _UNIT_DECIMALS,
+        _USE,
+        NEUTRAL_FORMAT,
+        NEUTRAL_FORMAT_VERSION,
+        _r,
+    )
+    from planning.toolpath.moves import path_length_mm
+    from planning.travel import machine_position_affine
+
+    d = int(decimals)
+    ops = check_operations(operations)
+    t = check_frame(frame, tool_axis)
+    p = _profile(profile)
+    rot = check_rotary(rotary_deg, t, p)
+    place = check_placement(placement_mm)
+    gauge = check_gauge(gauge_length_mm)
+    Rrows = np.asarray(frame.rotation, dtype=np.float64)
+    origin = np.asarray(frame.origin_mm, dtype=np.float64)
+    M = part_to_machine_rotation(rot, p)[0]
+    if p.is_table_table:
+        A_tip, b_tip = machine_position_affine(rot, p, placement_mm=place, tool_radius_mm=0.0, gauge_length_mm=0.0)
+        A_tip, b_tip = A_tip[0], b_tip[0]
+    else:
+        A_tip, b_tip = np.eye(3), place.copy()
+    tilt_name, rot_name = p.axis_names
+    out_ops = []
+    for op in ops:
+        tp = op.toolpath
+        off = np.array([0.0, 0.0, tp.tip_offset_mm])
+        tip_part = frame.to_part(tp.xyz_mm - off)
+        tip_mach = tip_part @ A_tip.T + b_tip
+        feeds = [None if int(k) == RAPID else feed_for(op, u) for k, u in zip(tp.kind, tp.use)]
+        moves = {"count": int(tp.n_moves), "type": [_TYPE[int(k)] for k in tp.kind],
+                 "use": [_USE[int(u)] for u in tp.use], "feed_mm_min": feeds, "tip_part_mm": _r(tip_part, d),
+                 "tip_machine_mm": _r(tip_mach, d)}
+        arc_idx = np.flatnonzero(np.isin(tp.kind, (ARC_CW, ARC_CCW)))
+        cen_part = frame.to_part(tp.centre_mm[arc_idx] - off) if arc_idx.size else np.zeros((0, 3))
+        normals = np.array([Rrows[PLANE_AXES[int(tp.plane[i])][2]] for i in arc_idx]).reshape(-1, 3)
+        arcs = {"count": int(arc_idx.size), "move": [int(i) for i in arc_idx],
+                "direction": ["ccw" if int(tp.kind[i]) == ARC_CCW else "cw" for i in arc_idx],
+                "plane": [int(tp.plane[i]) for i in arc_idx], "normal_part": _r(normals, _UNIT_DECIMALS),
+                "normal_machine": _r(normals @ M.T, _UNIT_DECIMALS), "centre_part_mm": _r(cen_part, d),
+                "centre_machine_mm": _r(cen_part @ A_tip.T + b_tip, d)}
+        entry = {"name": str(op.name),
+                 "tool": {"number": int(op.tool_number), "diameter_mm": float(op.tool_diameter_mm),
+                          "type": str(op.tool_type),
+                          "gauge_length_mm": None if op.gauge_length_mm is None else float(op.gauge_length_mm)},
+                 "spindle_rpm": float(op.spindle_rpm), "feed_mm_min": float(op.feed_mm_min),
+                 "plunge_mm_min": float(op.plunge_mm_min), "tip_offset_mm": float(tp.tip_offset_mm),
+                 "cut_length_mm": round(path_length_mm(tp), d),
+                 "rapid_length_mm": round(path_length_mm(tp, kinds=(RAPID,)), d), "moves": moves, "arcs": arcs}
+        G = gauge_of(op, gauge)
+        entry["tool"]["gauge_length_mm"] = G
+        if G is not None:
+            A_c, b_c = machine_position_affine(rot, p, placement_mm=place, tool_radius_mm=0.0, gauge_length_mm=G)
+            entry["controlled_machine_mm"] = _r(tip_part @ A_c[0].T + b_c[0], d)
+        out_ops.append(entry)
+    return {
+        "format": NEUTRAL_FORMAT, "format_version": NEUTRAL_FORMAT_VERSION, "scanmill_version": scanmill_version(),
+        "units": {"length": "mm", "angle": "deg", "feed": "mm/min", "spindle": "rev/min"}, "area_id": area_id,
+        "setup": {"id": setup_id, "tool_axis_part": _r(t, _UNIT_DECIMALS), "tool_axis_machine": _r(M @ t, _UNIT_DECIMALS),
+                  "rotary_deg": {tilt_name: float(rot[0]) + 0.0, rot_name: float(rot[1]) + 0.0},
+                  "axis_names": [tilt_name, rot_name],
+                  "angle_signs": "planning.machine: right-hand rule about the positive machine axis; "
+                                 + ("the table (part) turns" if p.is_table_table else "the head (tool) turns")},
+        "machine": {"profile": p.name, "kinematics": p.kinematics, "placement_mm": _r(place, d),
+                    "table_pivot_mm": _r(p.pivot_mm, d) if p.is_table_table else None,
+                    "head_pivot_length_mm": None if p.is_table_table else p.pivot_length_mm,
+                    "machine_frame": "origin at the table-top centre on the C axis with every rotary axis at 0, Z up; "
+                                     + ("tip_machine_mm = M (p + placement) + (I - R_tilt) P, the table turned"
+                                        if p.is_table_table else "tip_machine_mm = p + placement, the part fixed")},
+        "frame": {"origin_part_mm": _r(origin, d), "axes_part": _r(Rrows, _UNIT_DECIMALS),
+                  "axes_note": "rows: the area frame's x, y, z (= tool axis) in the part frame"},
+        "operations": out_ops,
+    }
+
+
+def test_neutral_matches_the_per_move_reference():
+    """neutral_moves gives the same JSON text as the per-move reference, and neutral_json is that
+    text: every profile, with and without gauge lengths, every number of decimals, coordinates that
+    json prints in exponent form (below 1e-4) or with 16 digits and more."""
+    from planning.post.neutral import neutral_json
+
+    for k, name in enumerate(PROFILES):
+        axis = unit(AXES[k + 1])
+        mv = machine_visibility(axis, name)
+        frame = area_frame(axis, cloud(k))
+        no_gauge = [Operation(o.name, o.toolpath, o.tool_number, 6.0, "flat", 1000, 100, 50)
+                    for o in random_ops(80 + k, quant=1024)]
+        for ops, gauge, d in ((random_ops(70 + k), None, 4), (no_gauge, 123.0, 2),
+                              (random_ops(75 + k, 60, scale=1e-3), None, 6),
+                              (random_ops(76 + k, 60, scale=3e11), None, 5), (random_ops(77 + k, 60), 95.0, 0)):
+            kw = {"tool_axis": axis, "rotary_deg": mv.angles_deg[0], "profile": name,
+                  "placement_mm": [1.0, -2.0, 60.0], "setup_id": 1, "area_id": 2, "gauge_length_mm": gauge,
+                  "decimals": d}
+            doc = neutral_moves(ops, frame, **kw)
+            assert json.dumps(doc) == json.dumps(_reference_neutral_moves(ops, frame, **kw))
+            assert neutral_json(ops, frame, **kw) == json.dumps(doc, separators=(",", ":"))
+
+
+def test_path_lengths_match_path_length_mm():
+    from planning.post.neutral import _rounded_length_mm
+    from planning.toolpath.moves import path_length_mm
+
+    for seed in range(4):
+        tp = random_toolpath(90 + seed, 1000, quant=None if seed % 2 else 256)
+        for kinds in ((FEED, ARC_CW, ARC_CCW), (RAPID,), (ARC_CW,)):
+            length = path_length_mm(tp, kinds=kinds)
+            for d in (0, 3, 4, 6):
+                assert _rounded_length_mm(tp, kinds, d) == round(length, d)

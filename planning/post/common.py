@@ -38,6 +38,18 @@ micrometres), without trailing zeros and never as ``-0.``. A coordinate word is 
 its rounded value changes (modal); the first move of every operation prints X, Y and Z. Arc centre
 offsets ``I J K`` are measured from the ROUNDED start point as printed, so the centre the control
 computes is the planned one to within the rounding of the offsets.
+
+Speed
+-----
+:func:`emit_motion` prints an operation's motion blocks with whole-array numpy work: program
+coordinates of every move, rounding to the printed digits (exact: rounding ties go to Python's own
+formatting), modal words by array comparisons of the rounded values, arcs that degenerate after
+rounding, chords of linearised arcs, and the text itself (a character matrix per batch of blocks).
+The text is byte for byte what the per-move :class:`MotionEmitter` prints; MotionEmitter stays as
+the reference the tests compare with, and prints the rare operation with coordinates beyond the
+whole-array formatter's range (2^51 output steps, about 2e11 mm at 4 decimals). Where numpy's
+functions may differ from the math module's in the last bit (np.hypot, np.arctan2) and that could
+change a printed digit or a decision, the scalar code decides.
 """
 
 from __future__ import annotations
@@ -89,6 +101,13 @@ _OFFSET_LETTERS = ("I", "J", "K")
 
 _KIND_OK = (RAPID, FEED, ARC_CW, ARC_CCW)
 _USE_OK = (USE_RAPID, USE_CUT, USE_PLUNGE, USE_RETRACT)
+
+#: In-plane axes (first, second) and normal axis of each arc plane code, as arrays indexed by the
+#: code (PLANE_AXES as lookup tables for whole arrays of planes).
+_AX_A, _AX_B, _AX_N = (np.zeros(PLANE_YZ + 1, dtype=np.int64) for _ in range(3))
+for _p, (_a, _b, _n) in PLANE_AXES.items():
+    _AX_A[_p], _AX_B[_p], _AX_N[_p] = _a, _b, _n
+del _p, _a, _b, _n
 
 
 def scanmill_version() -> str:
@@ -382,6 +401,16 @@ class BlockWriter:
             words = [f"N{self.n}"] + words
         self.lines.append(" ".join(words))
 
+    def take_numbers(self, count: int) -> np.ndarray:
+        """The ``N`` numbers (int64, (count,)) of the next ``count`` blocks, as :meth:`block` would give
+        them one by one (the writer moves on past them)."""
+        period = 99999 // self.step                      # blocks before the numbers wrap
+        k = self.n // self.step + np.arange(count, dtype=np.int64)
+        out = (k % period + 1) * self.step
+        if count:
+            self.n = int(out[-1])
+        return out
+
     def text(self) -> str:
         return "\n".join(self.lines) + "\n"
 
@@ -396,10 +425,30 @@ def feed_for(op: Operation, use: int) -> float:
 
 
 def safe_height_mm(op: Operation, options: PostOptions) -> float:
-    """Approach / retract height in the area frame, mm: ``max(safe_z_mm, highest tip z)``."""
+    """Approach / retract height in the area frame, mm: ``max(safe_z_mm, highest tip z)``, where an
+    arc in G18 / G19 counts the top of its circle (it may bulge above its end points)."""
     tp = op.toolpath
     top = float(tp.tip_mm()[:, 2].max())
-    # arcs in G18 / G19 may bulge above their end points: count the top of their circle
+    arcs = np.flatnonzero(np.isin(tp.kind, (ARC_CW, ARC_CCW)) & (tp.plane != PLANE_XY))
+    if arcs.size:
+        # circle top = centre z + the larger of the start and end radii; np.hypot may differ from
+        # math.hypot in the last bit, so the candidates for the highest are settled with math.hypot
+        a, b = _AX_A[tp.plane[arcs]], _AX_B[tp.plane[arcs]]
+        c = tp.centre_mm[arcs]
+        rows = np.arange(arcs.size)
+        d = [(tp.xyz_mm[j, a] - c[rows, a], tp.xyz_mm[j, b] - c[rows, b]) for j in (arcs - 1, arcs)]
+        val = (c[:, 2] - tp.tip_offset_mm) + np.maximum(np.hypot(*d[0]), np.hypot(*d[1]))
+        best = float(val.max())
+        for k in np.flatnonzero(val >= best - 1e-9 * (abs(best) + 1.0)):
+            r = max(math.hypot(du[k], dv[k]) for du, dv in d)
+            top = max(top, float(c[k, 2] - tp.tip_offset_mm + r))
+    return max(float(options.safe_z_mm), top)
+
+
+def _reference_safe_height_mm(op: Operation, options: PostOptions) -> float:
+    """:func:`safe_height_mm` one arc at a time (the tests' reference)."""
+    tp = op.toolpath
+    top = float(tp.tip_mm()[:, 2].max())
     for i in np.flatnonzero(np.isin(tp.kind, (ARC_CW, ARC_CCW)) & (tp.plane != PLANE_XY)):
         a, b, _ = PLANE_AXES[int(tp.plane[i])]
         c = tp.centre_mm[i]
@@ -420,14 +469,7 @@ def arc_chord_points(start, end, centre, plane: int, ccw: bool, chord_tol_mm: fl
     arc; for a helix the in-plane sagitta bounds the chord error as well."""
     s, e, c = (np.asarray(v, dtype=np.float64) for v in (start, end, centre))
     a, b, n = PLANE_AXES[int(plane)]
-    t0, sw, r0 = arc_sweep_rad(s, e, c, plane, ccw)
-    r1 = math.hypot(e[a] - c[a], e[b] - c[b])
-    r = max(r0, r1)
-    if r <= chord_tol_mm:
-        dmax = math.pi / 2
-    else:
-        dmax = min(2.0 * math.acos(1.0 - chord_tol_mm / r), math.pi / 2)
-    m = max(1, math.ceil(abs(sw) / dmax - 1e-12))
+    t0, sw, r0, r1, m = _chord_params(s, e, c, plane, ccw, chord_tol_mm)
     t = np.arange(1, m + 1) / m
     q = np.empty((m, 3))
     rr = r0 + (r1 - r0) * t
@@ -436,6 +478,22 @@ def arc_chord_points(start, end, centre, plane: int, ccw: bool, chord_tol_mm: fl
     q[:, n] = s[n] + (e[n] - s[n]) * t
     q[-1] = e
     return q
+
+
+def _chord_params(s: np.ndarray, e: np.ndarray, c: np.ndarray, plane: int, ccw: bool,
+                  chord_tol_mm: float) -> tuple[float, float, float, float, int]:
+    """``(start angle, signed sweep, start radius, end radius, number of chords)`` of
+    :func:`arc_chord_points` for one arc (start, end, centre (3,) float64)."""
+    a, b, _ = PLANE_AXES[int(plane)]
+    t0, sw, r0 = arc_sweep_rad(s, e, c, plane, ccw)
+    r1 = math.hypot(e[a] - c[a], e[b] - c[b])
+    r = max(r0, r1)
+    if r <= chord_tol_mm:
+        dmax = math.pi / 2
+    else:
+        dmax = min(2.0 * math.acos(1.0 - chord_tol_mm / r), math.pi / 2)
+    m = max(1, math.ceil(abs(sw) / dmax - 1e-12))
+    return t0, sw, r0, r1, m
 
 
 def principal_plane(normal: np.ndarray, tol: float = ARC_PLANE_TOL) -> tuple[int, int] | None:
@@ -469,6 +527,9 @@ class MotionEmitter:
     plane's normal by ``A`` and prints G2/G3 only when it lies on a principal axis within
     :data:`ARC_PLANE_TOL` (the direction flips when it maps onto a negative axis), linearising the
     arc within ``chord_tol_mm`` otherwise (LinuxCNC).
+
+    One move at a time: the posts print through :func:`emit_motion`, which gives this class's text
+    with whole arrays; this class is its reference and its fallback for huge coordinates.
     """
 
     def __init__(self, writer: BlockWriter, options: PostOptions, A: np.ndarray, b: np.ndarray, arc_mode: str):
@@ -590,6 +651,387 @@ class MotionEmitter:
         self.rapid([last[0], last[1], z_safe])
         if self.state.plane != PLANE_XY:
             self.w.block(self._plane(PLANE_XY))
+
+
+# ----------------------------------------------------------------------------------------------
+# the motion blocks of a whole operation at once
+
+#: True: :func:`emit_motion` prints every operation with the per-move :class:`MotionEmitter`, the
+#: reference that its whole-array path reproduces byte for byte (the tests switch it on to compare).
+_REFERENCE_MOTION = False
+
+#: Largest ``|value| * 10^decimals`` the whole-array formatter takes (integers far inside what
+#: float64 and int64 hold exactly); an operation with a larger coordinate goes through MotionEmitter.
+_Q_MAX = 2.0 ** 51
+
+#: Blocks whose text is built at once (bounds the temporary character matrices).
+_CHUNK_ROWS = 1 << 16
+
+_MOTION_WORDS = ("G0", "G1", "G2", "G3")
+_PLANE_WORDS = ("G17", "G18", "G19")
+
+
+def emit_motion(writer: BlockWriter, options: PostOptions, A: np.ndarray, b: np.ndarray, arc_mode: str,
+                op: Operation, z_safe: float, *, approach_prefix: Sequence[str] = ()) -> None:
+    """One operation's motion blocks, byte for byte what ``MotionEmitter(writer, options, A, b,
+    arc_mode).run(op, z_safe, approach_prefix=approach_prefix)`` prints (see :class:`MotionEmitter`),
+    computed for all moves at once: program coordinates, rounding, modal words, degenerate arcs,
+    chords of linearised arcs and the text. Operations with coordinates beyond ``2^51`` output
+    steps (about 2e11 mm at 4 decimals) go through MotionEmitter itself."""
+    if _REFERENCE_MOTION or not _bulk_motion(writer, options, A, b, arc_mode, op, z_safe, tuple(approach_prefix)):
+        MotionEmitter(writer, options, A, b, arc_mode).run(op, z_safe, approach_prefix=approach_prefix)
+
+
+def _quantise(values, decimals: int) -> np.ndarray | None:
+    """The integers ``q`` (int64, the shape of ``values``) whose digits :func:`fmt` prints:
+    ``v * 10^decimals`` rounded half to even on the exact binary value of ``v``, as Python's
+    ``f"{v:.{decimals}f}"`` (``float(fmt(v, d)) == q / 10^d`` exactly). None when some
+    ``|v| * 10^decimals >= _Q_MAX``.
+
+    The float product is off the exact one by at most ``|p| 2^-53``; where that could move it across
+    a half-way point (exact ties included), Python's formatting decides."""
+    v = np.asarray(values, dtype=np.float64)
+    p = v * float(10 ** decimals)
+    a = np.abs(p)
+    if a.size and not a.max() < _Q_MAX:
+        return None
+    q = np.rint(p).astype(np.int64)
+    for i in np.flatnonzero(np.abs(a - np.floor(a) - 0.5) <= a * 2.0 ** -52):
+        q.flat[i] = int(f"{float(v.flat[i]):.{decimals}f}".replace(".", ""))
+    return q
+
+
+def _digits(q: np.ndarray, decimals: int, point: bool = True, repr_style: bool = False) -> list[tuple]:
+    """The characters of ``fmt(q[i] / 10^decimals, decimals)`` for every i (``point=False``: the
+    digits of the integers ``q >= 0``; ``repr_style``: Python's ``repr`` of the float
+    ``q[i] / 10^decimals`` where that is positional: one digit after the point at least, ``10.0``,
+    ``0.5``) as columns, left to right: ``(chars, keep)`` pairs, ``chars`` a (n,) uint8 array or one
+    character code for all rows, ``keep`` (n,) bool (the row has it)."""
+    n = q.shape[0]
+    a = np.abs(q)
+    top = int(a.max()) if n else 0
+    nd = len(str(top // 10 ** decimals))                  # digits before the point
+    rest = a.astype(np.uint32) if top < 2 ** 32 else a    # (uint32 divides several times faster)
+    digit = {}
+    frac_keep = {}
+    nonzero = np.zeros(n, dtype=bool)
+    for j in range(nd + decimals - 1, -1, -1):            # digit by digit from the right
+        if j == nd - 1:
+            ip = rest                                     # the integer part
+        higher = rest // 10
+        digit[j] = (rest - higher * 10).astype(np.uint8) + np.uint8(ord("0"))
+        if j >= nd:                                       # no trailing zeros after the point
+            nonzero = nonzero | (digit[j] != ord("0"))
+            frac_keep[j] = nonzero
+        rest = higher
+    everyone = np.ones(n, dtype=bool)
+    cols = [(ord("-"), q < 0)]
+    cols += [(digit[j], ip >= 10 ** (nd - 1 - j)) for j in range(nd - 1)]      # no leading zeros
+    cols.append((digit[nd - 1], everyone))
+    if point:
+        cols.append((ord("."), everyone))
+    if repr_style:
+        if decimals:
+            frac_keep[nd] = everyone
+        else:
+            cols.append((ord("0"), everyone))
+    cols += [(digit[j], frac_keep[j]) for j in range(nd, nd + decimals)]
+    return cols
+
+
+class _Rows:
+    """The text of many rows at once (blocks of a program, items of a JSON list): words added left
+    to right, each present or not in each row, joined by ``sep`` (where ``glue``), each row ended by
+    ``end``. Every character position is a column (characters (n,) or one for all, kept (n,)
+    bool); :meth:`text` lays them out row by row."""
+
+    def __init__(self, n: int, sep: str = " ", end: str = "\n"):
+        self.n = n
+        self.sep, self.end = ord(sep), ord(end)
+        self.cols: list[tuple] = []
+        self.seen = np.zeros(n, dtype=bool)
+
+    def _word(self, cols: list[tuple], present: np.ndarray, glue: bool = True) -> None:
+        if glue:
+            self.cols.append((self.sep, present & self.seen))
+        self.cols += [(c, k & present) for c, k in cols]
+        self.seen = self.seen | present
+
+    def const(self, text: str, present: np.ndarray, glue: bool = True) -> None:
+        """Word ``text`` in the rows where ``present``."""
+        self._word([(ord(ch), present) for ch in text], present, glue)
+
+    def table(self, idx: np.ndarray, words: Sequence[str], present: np.ndarray, glue: bool = True) -> None:
+        """Word ``words[idx[i]]`` in row i where ``present[i]``."""
+        if not present.any():
+            return
+        width = max(len(w) for w in words)
+        tab = np.array([w.encode("ascii") for w in words], dtype=f"S{width}").view(np.uint8).reshape(-1, width)
+        cols = []
+        for j in range(width):
+            c = tab[:, j]
+            if np.all(c == c[0]):
+                cols.append((int(c[0]), present))
+            else:
+                cols.append((c[idx], c[idx] != 0))
+        self._word(cols, present, glue)
+
+    def number(self, letter: str, q: np.ndarray, decimals: int, present: np.ndarray, point: bool = True,
+               repr_style: bool = False, glue: bool = True) -> None:
+        """Word ``letter + fmt(q[i] / 10^decimals, decimals)`` (see :func:`_digits` for ``point`` and
+        ``repr_style``) in row i where ``present[i]``."""
+        if not present.any():
+            return
+        lead = [(ord(letter), present)] if letter else []
+        self._word(lead + _digits(q, decimals, point, repr_style), present, glue)
+
+    def raw(self, rows: np.ndarray, texts: Sequence[str], glue: bool = True) -> None:
+        """Word ``texts[j]`` in row ``rows[j]`` (ASCII)."""
+        if not len(rows):
+            return
+        present = np.zeros(self.n, dtype=bool)
+        present[rows] = True
+        width = max(len(t) for t in texts)
+        tab = np.zeros((self.n, width), dtype=np.uint8)
+        tab[rows] = np.array([t.encode("ascii") for t in texts], dtype=f"S{width}").view(np.uint8).reshape(-1, width)
+        self._word([(tab[:, j], tab[:, j] != 0) for j in range(width)], present, glue)
+
+    def text(self) -> str:
+        """The rows with a word, each ended by ``end``."""
+        cols = self.cols + [(self.end, self.seen)]
+        chars = np.empty((self.n, len(cols)), dtype=np.uint8)
+        keep = np.empty((self.n, len(cols)), dtype=bool)
+        for j, (c, k) in enumerate(cols):
+            chars[:, j] = c
+            keep[:, j] = k
+        return chars[keep].tobytes().decode("ascii")
+
+
+def _hypot_settled(u: np.ndarray, v: np.ndarray, ref: float) -> np.ndarray:
+    """``hypot(u, v)`` per element, with ``math.hypot`` (whose last bit np.hypot may not match)
+    wherever the value lies near ``ref``, so that comparisons with ``ref`` come out as
+    MotionEmitter's."""
+    h = np.hypot(u, v)
+    for j in np.flatnonzero(np.abs(h - ref) <= 1e-9 * ref):
+        h[j] = math.hypot(u[j], v[j])
+    return h
+
+
+def _chord_points(s: np.ndarray, e: np.ndarray, c: np.ndarray, plane: np.ndarray, ccw: np.ndarray,
+                  chord_tol_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`arc_chord_points` of k arcs at once (start, end, centre (k,3), plane codes, ccw flags):
+    ``(points (sum m, 3), m (k,), slack (k,))``, the points of arc j after those of arc j - 1.
+
+    The counts ``m`` are exactly the scalar code's (arcs whose sweep lies near 0 or 360 degrees,
+    whose radius is near the tolerance or whose count lies near a step of the ceiling take
+    :func:`_chord_params`); the points may differ from :func:`arc_chord_points` by the last bits of
+    np.arctan2 / np.hypot against math's, at most ``slack`` mm (a generous bound)."""
+    k = s.shape[0]
+    rows = np.arange(k)
+    a, b, nn = _AX_A[plane], _AX_B[plane], _AX_N[plane]
+    ca, cb = c[rows, a], c[rows, b]
+    u0, v0 = s[rows, a] - ca, s[rows, b] - cb
+    u1, v1 = e[rows, a] - ca, e[rows, b] - cb
+    t0 = np.arctan2(v0, u0)
+    t1 = np.arctan2(v1, u1)
+    two_pi = 2 * math.pi
+    sw = np.where(ccw, np.mod(t1 - t0, two_pi), -np.mod(t0 - t1, two_pi))
+    zero = sw == 0.0
+    sw[zero] = np.where(ccw[zero], two_pi, -two_pi)
+    r0 = np.hypot(u0, v0)
+    r1 = np.hypot(u1, v1)
+    r = np.maximum(r0, r1)
+    dmax = np.full(k, math.pi / 2)
+    big = r > chord_tol_mm
+    dmax[big] = np.minimum(2.0 * np.arccos(1.0 - chord_tol_mm / r[big]), math.pi / 2)
+    x = np.abs(sw) / dmax - 1e-12
+    m = np.maximum(1, np.ceil(x)).astype(np.int64)
+    risky = ((np.minimum(np.abs(sw), two_pi - np.abs(sw)) < 1e-9) | (np.abs(r - chord_tol_mm) <= 1e-9 * chord_tol_mm)
+             | ((x > 0.5) & (np.abs(x - np.rint(x)) < 1e-9)))
+    for j in np.flatnonzero(risky):
+        t0[j], sw[j], r0[j], r1[j], m[j] = _chord_params(s[j], e[j], c[j], int(plane[j]), bool(ccw[j]), chord_tol_mm)
+    total = int(m.sum())
+    arc_of = np.repeat(rows, m)
+    first = np.cumsum(m) - m
+    t = (np.arange(total, dtype=np.int64) - first[arc_of] + 1) / m[arc_of]
+    rr = r0[arc_of] + (r1 - r0)[arc_of] * t
+    ang = t0[arc_of] + sw[arc_of] * t
+    q = np.empty((total, 3))
+    pts = np.arange(total)
+    q[pts, a[arc_of]] = ca[arc_of] + rr * np.cos(ang)
+    q[pts, b[arc_of]] = cb[arc_of] + rr * np.sin(ang)
+    sn, en = s[rows, nn], e[rows, nn]
+    q[pts, nn[arc_of]] = sn[arc_of] + (en - sn)[arc_of] * t
+    q[first + m - 1] = e
+    slack = 1e-11 * (np.abs(ca) + np.abs(cb) + np.abs(sn) + np.abs(en) + r0 + r1 + 1.0)
+    return q, m, slack
+
+
+def _bulk_motion(w: BlockWriter, o: PostOptions, A, b, arc_mode: str, op: Operation, z_safe: float,
+                 prefix: tuple[str, ...]) -> bool:
+    """:func:`emit_motion` with whole arrays; False (and nothing written) when some coordinate is too
+    large for :func:`_quantise`.
+
+    MotionEmitter's state after a block is a function of the blocks so far: the printed X Y Z are
+    those of the latest move (after rounding), so a word is printed where its rounded value differs
+    from the previous move's; G0/G1/G2/G3 where it differs from the previous printed block's; F where
+    it differs from the previous printed G1/G2/G3 block's; G17/18/19 where it differs from the
+    previous arc's (G17 at the start). An arc starts from the rounded end of the previous move (the
+    last chord of a linearised arc ends on it exactly)."""
+    d = int(o.decimals)
+    scale = float(10 ** d)
+    two_res = 2 * 10.0 ** (-d)
+    tol = float(o.chord_tol_mm)
+    A = np.asarray(A, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    At = A.T
+
+    def prog(pts: np.ndarray) -> np.ndarray:
+        # MotionEmitter.to_prog row by row: a stack of (1,3) @ (3,3) products makes numpy call the
+        # same BLAS kernel for every row as it does for one point, hence the same bits
+        return (pts[:, None, :] @ At)[:, 0, :] + b
+
+    tp = op.toolpath
+    n = tp.n_moves
+    kind, plane = tp.kind, tp.plane
+    tip = tp.tip_mm()
+    centre = tp.centre_mm - np.array([0.0, 0.0, tp.tip_offset_mm])
+    first, last = tip[0], tip[-1]
+    x_app = np.asarray([first[0], first[1], z_safe], dtype=np.float64) @ At + b
+    x_ret = np.asarray([last[0], last[1], z_safe], dtype=np.float64) @ At + b
+    q_app, q_ret, q_mv = _quantise(x_app, d), _quantise(x_ret, d), _quantise(prog(tip), d)
+    if q_app is None or q_ret is None or q_mv is None:
+        return False
+
+    # what each move prints: 0 a G0 point, 1 a G1 point, 2 a G2/G3 block, 3 G1 chords
+    mode = np.where(kind == RAPID, 0, 1).astype(np.int8)
+    arcs = np.flatnonzero((kind == ARC_CW) | (kind == ARC_CCW))
+    ccw = kind[arcs] == ARC_CCW
+    if arc_mode == "frame":
+        kept = np.ones(arcs.size, dtype=bool)
+        out_plane = plane[arcs].astype(np.int64)
+        flip = np.zeros(arcs.size, dtype=bool)
+    else:
+        kept = np.zeros(arcs.size, dtype=bool)
+        out_plane = np.full(arcs.size, PLANE_XY, dtype=np.int64)
+        flip = np.zeros(arcs.size, dtype=bool)
+        for p in (PLANE_XY, PLANE_ZX, PLANE_YZ):
+            n_area = np.zeros(3)
+            n_area[PLANE_AXES[p][2]] = 1.0
+            pp = principal_plane(A @ n_area)
+            if pp is not None:
+                sel = plane[arcs] == p
+                kept[sel] = True
+                out_plane[sel] = pp[0]
+                flip[sel] = pp[1] < 0
+    out_ccw = ccw ^ flip
+    # kept arcs whose start and end coincide after rounding, or with a radius at the resolution
+    ki = np.flatnonzero(kept)
+    ka = arcs[ki]
+    rows = np.arange(ka.size)
+    ia, ib = _AX_A[out_plane[ki]], _AX_B[out_plane[ki]]
+    S = q_mv[ka - 1] / scale                   # the printed start (float(fmt(.)) == q / 10^d exactly)
+    E = q_mv[ka] / scale
+    C = prog(centre[ka])
+    chord = _hypot_settled(E[rows, ia] - S[rows, ia], E[rows, ib] - S[rows, ib], two_res)
+    radius = _hypot_settled(C[rows, ia] - S[rows, ia], C[rows, ib] - S[rows, ib], two_res)
+    lin = ~kept
+    block = kept.copy()
+    for j in np.flatnonzero((chord < two_res) | (radius < two_res)):
+        i = ka[j]
+        block[ki[j]] = False
+        _, sw, _ = arc_sweep_rad(tip[i - 1], tip[i], centre[i], int(plane[i]), bool(kind[i] == ARC_CCW))
+        lin[ki[j]] = abs(sw) > math.pi / 2 and radius[j] >= two_res     # else one G1 to the end
+    mode[arcs[block]] = 2
+    mode[arcs[lin]] = 3
+    blk = arcs[block]
+    in_blk = block[ki]
+    q_off = _quantise(C[in_blk] - S[in_blk], d)            # I J K: centre - printed start
+    if q_off is None:
+        return False
+
+    # chords of the linearised arcs
+    lin_mv = arcs[lin]
+    count = np.ones(n, dtype=np.int64)
+    if lin_mv.size:
+        pts, m, slack = _chord_points(tip[lin_mv - 1], tip[lin_mv], centre[lin_mv], plane[lin_mv].astype(np.int64),
+                                      kind[lin_mv] == ARC_CCW, tol)
+        P = prog(pts)
+        arc_of = np.repeat(np.arange(lin_mv.size), m)
+        first_pt = np.cumsum(m) - m
+        p = np.abs(P) * scale
+        near = np.abs(p - np.floor(p) - 0.5) <= (slack * scale)[arc_of, None] + p * 2.0 ** -52
+        for j in np.unique(arc_of[near.any(axis=1)]):          # within reach of a rounding tie: exact points
+            i = lin_mv[j]
+            ex = arc_chord_points(tip[i - 1], tip[i], centre[i], int(plane[i]), bool(kind[i] == ARC_CCW), tol)
+            P[first_pt[j]:first_pt[j] + m[j]] = prog(ex)
+        q_lin = _quantise(P, d)
+        if q_lin is None:
+            return False
+        count[lin_mv] = m
+
+    # the points in order: approach, every move's (a linearised arc's chords), retract
+    ev_move = np.concatenate([[0], np.repeat(np.arange(n), count), [n - 1]])
+    ev_type = np.concatenate([[0], mode[ev_move[1:-1]], [0]])
+    q = np.concatenate([q_app[None], q_mv[ev_move[1:-1]], q_ret[None]])
+    if lin_mv.size:
+        q[np.flatnonzero(ev_type == 3)] = q_lin
+        ev_type[ev_type == 3] = 1
+    changed = np.ones(q.shape, dtype=bool)
+    changed[1:] = q[1:] != q[:-1]
+    is_arc = ev_type == 2
+    printed = changed.any(axis=1) | is_arc
+    em = np.flatnonzero(printed)                           # em[0] == 0, the approach
+    mv = ev_move[em]
+    t_em = ev_type[em]
+    arc_em = t_em == 2
+    # modal G0/G1/G2/G3, feed and plane words
+    out_ccw_mv = np.zeros(n, dtype=bool)
+    out_ccw_mv[arcs] = out_ccw
+    motion = np.where(arc_em, 2 + out_ccw_mv[mv], t_em)
+    new_motion = np.ones(em.size, dtype=bool)
+    new_motion[1:] = motion[1:] != motion[:-1]
+    fmt_feed = fmt(float(op.feed_mm_min), min(d, 3))
+    fmt_plunge = fmt(float(op.plunge_mm_min), min(d, 3))
+    feed_id = ((tp.use == USE_PLUNGE) & (fmt_plunge != fmt_feed)).astype(np.int64)
+    fed = np.flatnonzero(t_em != 0)
+    f_code = feed_id[mv[fed]]
+    new_feed = np.zeros(em.size, dtype=bool)
+    new_feed[fed] = np.concatenate([[True], f_code[1:] != f_code[:-1]])
+    plane_mv = np.full(n, PLANE_XY, dtype=np.int64)
+    plane_mv[arcs] = out_plane
+    arc_planes = plane_mv[mv[arc_em]]
+    new_plane = np.zeros(em.size, dtype=bool)
+    new_plane[arc_em] = arc_planes != np.concatenate([[PLANE_XY], arc_planes[:-1]])
+    blk_pos = np.zeros(n, dtype=np.int64)
+    blk_pos[blk] = np.arange(blk.size)
+    if not blk.size:
+        q_off = np.zeros((1, 3), dtype=np.int64)
+
+    w.block("G0", *prefix, *(letter + fmt(x_app[k], d) for k, letter in enumerate("XYZ")))
+    numbers = w.take_numbers(em.size - 1) if w.numbered else None
+    text = []
+    for lo in range(1, em.size, _CHUNK_ROWS):
+        sl = slice(lo, min(lo + _CHUNK_ROWS, em.size))
+        ev, mvs, arc_rows = em[sl], mv[sl], arc_em[sl]
+        rows = _Rows(ev.size)
+        if numbers is not None:
+            rows.number("N", numbers[lo - 1:sl.stop - 1], 0, np.ones(ev.size, dtype=bool), point=False)
+        pl = plane_mv[mvs]
+        rows.table(pl - PLANE_XY, _PLANE_WORDS, new_plane[sl])
+        rows.table(motion[sl], _MOTION_WORDS, new_motion[sl])
+        for k, letter in enumerate("XYZ"):
+            rows.number(letter, q[ev, k], d, changed[ev, k])
+        qo = q_off[blk_pos[mvs]]
+        for k, (letter, skip) in enumerate(zip("IJK", (PLANE_YZ, PLANE_ZX, PLANE_XY))):
+            rows.number(letter, qo[:, k], d, arc_rows & (pl != skip))
+        rows.table(feed_id[mvs], ("F" + fmt_feed, "F" + fmt_plunge), new_feed[sl])
+        text.append(rows.text())
+    if text:
+        w.raw("".join(text)[:-1])
+    if arc_planes.size and arc_planes[-1] != PLANE_XY:
+        w.block(_PLANE_WORDS[0])
+    return True
 
 
 def header_lines(*, post: str, area_id, setup_id, tool_axis: np.ndarray, rotary_deg, axis_names,

@@ -51,7 +51,6 @@ from planning.toolpath.frames import AreaFrame
 
 from .common import (
     BlockWriter,
-    MotionEmitter,
     Operation,
     PostOptions,
     check_frame,
@@ -61,6 +60,7 @@ from .common import (
     check_placement,
     check_rotary,
     comment,
+    emit_motion,
     fmt,
     header_lines,
     operation_comment,
@@ -188,8 +188,7 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
             w.block("M8")
         w.block(*g682)
         w.block("G53.1")
-        em = MotionEmitter(w, o, A, b, arc_mode="frame")
-        em.run(op, safe_height_mm(op, o), approach_prefix=("G43", f"H{tool}"))
+        emit_motion(w, o, A, b, "frame", op, safe_height_mm(op, o), approach_prefix=("G43", f"H{tool}"))
         if o.coolant:
             w.block("M9")
         w.block("G69")

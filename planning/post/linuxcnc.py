@@ -72,7 +72,6 @@ from planning.toolpath.frames import AreaFrame
 
 from .common import (
     BlockWriter,
-    MotionEmitter,
     Operation,
     PostOptions,
     check_frame,
@@ -82,6 +81,7 @@ from .common import (
     check_placement,
     check_rotary,
     comment,
+    emit_motion,
     fmt,
     gauge_of,
     header_lines,
@@ -191,8 +191,7 @@ def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_
             w.block("G49")
             w.raw(comment(f"head rotation centre = tip + {fmt(G + p.pivot_length_mm, d)} mm along the tool axis "
                           + " ".join(f"{n}{fmt(v, 6)}" for n, v in zip("XYZ", t_printed))))
-        em = MotionEmitter(w, o, A, b, arc_mode="principal")
-        em.run(op, safe_height_mm(op, o))
+        emit_motion(w, o, A, b, "principal", op, safe_height_mm(op, o))
         if o.coolant:
             w.block("M9")
         w.block("G53", "G0", "Z0")

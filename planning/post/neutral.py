@@ -39,11 +39,21 @@ With a gauge length (the operation's or the ``gauge_length_mm`` argument), ``con
 controlled point (:func:`planning.travel.machine_position_affine`: spindle gauge point for
 table-table, head rotation centre for head-head). Lengths are rounded to ``10^-decimals`` mm
 (default 1e-4), unit vectors and the frame rotation to 1e-10.
+
+:func:`neutral_json` returns ``json.dumps(neutral_moves(...), separators=(",", ":"))`` byte for byte,
+with the long lists written as text at once (on large tool paths ``json`` encoding the floats one by
+one costs several times more than building the dict).
 """
 
 from __future__ import annotations
 
+import gc
+import json
+import math
+import re
+import secrets
 from collections.abc import Sequence
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -54,27 +64,29 @@ from planning.toolpath.moves import (
     ARC_CW,
     FEED,
     PLANE_AXES,
+    PLANE_YZ,
     RAPID,
     USE_CUT,
     USE_PLUNGE,
     USE_RAPID,
     USE_RETRACT,
+    arc_sweep_rad,
     path_length_mm,
 )
 
 from .common import (
     Operation,
+    _Rows,
     check_frame,
     check_gauge,
     check_operations,
     check_placement,
     check_rotary,
-    feed_for,
     gauge_of,
     scanmill_version,
 )
 
-__all__ = ["NEUTRAL_FORMAT", "NEUTRAL_FORMAT_VERSION", "neutral_moves"]
+__all__ = ["NEUTRAL_FORMAT", "NEUTRAL_FORMAT_VERSION", "neutral_json", "neutral_moves"]
 
 NEUTRAL_FORMAT = "scanmill-neutral-moves"
 NEUTRAL_FORMAT_VERSION = 1
@@ -82,11 +94,72 @@ NEUTRAL_FORMAT_VERSION = 1
 _TYPE = {RAPID: "rapid", FEED: "feed", ARC_CW: "arc", ARC_CCW: "arc"}
 _USE = {USE_RAPID: "rapid", USE_CUT: "cut", USE_PLUNGE: "plunge", USE_RETRACT: "retract"}
 _UNIT_DECIMALS = 10
+_TYPE_NAMES = tuple(_TYPE[k] for k in range(4))
+_USE_NAMES = tuple(_USE[k] for k in range(4))
+#: In-plane axes and normal axis by arc plane code (PLANE_AXES as lookup tables).
+_PLANE_A, _PLANE_B, _NORMAL_AXIS = (np.array([PLANE_AXES.get(p, (0, 0, 0))[k] for p in range(PLANE_YZ + 1)])
+                                    for k in range(3))
+
+
+@contextmanager
+def _gc_paused():
+    """The cyclic garbage collector off inside the block (back on afterwards if it was on)."""
+    was_on = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_on:
+            gc.enable()
 
 
 def _r(a, decimals: int):
     """Rounded nested lists of plain floats (no -0.0)."""
     return (np.round(np.asarray(a, dtype=np.float64), decimals) + 0.0).tolist()
+
+
+def _rounded_length_mm(tp, kinds, decimals: int) -> float:
+    """``round(path_length_mm(tp, kinds=kinds), decimals)`` with the arcs' lengths computed at once.
+
+    The arcs are added one by one in the same order (a cumulative sum), each as
+    ``hypot(|sweep| r, rise)``; np.arctan2 / np.hypot may differ from math's in the last bits, so arcs
+    whose sweep lies near 0 or 360 degrees take :func:`arc_sweep_rad` itself, and a total within
+    reach of a rounding tie is recomputed by :func:`path_length_mm`."""
+    arcs = np.flatnonzero(np.isin(tp.kind, [k for k in kinds if k in (ARC_CW, ARC_CCW)]))
+    arcs = arcs[arcs > 0]
+    if not arcs.size:
+        return round(path_length_mm(tp, kinds=kinds), decimals)
+    xyz = tp.xyz_mm
+    dist = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
+    straight = np.isin(tp.kind[1:], [k for k in kinds if k in (RAPID, FEED)])
+    total = 0.0
+    total += float(dist[straight].sum())
+    rows = np.arange(arcs.size)
+    pl = tp.plane[arcs]
+    a, b, n = _PLANE_A[pl], _PLANE_B[pl], _NORMAL_AXIS[pl]
+    s, e, c = xyz[arcs - 1], xyz[arcs], tp.centre_mm[arcs]
+    u0, v0 = s[rows, a] - c[rows, a], s[rows, b] - c[rows, b]
+    u1, v1 = e[rows, a] - c[rows, a], e[rows, b] - c[rows, b]
+    t0, t1 = np.arctan2(v0, u0), np.arctan2(v1, u1)
+    ccw = tp.kind[arcs] == ARC_CCW
+    two_pi = 2 * math.pi
+    sw = np.where(ccw, np.mod(t1 - t0, two_pi), -np.mod(t0 - t1, two_pi))
+    zero = sw == 0.0
+    sw[zero] = np.where(ccw[zero], two_pi, -two_pi)
+    r = np.hypot(u0, v0)
+    rise = e[rows, n] - s[rows, n]
+    length = np.hypot(np.abs(sw) * r, rise)
+    for j in np.flatnonzero(np.minimum(np.abs(sw), two_pi - np.abs(sw)) < 1e-9):
+        i = arcs[j]
+        _, sw_j, r_j = arc_sweep_rad(s[j], e[j], c[j], tp.plane[i], tp.kind[i] == ARC_CCW)
+        length[j] = math.hypot(abs(sw_j) * r_j, rise[j])
+        r[j] = r_j
+    total = float(np.cumsum(np.concatenate([[total], length]))[-1])
+    p = abs(total) * 10.0 ** decimals
+    if abs(p - math.floor(p) - 0.5) <= 1e-13 * (float(r.sum()) + float(length.sum()) + abs(total) + 1.0) \
+            * 10.0 ** decimals + 1e-9:
+        return round(path_length_mm(tp, kinds=kinds), decimals)
+    return round(total, decimals)
 
 
 def neutral_moves(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis, rotary_deg, profile,
@@ -101,6 +174,125 @@ def neutral_moves(operations: Sequence[Operation], frame: AreaFrame, *, tool_axi
     length (mm) for operations without their own, for ``controlled_machine_mm``. ``decimals``: places of every
     length (0..6, default 4). Angles are not rounded.
     """
+    with _gc_paused():
+        return _document(operations, frame, tool_axis=tool_axis, rotary_deg=rotary_deg, profile=profile,
+                         placement_mm=placement_mm, setup_id=setup_id, area_id=area_id,
+                         gauge_length_mm=gauge_length_mm, decimals=decimals, lists=_Lists())
+
+
+def neutral_json(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis, rotary_deg, profile,
+                 placement_mm, setup_id=None, area_id=None, gauge_length_mm=None, decimals: int = 4) -> str:
+    """``json.dumps(neutral_moves(...), separators=(",", ":"))``, byte for byte (the same arguments),
+    with the long per-move and per-arc lists written as text at once instead of as Python objects
+    that ``json`` then encodes one by one (several times faster on large tool paths).
+
+    Numbers print as ``json`` prints them (``repr`` of the float): where a rounded coordinate's
+    shortest repr is not its rounded decimal digits for certain (15 significant digits or more,
+    below 1e-4, or a float that is not the nearest one to those digits), Python's ``repr`` writes it.
+    """
+    lists = _JsonLists()
+    doc = _document(operations, frame, tool_axis=tool_axis, rotary_deg=rotary_deg, profile=profile,
+                    placement_mm=placement_mm, setup_id=setup_id, area_id=area_id, gauge_length_mm=gauge_length_mm,
+                    decimals=decimals, lists=lists)
+    return lists.splice(json.dumps(doc, separators=(",", ":")))
+
+
+class _Lists:
+    """The long lists of the document as Python lists (:func:`neutral_moves`)."""
+
+    def floats(self, a, decimals: int, groups=None) -> list:
+        """Rows of ``a`` (k,3) rounded (:func:`_r`); ``groups``: see :func:`_json_float_rows`."""
+        return _r(a, decimals)
+
+    def pick(self, table: Sequence, idx: np.ndarray) -> list:
+        """``[table[i] for i in idx]`` (strings, floats, None)."""
+        return _object_array(table)[idx].tolist()
+
+    def ints(self, a: np.ndarray) -> list:
+        return a.tolist()
+
+
+class _JsonLists:
+    """The long lists of the document as placeholders, their JSON text kept aside (:func:`neutral_json`)."""
+
+    def __init__(self):
+        self.tag = secrets.token_hex(8)
+        self.texts: list[str] = []
+
+    def _put(self, text: str) -> str:
+        self.texts.append(text)
+        return f"\x00{self.tag}:{len(self.texts) - 1}"
+
+    def floats(self, a, decimals: int, groups=None) -> str:
+        return self._put(_json_float_rows(a, decimals, groups))
+
+    def pick(self, table: Sequence, idx: np.ndarray) -> str:
+        if not len(idx):
+            return self._put("[]")
+        rows = _Rows(len(idx), sep=",", end=",")
+        rows.table(np.asarray(idx, dtype=np.int64), [json.dumps(v) for v in table], np.ones(len(idx), dtype=bool))
+        return self._put("[" + rows.text()[:-1] + "]")
+
+    def ints(self, a: np.ndarray) -> str:
+        a = np.asarray(a, dtype=np.int64)
+        if not a.size:
+            return self._put("[]")
+        rows = _Rows(a.size, sep=",", end=",")
+        rows.number("", a, 0, np.ones(a.size, dtype=bool), point=False)
+        return self._put("[" + rows.text()[:-1] + "]")
+
+    def splice(self, skeleton: str) -> str:
+        """The document's JSON text with every placeholder replaced by its list's text."""
+        parts = re.split(re.escape(json.dumps(f"\x00{self.tag}:")[:-1]) + r'(\d+)"', skeleton)
+        ids = [int(k) for k in parts[1::2]]
+        if sorted(ids) != list(range(len(self.texts))):       # pragma: no cover - a tag in the user's strings
+            raise RuntimeError("neutral_json: placeholder mismatch")
+        parts[1::2] = [self.texts[k] for k in ids]
+        return "".join(parts)
+
+
+def _object_array(values: Sequence) -> np.ndarray:
+    out = np.empty(len(values), dtype=object)
+    out[:] = list(values)
+    return out
+
+
+def _json_float_rows(a, decimals: int, groups: np.ndarray | None = None) -> str:
+    """``json.dumps(_r(a, decimals), separators=(",", ":"))`` for ``a`` (k,3), the numbers written
+    from their rounded digits at once. A float ``v`` with ``v == K / 10^decimals`` (the nearest
+    float to the decimal ``K 10^-decimals``), ``|K| < 10^15`` and ``|v| >= 1e-4`` (or 0) has that
+    decimal as its shortest repr (at most 15 significant digits name one float each), printed
+    positionally; the rows with any other number go through ``repr``. ``groups`` (k,) int: rows
+    that are likely equal where their groups are (checked)."""
+    v = np.round(np.asarray(a, dtype=np.float64), decimals) + 0.0
+    k = v.shape[0]
+    if k == 0:
+        return "[]"
+    if groups is not None:
+        # rows equal within each group (the arcs' plane normals): each group's text once
+        _, first, code = np.unique(groups, return_index=True, return_inverse=True)
+        if np.array_equal(v, v[first][code]):
+            texts = ["[" + ",".join(map(repr, row)) + "]" for row in v[first].tolist()]
+            rows = _Rows(k, sep=",", end=",")
+            rows.table(code.reshape(-1), texts, np.ones(k, dtype=bool))
+            return "[" + rows.text()[:-1] + "]"
+    scale = 10.0 ** decimals
+    K = np.rint(v * scale)
+    fast = ((np.abs(K) < 1e15) & (K / scale == v) & ((K == 0) | (np.abs(v) >= 1e-4))).all(axis=1)
+    q = np.where(fast[:, None], K, 0.0).astype(np.int64)
+    rows = _Rows(k, sep=",", end=",")
+    rows.const("[", fast)
+    for j in range(v.shape[1]):
+        rows.number("", q[:, j], decimals, fast, repr_style=True, glue=j > 0)
+    rows.const("]", fast, glue=False)
+    slow = np.flatnonzero(~fast)
+    rows.raw(slow, ["[" + ",".join(map(repr, v[i].tolist())) + "]" for i in slow])
+    return "[" + rows.text()[:-1] + "]"
+
+
+def _document(operations, frame, *, tool_axis, rotary_deg, profile, placement_mm, setup_id, area_id,
+              gauge_length_mm, decimals, lists) -> dict:
+    """The neutral document, its long lists made by ``lists`` (:class:`_Lists` or :class:`_JsonLists`)."""
     from planning.machine import _profile, part_to_machine_rotation
     from planning.travel import machine_position_affine
 
@@ -130,27 +322,27 @@ def neutral_moves(operations: Sequence[Operation], frame: AreaFrame, *, tool_axi
         off = np.array([0.0, 0.0, tp.tip_offset_mm])
         tip_part = frame.to_part(tp.xyz_mm - off)
         tip_mach = tip_part @ A_tip.T + b_tip
-        feeds = [None if int(k) == RAPID else feed_for(op, u) for k, u in zip(tp.kind, tp.use)]
+        feed_code = np.where(tp.kind == RAPID, 0, np.where(tp.use == USE_PLUNGE, 2, 1))
         moves = {
             "count": int(tp.n_moves),
-            "type": [_TYPE[int(k)] for k in tp.kind],
-            "use": [_USE[int(u)] for u in tp.use],
-            "feed_mm_min": feeds,
-            "tip_part_mm": _r(tip_part, d),
-            "tip_machine_mm": _r(tip_mach, d),
+            "type": lists.pick(_TYPE_NAMES, tp.kind),
+            "use": lists.pick(_USE_NAMES, tp.use),
+            "feed_mm_min": lists.pick((None, float(op.feed_mm_min), float(op.plunge_mm_min)), feed_code),
+            "tip_part_mm": lists.floats(tip_part, d),
+            "tip_machine_mm": lists.floats(tip_mach, d),
         }
         arc_idx = np.flatnonzero(np.isin(tp.kind, (ARC_CW, ARC_CCW)))
         cen_part = frame.to_part(tp.centre_mm[arc_idx] - off) if arc_idx.size else np.zeros((0, 3))
-        normals = np.array([Rrows[PLANE_AXES[int(tp.plane[i])][2]] for i in arc_idx]).reshape(-1, 3)
+        normals = Rrows[_NORMAL_AXIS[tp.plane[arc_idx]]].reshape(-1, 3)
         arcs = {
             "count": int(arc_idx.size),
-            "move": [int(i) for i in arc_idx],
-            "direction": ["ccw" if int(tp.kind[i]) == ARC_CCW else "cw" for i in arc_idx],
-            "plane": [int(tp.plane[i]) for i in arc_idx],
-            "normal_part": _r(normals, _UNIT_DECIMALS),
-            "normal_machine": _r(normals @ M.T, _UNIT_DECIMALS),
-            "centre_part_mm": _r(cen_part, d),
-            "centre_machine_mm": _r(cen_part @ A_tip.T + b_tip, d),
+            "move": lists.ints(arc_idx),
+            "direction": lists.pick(("cw", "ccw"), (tp.kind[arc_idx] == ARC_CCW).astype(np.int64)),
+            "plane": lists.ints(tp.plane[arc_idx]),
+            "normal_part": lists.floats(normals, _UNIT_DECIMALS, tp.plane[arc_idx]),
+            "normal_machine": lists.floats(normals @ M.T, _UNIT_DECIMALS, tp.plane[arc_idx]),
+            "centre_part_mm": lists.floats(cen_part, d),
+            "centre_machine_mm": lists.floats(cen_part @ A_tip.T + b_tip, d),
         }
         entry = {
             "name": str(op.name),
@@ -161,8 +353,8 @@ def neutral_moves(operations: Sequence[Operation], frame: AreaFrame, *, tool_axi
             "feed_mm_min": float(op.feed_mm_min),
             "plunge_mm_min": float(op.plunge_mm_min),
             "tip_offset_mm": float(tp.tip_offset_mm),
-            "cut_length_mm": round(path_length_mm(tp), d),
-            "rapid_length_mm": round(path_length_mm(tp, kinds=(RAPID,)), d),
+            "cut_length_mm": _rounded_length_mm(tp, (FEED, ARC_CW, ARC_CCW), d),
+            "rapid_length_mm": _rounded_length_mm(tp, (RAPID,), d),
             "moves": moves,
             "arcs": arcs,
         }
@@ -170,7 +362,7 @@ def neutral_moves(operations: Sequence[Operation], frame: AreaFrame, *, tool_axi
         entry["tool"]["gauge_length_mm"] = G
         if G is not None:
             A_c, b_c = machine_position_affine(rot, p, placement_mm=place, tool_radius_mm=0.0, gauge_length_mm=G)
-            entry["controlled_machine_mm"] = _r(tip_part @ A_c[0].T + b_c[0], d)
+            entry["controlled_machine_mm"] = lists.floats(tip_part @ A_c[0].T + b_c[0], d)
         out_ops.append(entry)
 
     return {

@@ -36,6 +36,8 @@ def main() -> None:
                          "underside and the plan is infeasible)")
     ap.add_argument("--obstacles", choices=("all", "sampled"), default="all",
                     help="cloud points the collision test checks (visibility.obstacles)")
+    ap.add_argument("--no-paths", action="store_true", help="skip the tool paths (paths.*.enabled false)")
+    ap.add_argument("--no-roughing", action="store_true", help="finishing paths only")
     ap.add_argument("--travel", action="store_true",
                     help="check X/Y/Z travel on the default profile (the 400 mm femur does not fit it at 60 deg)")
     args = ap.parse_args()
@@ -80,7 +82,9 @@ def main() -> None:
                                        "travel": args.travel, "obstacles": args.obstacles},
                         "fixtures": {"fixture_height_mm": args.fixture_height},
                         "setups": {"max_setups": args.max_setups, "coverage": 0.95},
-                        "tool": {"diameter_mm": 6.0}})
+                        "tool": {"diameter_mm": 6.0},
+                        "paths": {"finishing": {"enabled": not args.no_paths},
+                                  "roughing": {"enabled": not (args.no_paths or args.no_roughing)}}})
     marks: dict[str, float] = {}
 
     def progress(stage, fraction, message):
@@ -112,6 +116,23 @@ def main() -> None:
           f"({sel.n_classes} classes): k {sel.k}, coverage {sel.coverage:.2%}, overlap {sel.overlap}, "
           f"status {sel.status}, solver {sel.solver}, {sel.seconds:.2f} s")
     print("axes: " + "; ".join("({:.3f} {:.3f} {:.3f})".format(*s.tool_axis) for s in r.setups))
+    paths = [(st.id, st.path) for st in r.setups if st.path is not None]
+    if paths:
+        print("\ntool paths per area (finishing: ball R 3, scallop "
+              f"{cfg.paths.finishing.scallop_mm} mm, tolerance {cfg.paths.finishing.tolerance_mm} mm):")
+        print(f"{'area':>4} {'passes':>7} {'CL raw':>9} {'CL final':>9} {'arcs':>7} {'cut m':>7} "
+              f"{'min clear':>10} {'holder hits':>11} {'finish min':>10} {'rough lvls':>10} {'rough min':>9} "
+              f"{'s':>6}")
+        t_fin = t_rough = 0.0
+        for i, p in paths:
+            f, ro = p.finishing, p.roughing
+            t_fin += f.machining_time_s if f else 0.0
+            t_rough += ro.machining_time_s if ro else 0.0
+            print(f"{i:>4} {f.n_passes:>7} {f.n_cl_before_reduction:>9} {f.n_cl:>9} {f.n_arcs:>7} "
+                  f"{f.length_mm / 1000:>7.1f} {f.min_clearance_mm:>10.4f} {f.holder_collisions:>11} "
+                  f"{f.machining_time_s / 60:>10.1f} {ro.n_levels if ro else 0:>10} "
+                  f"{(ro.machining_time_s / 60) if ro else 0:>9.1f} {sum(p.seconds.values()):>6.1f}")
+        print(f"machining time at the post's feeds: finishing {t_fin / 3600:.2f} h, roughing {t_rough / 3600:.2f} h")
 
 
 if __name__ == "__main__":

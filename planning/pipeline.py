@@ -8,8 +8,8 @@ state: the same cloud and parameters give the same plan.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -18,19 +18,30 @@ from planning.areas import Areas, assign_areas
 from planning.cloud import Cloud
 from planning.errors import InputError, ParameterError
 from planning.gaussmap import candidate_axes
-from planning.globalvis import global_visibility
+from planning.globalvis import build_fixtures, global_visibility
 from planning.machine import load_profile, machine_visibility
 from planning.normals import sphere_throwing
+from planning.post.programs import post_areas
 from planning.setups import SetupSelection, select_setups
+from planning.toolpath.area_paths import area_toolpaths
 from planning.visibility import cone_visibility
 from schemas.params import BoxZone, IndexZone, PlanConfig, SphereZone
-from schemas.plan import (AxisFilters, InputSummary, NormalsSummary, OrientationsSummary, PlanResult, Selection,
-                          Setup, Timing, VisibilitySummary)
+from schemas.plan import (
+    AxisFilters,
+    InputSummary,
+    NormalsSummary,
+    OrientationsSummary,
+    PlanResult,
+    Selection,
+    Setup,
+    Timing,
+    VisibilitySummary,
+)
 
 # progress(stage, fraction of that stage done in [0, 1], message)
 Progress = Callable[[str, float, str], None]
 
-STAGES = ("normals", "orientations", "visibility", "setups", "areas")
+STAGES = ("normals", "orientations", "visibility", "setups", "areas", "paths", "post")
 
 _ROTARY_NAMES = {
     "table_table_ac": ("A", "C"), "table_table_bc": ("B", "C"),
@@ -235,6 +246,29 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
                         "by no chosen orientation and were attached to the nearest area: their accessibility "
                         "is not guaranteed")
 
+    # 6. tool paths per area (Makki §4; Sood; Popescu; Tchanchane & Bey) and 7. the NC programs
+    area_paths = []
+    pp = config.paths
+    if (pp.finishing.enabled or pp.roughing.enabled) and selected.size:
+        solids, forbidden, _ = build_fixtures(config.fixtures, gv.placement_mm, base_dir=base_dir)
+        area_paths = timed("paths", lambda: area_toolpaths(
+            points, areas.input_labels, sel_axes, tool=config.tool.assembly(), paths_params=pp, fixtures=solids,
+            forbidden=forbidden, max_slope_deg=min(float(config.visibility.cone_deg[1]), 87.0),
+            progress=_stage_progress(progress, "paths")))
+        for ap in area_paths:
+            if ap.finishing is not None and ap.min_clearance_mm < config.tool.diameter_mm / 2 - pp.finishing.tolerance_mm:
+                warnings.append(f"area {ap.area}: the finishing path comes {ap.min_clearance_mm:.4f} mm from a cloud "
+                                f"point, closer than R - tolerance: it would gouge")
+            if ap.holder_collisions or ap.fixture_collisions:
+                warnings.append(f"area {ap.area}: at {ap.holder_collisions} finishing CL points the shank or holder "
+                                f"meets the cloud and at {ap.fixture_collisions} the tool meets a fixture or the "
+                                "table (plan.json setups[].path): check the stick-out and the holder")
+    programs, path_summaries = ({}, {})
+    if area_paths:
+        programs, path_summaries = timed("post", lambda: post_areas(
+            area_paths, setups_axes=sel_axes, rotary_deg=angles[selected], profile=profile,
+            placement_mm=gv.placement_mm, config=config))
+
     names = _ROTARY_NAMES[profile.kinematics]
     setups = []
     for i, j in enumerate(selected):
@@ -245,7 +279,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
             rotary_deg={names[0]: float(angles[j, 0]), names[1]: float(angles[j, 1])},
             n_visible=int(vis[:, j].sum()), n_points=int(lab.sum()),
             n_integrated=int((lab & areas.integrated).sum()),
-            n_input_points=int((areas.input_labels == i).sum())))
+            n_input_points=int((areas.input_labels == i).sum()), path=path_summaries.get(i)))
 
     lo, hi = points.min(axis=0), points.max(axis=0)
     result = PlanResult(
@@ -275,5 +309,11 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
         "labels": areas.labels, "integrated": areas.integrated, "overlap": areas.overlap,
         "input_labels": areas.input_labels,
     }
+    for ap in area_paths:
+        if ap.finishing is not None:
+            # ball centres in the part frame, every move of the final path; cl_kind_i: 0 rapid,
+            # 1 feed, 2 arc cw, 3 arc ccw (arc end points; centres in the neutral JSON)
+            arrays[f"cl_{ap.area}"] = ap.frame.to_part(ap.finishing.xyz_mm)
+            arrays[f"cl_kind_{ap.area}"] = ap.finishing.kind
     return PlanOutcome(result=result, arrays=arrays, points=points, input_labels=areas.input_labels,
-                       selected_axes=sel_axes)
+                       selected_axes=sel_axes, extra={"programs": programs, "area_paths": area_paths})

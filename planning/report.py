@@ -1,4 +1,5 @@
-"""Writes a finished plan to a directory: plan.json, plan.npz, segmentation.ply, preview.png.
+"""Writes a finished plan to a directory: plan.json, plan.npz, segmentation.ply, preview.png, and per
+area the NC programs ``area_<i>.<dialect>.nc`` and neutral moves ``area_<i>.moves.json``.
 
 Every file is written to a temporary name and renamed into place; ``plan.json`` is written last,
 so a directory holding ``plan.json`` holds a complete plan.
@@ -54,6 +55,10 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike) -> dict[str, Pa
     render_preview(paths["preview_png"], sampled_points, a["labels"], outcome.selected_axes,
                    integrated=a["integrated"],
                    title=f"{outcome.result.input.name or 'cloud'}: {outcome.result.message}")
+
+    for name, text in outcome.extra.get("programs", {}).items():
+        paths[name] = out / name
+        _atomic_bytes(paths[name], text.encode())
 
     _atomic_bytes(paths["plan_json"], plan_json_text(outcome).encode())
     return paths

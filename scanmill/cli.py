@@ -65,6 +65,27 @@ def _summary_table(result) -> str:
     return "\n".join(lines)
 
 
+def _paths_table(result) -> str:
+    """One line per area with tool paths: finishing passes, moves, arcs, clearance, programs."""
+    out = []
+    for s in result.setups:
+        p = s.path
+        if p is None:
+            continue
+        parts = [f"area {s.id}:"]
+        if p.roughing is not None:
+            parts.append(f"roughing {p.roughing.n_levels} levels, {p.roughing.length_mm / 1000:.1f} m, "
+                         f"{p.roughing.machining_time_s / 60:.0f} min;")
+        if p.finishing is not None:
+            f = p.finishing
+            parts.append(f"finishing {f.n_passes} passes, {f.n_cl} moves ({f.n_arcs} arcs), "
+                         f"{f.length_mm / 1000:.1f} m, {f.machining_time_s / 60:.0f} min, min clearance "
+                         f"{f.min_clearance_mm:.4f} mm ({'gouge free' if f.gouge_free else 'GOUGES'});")
+        parts.append(", ".join(list(p.programs.values()) + ([p.moves] if p.moves else [])))
+        out.append(" ".join(parts))
+    return "\n".join(out)
+
+
 def cmd_plan(args) -> int:
     from planning.cloud import read_cloud
     from planning.pipeline import run_plan
@@ -89,10 +110,13 @@ def cmd_plan(args) -> int:
           f"{r.orientations.n_machine_feasible} within machine travel; coverage {r.coverage:.1%}; "
           f"overlap {r.overlap_points} points; integrated {r.n_integrated}")
     print(_summary_table(r))
+    paths_text = _paths_table(r)
+    if paths_text:
+        print(paths_text)
     for w in r.warnings:
         print(f"warning: {w}")
     print("timings: " + ", ".join(f"{t.stage} {t.seconds:.2f} s" for t in r.timings))
-    print(f"wrote {', '.join(str(p) for p in paths.values())}")
+    print(f"wrote {len(paths)} files into {args.out}: {', '.join(p.name for p in paths.values())}")
     return EXIT_OK if r.status == "planned" else EXIT_INFEASIBLE
 
 

@@ -294,6 +294,97 @@ class SetupsParams(_Strict):
         60.0, gt=0, le=86_400, description="Time limit of the exact search, in seconds; the gap is reported if hit.")
 
 
+class FinishingParams(_Strict):
+    """Ball-end finishing of each area by ball drop on the cloud (Sood 2015; Makki 2010 §4), with the
+    ``tool`` above as the cutter."""
+
+    enabled: bool = Field(True, description="Compute finishing paths for every area.")
+    scallop_mm: float = Field(
+        0.01, gt=0, le=5, description="Target scallop height between passes on a plane, mm; the step-over is "
+                                      "2 sqrt(2 R h - h^2) (0.49 mm for R 3 mm, h 0.01 mm).")
+    step_mm: float | None = Field(
+        None, gt=0, le=50, description="Forward step between CL points along a pass, mm; null = R / 4.")
+    margin_mm: float = Field(
+        1.0, ge=0, le=100, description="How far the passes reach past the area into its neighbours (the overlap band), mm.")
+    pattern: Literal["zigzag", "oneway"] = Field(
+        "zigzag", description="'zigzag' alternates pass directions, linking neighbouring passes on the surface; "
+                              "'oneway' cuts every pass the same way and retracts in between.")
+    direction_deg: float | None = Field(
+        None, ge=-180, le=180,
+        description="Pass direction in the area frame, degrees from its X axis (the footprint's longer side); "
+                    "null = along that side.")
+    tolerance_mm: float = Field(
+        0.01, gt=0, le=1, description="Gouge tolerance: no move comes closer than R - tolerance to a cloud point; "
+                                      "also the chord / arc tolerance of CL reduction and arc fitting, mm.")
+    reduce: bool = Field(True, description="Drop CL points a straight move replaces within the tolerance (Sood §4.4), gouge-checked.")
+    arcs: bool = Field(True, description="Fit G2/G3 arcs in the pass planes within the tolerance, gouge-checked.")
+    lead_mm: float = Field(
+        1.0, ge=0, le=50, description="Length of the 45-degree lead-in and lead-out ramps, mm (vertical where a ramp "
+                                      "would gouge; 0 = plunge straight down).")
+
+
+class RoughingParams(_Strict):
+    """Z-level roughing of each set-up from a stock box (Popescu 2014 binary map and graph linking;
+    Tchanchane & Bey offset contours) with a flat or bull-nose end mill."""
+
+    enabled: bool = Field(True, description="Compute roughing paths for every area.")
+    tool_type: Literal["flat", "bull"] = Field("flat", description="End mill: 'flat' or 'bull' (bull-nose).")
+    diameter_mm: float = Field(10.0, gt=0, le=100, description="Roughing cutter diameter, mm.")
+    corner_radius_mm: float = Field(
+        0.0, ge=0, le=50, description="Corner radius of a bull-nose cutter, mm (0 for a flat end mill).")
+    step_down_mm: float = Field(2.0, gt=0, le=50, description="Depth of cut between Z levels, mm.")
+    stock_allowance_mm: float = Field(
+        0.5, ge=0, le=20, description="Material left on the part for finishing, mm.")
+    stock_margin_mm: float = Field(
+        2.0, ge=0, le=200, description="Stock box: the part's box in the area frame grown by this on the sides and "
+                                       "the top, mm.")
+    stepover_mm: float | None = Field(
+        None, gt=0, le=100, description="Distance between clearing lines, mm; null = 60 % of the diameter.")
+    pattern: Literal["zigzag", "oneway"] = Field("zigzag", description="Clearing lines alternate or run one way.")
+
+    @model_validator(mode="after")
+    def _corner(self) -> "RoughingParams":
+        if self.corner_radius_mm > self.diameter_mm / 2.0:
+            raise ValueError(f"corner_radius_mm {self.corner_radius_mm} exceeds the cutter radius {self.diameter_mm / 2.0}")
+        if self.tool_type == "flat" and self.corner_radius_mm > 0:
+            raise ValueError("a flat end mill has corner_radius_mm 0; use tool_type 'bull'")
+        return self
+
+
+class PathsParams(_Strict):
+    """Per-area 3-axis tool paths in each set-up's frame (tool axis = +Z)."""
+
+    finishing: FinishingParams = Field(default_factory=FinishingParams)
+    roughing: RoughingParams = Field(default_factory=RoughingParams)
+    safe_clearance_mm: float = Field(
+        5.0, gt=0, le=500, description="Retracts and rapids run this far above the highest point of the cloud and of "
+                                       "the fixtures under the area (tool tip), mm.")
+
+
+class PostParams(_Strict):
+    """NC programs: one file per area per dialect, and the neutral JSON moves."""
+
+    dialects: list[Literal["iso", "linuxcnc"]] = Field(
+        default_factory=lambda: ["iso", "linuxcnc"],
+        description="'iso': ISO/Fanuc-style with a G68.2 tilted work plane; 'linuxcnc': explicit rotary positioning "
+                    "then 3-axis XYZ in the machine frame.")
+    program_number: int = Field(1000, ge=1, le=9999, description="O-number of the first area's program (areas count up).")
+    finishing_tool_number: int = Field(1, ge=1, le=999, description="T number of the ball-end cutter.")
+    roughing_tool_number: int = Field(2, ge=1, le=999, description="T number of the roughing end mill.")
+    spindle_rpm: float = Field(12_000, gt=0, le=100_000, description="Finishing spindle speed, rev/min.")
+    feed_mm_min: float = Field(1_500, gt=0, le=100_000, description="Finishing cutting feed, mm/min.")
+    roughing_spindle_rpm: float = Field(8_000, gt=0, le=100_000, description="Roughing spindle speed, rev/min.")
+    roughing_feed_mm_min: float = Field(2_000, gt=0, le=100_000, description="Roughing cutting feed, mm/min.")
+    plunge_mm_min: float = Field(500, gt=0, le=100_000, description="Plunge, ramp and lead feed, mm/min.")
+    rapid_mm_min: float = Field(
+        15_000, gt=0, le=200_000, description="Rapid rate used only to estimate the machining time, mm/min.")
+    coolant: bool = Field(True, description="Flood coolant on (M8) while cutting.")
+    decimals: int = Field(4, ge=2, le=6, description="Decimal places of coordinates in the programs.")
+    rotary_sign: tuple[Literal[1, -1], Literal[1, -1]] = Field(
+        (1, 1), description="Multiply the (tilt, rotary) angles by these signs in the LinuxCNC post, for a control "
+                            "that counts an axis the other way than the planner (planning/machine.py).")
+
+
 class PlanConfig(_Strict):
     """One plan configuration document, grouped by pipeline stage (DESIGN.md parameter names)."""
 
@@ -305,6 +396,8 @@ class PlanConfig(_Strict):
     fixtures: FixturesParams = Field(default_factory=FixturesParams)
     visibility: VisibilityParams = Field(default_factory=VisibilityParams)
     setups: SetupsParams = Field(default_factory=SetupsParams)
+    paths: PathsParams = Field(default_factory=PathsParams)
+    post: PostParams = Field(default_factory=PostParams)
 
     def to_json_dict(self) -> dict[str, Any]:
         """The configuration as JSON-ready data, with the public names (``visibility.global``)."""

@@ -78,6 +78,64 @@ class VisibilitySummary(_Out):
     per_axis: list[AxisFilters]
 
 
+class FrameSummary(_Out):
+    """An area's machining frame: tool axis = +Z (planning/toolpath/frames.py)."""
+
+    origin_mm: tuple[float, float, float] = Field(..., description="Frame origin in the part frame, mm.")
+    x_axis: tuple[float, float, float] = Field(..., description="Frame X (pass direction) in the part frame.")
+    y_axis: tuple[float, float, float]
+    z_axis: tuple[float, float, float] = Field(..., description="Frame Z = the tool axis.")
+
+
+class FinishingSummary(_Out):
+    """Ball-end finishing of one area (frame units: mm)."""
+
+    n_passes: int
+    step_over_mm: float
+    n_cl: int = Field(..., description="CL points (ball centres) of the final path, all moves; plan.npz cl_i.")
+    n_cl_before_reduction: int = Field(..., description="CL points before CL reduction and arc fitting.")
+    n_arcs: int = Field(..., description="G2/G3 moves.")
+    n_retracts: int = Field(..., description="Retracts to the safe height between stretches.")
+    length_mm: float = Field(..., description="Cutting length (feed and arc moves), mm.")
+    tolerance_mm: float
+    min_clearance_mm: float = Field(
+        ..., description="Smallest distance between the ball-centre path (every feed and arc move) and any cloud "
+                         "point, measured on the final path; gouge free when >= R - tolerance_mm (capped at R).")
+    gouge_free: bool = Field(..., description="min_clearance_mm >= R - tolerance_mm.")
+    holder_collisions: int = Field(
+        ..., description="CL points where the cutter above the ball, the shank or the holder meets a cloud point.")
+    fixture_collisions: int = Field(
+        ..., description="CL points where the tool assembly meets a fixture or the table.")
+    machining_time_s: float = Field(..., description="At the post's feeds and rapid rate, no acceleration, s.")
+
+
+class RoughingSummary(_Out):
+    """Z-level roughing of one area from a stock box."""
+
+    n_levels: int
+    length_mm: float = Field(..., description="Cutting length, mm.")
+    air_mm: float = Field(..., description="Rapid length, mm.")
+    n_retracts: int
+    min_clearance_mm: float | None = Field(
+        ..., description="Smallest distance between the cutter and any cloud point along the path, mm (>= the "
+                         "stock allowance); null when no cloud point comes within a tool radius of the path.")
+    stock_box_mm: tuple[tuple[float, float, float], tuple[float, float, float]] = Field(
+        ..., description="Stock box (min corner, max corner) in the area frame, mm.")
+    machining_time_s: float
+
+
+class AreaPathSummary(_Out):
+    """What the tool paths of one area amount to."""
+
+    frame: FrameSummary
+    safe_z_mm: float = Field(..., description="Ball-centre height of retracts and rapids in the area frame, mm.")
+    finishing: FinishingSummary | None = None
+    roughing: RoughingSummary | None = None
+    programs: dict[str, str] = Field(default_factory=dict, description="NC program artifact per post dialect.")
+    moves: str | None = Field(None, description="Neutral JSON moves artifact.")
+    seconds: dict[str, float] = Field(default_factory=dict, description="Time per path step, s.")
+
+
 class Setup(_Out):
     id: int = Field(..., ge=0, description="Area / set-up number, also the label in plan.npz.")
     candidate_index: int = Field(..., ge=0, description="Index into plan.npz candidate_axes.")
@@ -89,7 +147,9 @@ class Setup(_Out):
     n_points: int = Field(..., description="Sampled points labelled with this set-up (integrated ones included).")
     n_integrated: int = Field(..., description="Of those, leftovers attached by distance (accessibility not guaranteed).")
     n_input_points: int = Field(..., description="Points of the whole submitted cloud labelled with this set-up.")
-    path: dict | None = Field(None, description="Tool path summary (length, passes, CL count); null until paths exist.")
+    path: AreaPathSummary | None = Field(
+        None, description="Tool path summary (length, passes, CL count, clearance, programs); null when no path "
+                          "was computed (paths disabled, or an area without points).")
 
 
 class Selection(_Out):

@@ -33,6 +33,8 @@ HALF_SPHERE_PARAMS = {
     "tool": {"diameter_mm": 10},
     "visibility": {"cone_deg": [10, 80]},
     "setups": {"coverage": 0.95, "max_setups": 2},
+    # coarse paths keep the service tests quick while exercising roughing, finishing and the posts
+    "paths": {"finishing": {"scallop_mm": 0.2}, "roughing": {"step_down_mm": 5}},
 }
 
 

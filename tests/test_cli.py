@@ -10,7 +10,8 @@ from planning.cloud import read_cloud
 from scanmill.cli import EXIT_ERROR, EXIT_INFEASIBLE, EXIT_OK, main
 from schemas.plan import plan_json_schema
 
-HS = ["--set", "normals.method=\"input\"", "--set", "setups.max_setups=2", "--set", "tool.diameter_mm=10"]
+HS = ["--set", "normals.method=\"input\"", "--set", "setups.max_setups=2", "--set", "tool.diameter_mm=10",
+      "--set", "paths.finishing.scallop_mm=0.2", "--set", "paths.roughing.step_down_mm=5"]
 
 
 @pytest.fixture(scope="module")
@@ -46,6 +47,13 @@ def test_plan_writes_the_contract(half_sphere_ply, tmp_path, capsys):
     assert seg.points.shape[0] == doc["input"]["n_points"]
     assert (out / "preview.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not [p for p in out.iterdir() if p.name.startswith(".")]   # no temporary files left
+    # tool paths: a line per area in the summary, and its programs and cl_i on disk
+    for st in doc["setups"]:
+        assert f"area {st['id']}: roughing" in text.out and "gouge free" in text.out
+        assert f"cl_{st['id']}" in npz.files
+        for name in list(st["path"]["programs"].values()) + [st["path"]["moves"]]:
+            assert (out / name).is_file()
+    assert {"paths", "post"} <= {t["stage"] for t in doc["timings"]}
 
 
 def test_schema_document_rejects_a_broken_plan(half_sphere_ply, tmp_path):

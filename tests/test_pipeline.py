@@ -17,6 +17,8 @@ PAPER_HALF_SPHERE = {
     "tool": {"diameter_mm": 10},
     "visibility": {"cone_deg": [10, 80]},
     "setups": {"coverage": 0.95, "max_setups": 2, "min_points": 1},
+    # these tests are about the set-ups; tests/test_paths_pipeline.py covers the paths
+    "paths": {"finishing": {"enabled": False}, "roughing": {"enabled": False}},
 }
 
 
@@ -120,7 +122,8 @@ def _strip_times(d):
 
 def test_same_input_same_plan():
     s = femur_like(n_points=40_000, seed=1)
-    cfg = parse_config({"setups": {"max_setups": 5}, "visibility": {"cone_deg": [10, 60]}})
+    cfg = parse_config({"setups": {"max_setups": 5}, "visibility": {"cone_deg": [10, 60]},
+                        "paths": {"finishing": {"scallop_mm": 0.1}, "roughing": {"step_down_mm": 4}}})
     runs = [run_plan(Cloud(points=s.points.copy(), normals=None, source_format="generated"), cfg)
             for _ in range(2)]
     a, b = runs

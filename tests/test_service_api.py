@@ -99,6 +99,17 @@ def test_artifacts_list_and_download(a, done_job):
     assert npz["labels"].max() < 2 and npz["visibility"].dtype == bool
     seg = read_cloud(a.get(items["segmentation.ply"]["href"]).content)
     assert seg.points.shape == (2537, 3)
+    # the NC programs and moves of every area, named in plan.json, served as text / JSON
+    plan = a.get(done_job["links"]["result"]).json()
+    for st in plan["setups"]:
+        names = list(st["path"]["programs"].values()) + [st["path"]["moves"]]
+        assert len(names) == 3 and set(names) <= set(items)
+        nc = a.get(items[st["path"]["programs"]["iso"]]["href"])
+        assert nc.status_code == 200 and nc.headers["content-type"].startswith("text/plain")
+        assert "G68.2" in nc.text and nc.text.rstrip().endswith("%")
+        moves = a.get(items[st["path"]["moves"]]["href"]).json()
+        assert moves and nc.text.count("\n") > 20
+        assert npz[f"cl_{st['id']}"].shape[0] == st["path"]["finishing"]["n_cl"]
 
 
 @pytest.mark.parametrize("name", ["../plan.json", "..", ".plan.json.tmp", "plan.json/", "nope.txt",

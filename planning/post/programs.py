@@ -1,0 +1,109 @@
+"""NC programs and path summaries of every area (DESIGN step 8): the glue between the per-area
+tool paths (:mod:`planning.toolpath.area_paths`) and the posts (:mod:`planning.post.iso`,
+:mod:`planning.post.linuxcnc`, :mod:`planning.post.neutral`).
+
+Artifacts per area ``i``: ``area_<i>.<dialect>.nc`` for each dialect in ``post.dialects``
+(``area_0.iso.nc``, ``area_0.linuxcnc.nc``) and ``area_<i>.moves.json`` (neutral moves, part and
+machine frames). Operations in each program: roughing (when computed) then finishing.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from planning.post.common import Operation, PostOptions
+from planning.post.iso import iso_program
+from planning.post.linuxcnc import linuxcnc_program
+from planning.post.neutral import neutral_json
+from planning.toolpath.moves import machining_time_s
+from schemas.plan import (
+    AreaPathSummary,
+    FinishingSummary,
+    FrameSummary,
+    RoughingSummary,
+)
+
+_POSTS = {"iso": iso_program, "linuxcnc": linuxcnc_program}
+
+
+def _operations(ap, config) -> list[Operation]:
+    post, rp = config.post, config.paths.roughing
+    ops = []
+    if ap.roughing is not None:
+        ops.append(Operation(name="roughing", toolpath=ap.roughing, tool_number=post.roughing_tool_number,
+                             tool_diameter_mm=rp.diameter_mm, tool_type=rp.tool_type,
+                             spindle_rpm=post.roughing_spindle_rpm, feed_mm_min=post.roughing_feed_mm_min,
+                             plunge_mm_min=post.plunge_mm_min))
+    if ap.finishing is not None:
+        ops.append(Operation(name="finishing", toolpath=ap.finishing, tool_number=post.finishing_tool_number,
+                             tool_diameter_mm=config.tool.diameter_mm, tool_type="ball",
+                             spindle_rpm=post.spindle_rpm, feed_mm_min=post.feed_mm_min,
+                             plunge_mm_min=post.plunge_mm_min))
+    return ops
+
+
+def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, config):
+    """Programs ``{artifact name: text}`` and path summaries ``{area: AreaPathSummary}`` for every
+    area in ``area_paths``; ``rotary_deg`` (k,2) (tilt, rotary) of each set-up."""
+    post = config.post
+    fp = config.paths.finishing
+    R = config.tool.diameter_mm / 2.0
+    tool = config.tool.assembly()
+    files: dict[str, str] = {}
+    summaries: dict[int, AreaPathSummary] = {}
+    for ap in area_paths:
+        i = ap.area
+        ops = _operations(ap, config)
+        names = {}
+        if ops:
+            # retracts and rapids: the tip at the area's safe height (the posts never go lower)
+            options = PostOptions(program_number=post.program_number + i, coolant=post.coolant,
+                                  decimals=post.decimals, rotary_sign=tuple(post.rotary_sign),
+                                  safe_z_mm=float(ap.safe_z_mm - R))
+            for dialect in post.dialects:
+                name = f"area_{i}.{dialect}.nc"
+                files[name] = _POSTS[dialect](ops, ap.frame, setup_id=i, tool_axis=setups_axes[i],
+                                              rotary_deg=rotary_deg[i], profile=profile, placement_mm=placement_mm,
+                                              gauge_length_mm=tool.gauge_length_mm, options=options)
+                names[dialect] = name
+            moves_name = f"area_{i}.moves.json"
+            files[moves_name] = neutral_json(
+                ops, ap.frame, setup_id=i, tool_axis=setups_axes[i], rotary_deg=rotary_deg[i], profile=profile,
+                placement_mm=placement_mm, decimals=post.decimals) + "\n"
+        fin = rough = None
+        if ap.finishing is not None:
+            info = ap.finishing_info
+            fin = FinishingSummary(
+                n_passes=int(info.n_passes), step_over_mm=float(info.step_over_mm), n_cl=int(ap.finishing.n_moves),
+                n_cl_before_reduction=int(info.toolpath.n_moves), n_arcs=int(ap.n_arcs),
+                n_retracts=int(info.n_retracts), length_mm=round(float(_cut_length(ap.finishing)), 3),
+                tolerance_mm=float(fp.tolerance_mm), min_clearance_mm=round(float(ap.min_clearance_mm), 6),
+                gouge_free=bool(ap.min_clearance_mm >= R - fp.tolerance_mm - 1e-12),
+                holder_collisions=int(ap.holder_collisions), fixture_collisions=int(ap.fixture_collisions),
+                machining_time_s=round(machining_time_s(ap.finishing, feed_mm_min=post.feed_mm_min,
+                                                        plunge_mm_min=post.plunge_mm_min,
+                                                        rapid_mm_min=post.rapid_mm_min), 1))
+        if ap.roughing is not None:
+            info = ap.roughing_info
+            rough = RoughingSummary(
+                n_levels=int(info.n_levels), length_mm=round(float(info.length_mm), 3),
+                air_mm=round(float(info.air_mm), 3), n_retracts=int(info.n_retracts),
+                min_clearance_mm=round(float(info.min_clearance_mm), 6) if np.isfinite(info.min_clearance_mm)
+                else None,
+                stock_box_mm=tuple(tuple(float(v) for v in c) for c in np.asarray(info.stock_box_mm).reshape(2, 3)),
+                machining_time_s=round(machining_time_s(ap.roughing, feed_mm_min=post.roughing_feed_mm_min,
+                                                        plunge_mm_min=post.plunge_mm_min,
+                                                        rapid_mm_min=post.rapid_mm_min), 1))
+        rot = ap.frame.rotation
+        summaries[i] = AreaPathSummary(
+            frame=FrameSummary(origin_mm=tuple(map(float, ap.frame.origin_mm)), x_axis=tuple(map(float, rot[0])),
+                               y_axis=tuple(map(float, rot[1])), z_axis=tuple(map(float, rot[2]))),
+            safe_z_mm=round(float(ap.safe_z_mm), 4), finishing=fin, roughing=rough, programs=names,
+            moves=f"area_{i}.moves.json" if ops else None, seconds=ap.seconds)
+    return files, summaries
+
+
+def _cut_length(tp) -> float:
+    from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, path_length_mm
+    return path_length_mm(tp, kinds=(FEED, ARC_CW, ARC_CCW))
+

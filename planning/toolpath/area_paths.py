@@ -1,0 +1,248 @@
+"""Per-area tool paths: the stage between the areas and the posts (DESIGN step 7; Makki 2010 §4:
+each area is machined by 3-axis paths at its set-up's fixed orientation).
+
+For area ``i`` with tool axis ``t_i``:
+
+1. the frame (:func:`planning.toolpath.frames.area_frame`, turned about +Z by
+   ``paths.finishing.direction_deg`` when given); the WHOLE cloud and the forbidden points are
+   transformed into it (every area is an obstacle of every other);
+2. the safe height: the ball-centre height of retracts and rapids, ``R + safe_clearance_mm`` above
+   the highest of the cloud (frame z = 0) and of the fixtures whose frame footprint comes within the
+   holder's reach of the path window (:func:`obstacle_top_mm`);
+3. roughing (when enabled; :mod:`planning.toolpath.roughing`) from a stock box, down to the area's
+   lowest point;
+4. finishing by ball drop (:func:`planning.toolpath.finishing.finishing_passes`), then CL reduction
+   and arc fitting (:mod:`planning.toolpath.reduce`), each gouge-checked;
+5. verification (:mod:`planning.toolpath.verify`): the minimal clearance between the final
+   finishing moves (lines and arcs) and every cloud point, which must be >= R - tolerance; the
+   cutter, shank and holder above the ball at every finishing CL point against the cloud
+   (:func:`planning.collision.cloud_collision_free`) and the fixtures and table
+   (:func:`planning.fixtures.fixture_collision_free`): positions that collide are counted and
+   reported (the paths are not changed: an area the holder cannot reach shows up as a warning).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planning.collision import centres_collision_free
+from planning.fixtures import (
+    BoxFixture,
+    CylinderFixture,
+    MeshFixture,
+    TableFixture,
+    fixture_collision_free,
+)
+from planning.tool import ToolAssembly
+from planning.toolpath.finishing import FinishingPath, finishing_passes
+from planning.toolpath.frames import AreaFrame, area_frame
+from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath
+from planning.toolpath.reduce import fit_arcs, reduce_cl
+from planning.toolpath.roughing import roughing_paths
+from planning.toolpath.verify import BinnedCloud, move_clearance
+
+Progress = Callable[[float, str], None]
+
+
+@dataclass
+class AreaPaths:
+    """Everything computed for one area: ``frame``, ``safe_z_mm`` (ball centre, frame), the final
+    ``finishing`` toolpath and its ``finishing_info``, ``roughing`` (toolpath or None) and its
+    ``roughing_info``, the verification figures and the seconds spent."""
+
+    area: int
+    frame: AreaFrame
+    safe_z_mm: float
+    finishing: Toolpath | None
+    finishing_info: FinishingPath | None
+    roughing: Toolpath | None = None
+    roughing_info: object = None
+    min_clearance_mm: float = math.inf
+    n_cl_dropped: int = 0
+    n_arcs: int = 0
+    holder_collisions: int = 0
+    fixture_collisions: int = 0
+    seconds: dict = field(default_factory=dict)
+
+
+def rotate_frame(frame: AreaFrame, angle_deg: float) -> AreaFrame:
+    """The frame turned by ``angle_deg`` about its +Z axis (passes along the new X)."""
+    a = math.radians(angle_deg)
+    c, s = math.cos(a), math.sin(a)
+    x, y, z = frame.rotation
+    return AreaFrame(rotation=np.stack([c * x + s * y, -s * x + c * y, z]), origin_mm=frame.origin_mm.copy())
+
+
+def _fixture_points(f) -> np.ndarray:
+    """Points whose convex hull bounds a finite fixture (part frame, mm)."""
+    if isinstance(f, BoxFixture):
+        lo, hi = np.asarray(f.min_mm), np.asarray(f.max_mm)
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        c = f.centre
+        return c + (corners - c) @ f.rotation_matrix.T
+    if isinstance(f, CylinderFixture):
+        ax = np.asarray(f.axis)
+        ref = np.array([1.0, 0.0, 0.0]) if abs(ax[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        u = np.cross(ax, ref)
+        u /= np.linalg.norm(u)
+        v = np.cross(ax, u)
+        # a polygon circumscribing the rim circle (radius r / cos(pi / 32)) contains the cylinder
+        t = np.linspace(0, 2 * np.pi, 32, endpoint=False)
+        r = f.radius_mm / math.cos(math.pi / 32)
+        rim = r * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v)
+        base = np.asarray(f.base_mm)
+        return np.concatenate([base + rim, base + f.height_mm * ax + rim])
+    if isinstance(f, MeshFixture):
+        return np.asarray(f.vertices)
+    raise TypeError(f"no bounding points for {type(f).__name__}")
+
+
+def obstacle_top_mm(frame: AreaFrame, fixtures: Sequence, forbidden: np.ndarray, xy_lo, xy_hi,
+                    reach_mm: float) -> float:
+    """The highest frame z (mm) of the fixtures, the table and the forbidden points over the window
+    ``[xy_lo, xy_hi]`` (frame x, y) grown by ``reach_mm`` (the holder's largest radius): the tool
+    moving at a height above it, over that window, cannot touch them. Finite fixtures are bounded by
+    their corners / circumscribed rims / vertices; the table (a plane) by its height at the window's
+    corners. ``-inf`` when nothing is there."""
+    lo = np.asarray(xy_lo, dtype=np.float64) - reach_mm
+    hi = np.asarray(xy_hi, dtype=np.float64) + reach_mm
+    top = -math.inf
+    pts = [np.asarray(forbidden, dtype=np.float64).reshape(-1, 3)]
+    for f in fixtures:
+        if isinstance(f, TableFixture):
+            corners = np.array([[x, y] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])])
+            # table plane in the frame: points q with (R^T q + o)_z = z_table
+            n = frame.rotation[:, 2]                     # part z expressed in frame coordinates
+            d = f.z_mm - frame.origin_mm[2]
+            if abs(n[2]) < 1e-12:
+                continue                                 # a vertical table plane: no height to speak of
+            z = (d - corners @ n[:2]) / n[2]
+            if n[2] > 0:                                 # frame +z points away from the table: material below
+                top = max(top, float(z.max()))
+    q = frame.to_frame(pts[0])
+    if q.size:
+        inside = np.all((q[:, :2] >= lo) & (q[:, :2] <= hi), axis=1)
+        if inside.any():
+            top = max(top, float(q[inside, 2].max()))
+    for f in fixtures:
+        if isinstance(f, TableFixture):
+            continue
+        qq = frame.to_frame(_fixture_points(f))
+        # a solid whose frame bounding box meets the window counts with its highest point
+        if np.all(qq[:, :2].max(axis=0) >= lo) and np.all(qq[:, :2].min(axis=0) <= hi):
+            top = max(top, float(qq[:, 2].max()))
+    return top
+
+
+def _count_arcs(tp: Toolpath) -> int:
+    return int(np.isin(tp.kind, [ARC_CW, ARC_CCW]).sum())
+
+
+def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarray, *, tool: ToolAssembly,
+                   paths_params, fixtures: Sequence = (), forbidden: np.ndarray | None = None,
+                   max_slope_deg: float = 87.0,
+                   progress: Progress | None = None) -> list[AreaPaths]:
+    """Tool paths for every area (see the module docstring).
+
+    ``points`` (N,3) mm: the whole cloud (part frame); ``input_labels`` (N,): the area of every
+    point; ``axes`` (k,3): the areas' unit tool axes; ``tool``: the finishing ball cutter and its
+    holder; ``paths_params``: :class:`schemas.params.PathsParams`; ``fixtures``: fixture solids and
+    the table (part frame); ``forbidden`` (K,3): forbidden points (obstacles like the cloud);
+    ``max_slope_deg``: the steepest surface an area holds (the tool cone's upper angle), which
+    bounds how short the adaptive side step gets.
+    """
+    fp = paths_params.finishing
+    rp = paths_params.roughing
+    R = float(tool.radius_mm)
+    tol = float(fp.tolerance_mm)
+    forbidden = np.zeros((0, 3)) if forbidden is None else np.asarray(forbidden, dtype=np.float64).reshape(-1, 3)
+    obstacles = np.concatenate([points, forbidden]) if forbidden.size else points
+    reach = max([s.radius_mm for s in tool.segments] + [R])
+    k = axes.shape[0]
+    out: list[AreaPaths] = []
+    for i in range(k):
+        sec: dict[str, float] = {}
+        t0 = time.perf_counter()
+        mine = input_labels == i
+        if not mine.any():
+            continue
+        frame = area_frame(axes[i], points, points[mine])
+        if fp.direction_deg is not None:
+            frame = rotate_frame(frame, fp.direction_deg)
+        cloud_f = frame.to_frame(obstacles)
+        area_f = cloud_f[:points.shape[0]][mine]
+        lo = area_f[:, :2].min(axis=0) - fp.margin_mm - R
+        hi = area_f[:, :2].max(axis=0) + fp.margin_mm + R
+        fix_top = obstacle_top_mm(frame, fixtures, np.zeros((0, 3)), lo, hi, reach)
+        top = max(0.0, float(cloud_f[:, 2].max()), fix_top)
+        safe = top + paths_params.safe_clearance_mm + R
+        sec["frame"] = time.perf_counter() - t0
+        ap = AreaPaths(area=i, frame=frame, safe_z_mm=safe, finishing=None, finishing_info=None)
+
+        floor = float(area_f[:, 2].min()) + rp.stock_allowance_mm
+        if rp.enabled and floor < float(cloud_f[:, 2].max()) + rp.stock_margin_mm:
+            t0 = time.perf_counter()
+            rr = roughing_paths(cloud_f, tool_radius_mm=rp.diameter_mm / 2.0,
+                                corner_radius_mm=rp.corner_radius_mm, step_down_mm=rp.step_down_mm,
+                                stock_allowance_mm=rp.stock_allowance_mm, stock_margin_mm=rp.stock_margin_mm,
+                                stepover_mm=rp.stepover_mm, pattern=rp.pattern, floor_z_mm=floor,
+                                safe_z_mm=top + rp.stock_margin_mm + paths_params.safe_clearance_mm)
+            ap.roughing, ap.roughing_info = rr.toolpath, rr
+            sec["roughing"] = time.perf_counter() - t0
+
+        if fp.enabled:
+            t0 = time.perf_counter()
+            binned = BinnedCloud(cloud_f, R / 4.0)
+            area_mask = np.zeros(cloud_f.shape[0], dtype=bool)
+            area_mask[:points.shape[0]] = mine
+            fin = finishing_passes(cloud_f, area_mask, radius_mm=R, scallop_mm=fp.scallop_mm, step_mm=fp.step_mm,
+                                   margin_mm=fp.margin_mm, zigzag=fp.pattern == "zigzag", tol_mm=tol,
+                                   safe_z_mm=safe, lead_mm=fp.lead_mm, max_slope_deg=max_slope_deg, binned=binned)
+            sec["finishing"] = time.perf_counter() - t0
+            tp = fin.toolpath
+            n0 = tp.n_moves
+            t0 = time.perf_counter()
+            # arc fitting also reduces the straight stretches it leaves, against the ORIGINAL CL
+            # points (reducing first would let the arcs drift 2 tol from them)
+            if fp.arcs:
+                tp = fit_arcs(tp, binned, R, tol_mm=tol, reduce_lines=fp.reduce, pass_index=fin.pass_index)
+            elif fp.reduce:
+                tp = reduce_cl(tp, binned, R, tol_mm=tol, pass_index=fin.pass_index)
+            sec["reduce_arcs"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            clear = move_clearance(tp, binned, R)
+            ap.min_clearance_mm = float(np.nanmin(clear)) if np.isfinite(clear).any() else float(R)
+            ap.min_clearance_mm = min(ap.min_clearance_mm, float(R))
+            sec["verify"] = time.perf_counter() - t0
+            ap.finishing, ap.finishing_info = tp, fin
+            ap.n_cl_dropped = n0 - tp.n_moves
+            ap.n_arcs = _count_arcs(tp)
+            # cutter, shank and holder above the ball at every CL point of the cut
+            t0 = time.perf_counter()
+            cut = np.flatnonzero(np.isin(tp.kind, [FEED, ARC_CW, ARC_CCW]))
+            centres = frame.to_part(tp.xyz_mm[cut])
+            ap.holder_collisions = _holder_collisions(obstacles, centres, axes[i], tool)
+            if fixtures:
+                ok = fixture_collision_free(centres, axes[i][None, :], tool, list(fixtures))
+                ap.fixture_collisions = int((~ok[:, 0]).sum())
+            sec["collisions"] = time.perf_counter() - t0
+        ap.seconds = {k2: round(v, 4) for k2, v in sec.items()}
+        out.append(ap)
+        if progress is not None:
+            progress((i + 1) / k, f"area {i}: paths done")
+    return out
+
+
+def _holder_collisions(obstacles: np.ndarray, centres: np.ndarray, axis: np.ndarray, tool: ToolAssembly) -> int:
+    """Ball centres (part frame) at which the cutter, shank or holder above the ball's centre meets
+    an obstacle point (:func:`planning.collision.centres_collision_free`, exact)."""
+    if centres.shape[0] == 0:
+        return 0
+    t = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    ok = centres_collision_free(obstacles, centres, t[None, :], tool)
+    return int((~ok[:, 0]).sum())

@@ -158,6 +158,13 @@ def run(args) -> int:
             rot = " ".join(f"{k}{v:+.1f}" for k, v in s["rotary_deg"].items())
             print(f"  set-up {s['id']}: tool axis ({s['tool_axis'][0]:+.3f}, {s['tool_axis'][1]:+.3f}, "
                   f"{s['tool_axis'][2]:+.3f})  {rot}  {s['n_points']} points")
+            path = s.get("path") or {}
+            fin = path.get("finishing")
+            if fin:
+                print(f"    finishing: {fin['n_passes']} passes, {fin['n_cl']} moves ({fin['n_arcs']} arcs), "
+                      f"min clearance {fin['min_clearance_mm']:.4f} mm"
+                      f"{' (gouge free)' if fin['gouge_free'] else ' (GOUGES)'}; programs: "
+                      + ", ".join(path.get("programs", {}).values()))
         for w in plan["warnings"]:
             print(f"  warning: {w}")
         print(f"results: {out_dir}/ ({', '.join(sorted(p.name for p in out_dir.iterdir()))})")

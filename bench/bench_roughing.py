@@ -13,10 +13,16 @@ clearance (which must be >= the allowance).
 
 ``--baseline FILE`` also times another copy of the module (for example the previous version saved
 to /tmp) in the same run, alternating the two per axis, and prints the ratio and whether the
-results agree.
+paths are identical (the module is imported as ``roughing_baseline``; numba caches its kernels
+beside the file under that name). The kernels of both are compiled before timing. The default
+axes are two tilted set-ups and the femur plan's area-1 axis.
 
     .venv/bin/python bench/bench_roughing.py [--points 1000000] [--repeat 1]
         [--axis 0.433 -0.75 -0.5] [--axis 0.433 0.25 0.866] [--baseline /tmp/roughing_orig.py] [--profile]
+
+Measured on the 2-core development machine (shared, noisy), ``--baseline`` = the module before the
+speed-up, ``--repeat 2``: 1.14-1.50 s per axis against 6.8-9.3 s, 4.16 s against 23.07 s for the three
+axes (5.5x); same levels and minimal clearance, feed within 1.3 %.
 """
 
 from __future__ import annotations

@@ -572,3 +572,13 @@ def test_stable_argsort():
     for n in (0, 1, 15, 16, 17, 100, 1000, 5000):
         keys = np.round(rng.normal(size=n), 1)            # many equal keys
         np.testing.assert_array_equal(rough._argsort_stable(keys), np.argsort(keys, kind="stable"))
+
+
+def test_zone_order_is_the_same_with_distances_by_blocks(monkeypatch):
+    """Components with more zone variants than ORDER_DENSE_MAX compute the look-ahead distances in
+    blocks: the same order of the same moves."""
+    pts = _pockets([(-10.0, 0.0), (10.0, 0.0)], 20.0)
+    a = roughing_paths(pts, tool_radius_mm=RT, step_down_mm=2.0, stepover_mm=1.0)
+    monkeypatch.setattr(rough, "ORDER_DENSE_MAX", 3)
+    b = roughing_paths(pts, tool_radius_mm=RT, step_down_mm=2.0, stepover_mm=1.0)
+    np.testing.assert_array_equal(a.toolpath.xyz_mm, b.toolpath.xyz_mm)

@@ -136,6 +136,7 @@ MAX_CELLS = 16_000_000  #: the raster's cell grows beyond cell_mm to stay under 
 MAX_LEVELS = 10_000     #: most Z levels
 CLEARANCE_BLOCK = 8     #: min_tool_clearance skips blocks of this many cells each way by their highest point
 TOP_CELLS = 2           #: a cell of the remaining-material map spans this many raster cells each way
+ORDER_DENSE_MAX = 2048  #: up to this many zone variants in a component, all exit-entry distances are kept
 RAPID_RATIO = 5.0       #: a rapid counts as 1 / RAPID_RATIO of its length of feed when links are compared
 _SQ2 = math.sqrt(2.0)
 
@@ -1719,7 +1720,7 @@ def _order(pieces: list[_Piece], p, oneway):
         flat, zone, ent, ext, nz, cs = todo.pop(c)
         if flat:
             # D[v, w]: from the exit of variant v to the entry of variant w of another zone
-            D = _exit_entry(ext, ent, zone) if len(flat) <= 2048 else None
+            D = _exit_entry(ext, ent, zone) if len(flat) <= ORDER_DENSE_MAX else None
             alive = np.ones(len(flat), dtype=bool)
             for _ in range(nz):
                 live = np.flatnonzero(alive)

@@ -62,13 +62,13 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, co
                                   safe_z_mm=float(ap.safe_z_mm - R))
             for dialect in post.dialects:
                 name = f"area_{i}.{dialect}.nc"
-                files[name] = _POSTS[dialect](ops, ap.frame, setup_id=i, tool_axis=setups_axes[i],
+                files[name] = _POSTS[dialect](ops, ap.frame, setup_id=i, area_id=i, tool_axis=setups_axes[i],
                                               rotary_deg=rotary_deg[i], profile=profile, placement_mm=placement_mm,
                                               gauge_length_mm=tool.gauge_length_mm, options=options)
                 names[dialect] = name
             moves_name = f"area_{i}.moves.json"
             files[moves_name] = neutral_json(
-                ops, ap.frame, setup_id=i, tool_axis=setups_axes[i], rotary_deg=rotary_deg[i], profile=profile,
+                ops, ap.frame, setup_id=i, area_id=i, tool_axis=setups_axes[i], rotary_deg=rotary_deg[i], profile=profile,
                 placement_mm=placement_mm, decimals=post.decimals) + "\n"
         fin = rough = None
         if ap.finishing is not None:

@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import gc
 import json
-import math
 import re
 import secrets
 from collections.abc import Sequence
@@ -70,7 +69,6 @@ from planning.toolpath.moves import (
     USE_PLUNGE,
     USE_RAPID,
     USE_RETRACT,
-    arc_sweep_rad,
     path_length_mm,
 )
 
@@ -96,9 +94,8 @@ _USE = {USE_RAPID: "rapid", USE_CUT: "cut", USE_PLUNGE: "plunge", USE_RETRACT: "
 _UNIT_DECIMALS = 10
 _TYPE_NAMES = tuple(_TYPE[k] for k in range(4))
 _USE_NAMES = tuple(_USE[k] for k in range(4))
-#: In-plane axes and normal axis by arc plane code (PLANE_AXES as lookup tables).
-_PLANE_A, _PLANE_B, _NORMAL_AXIS = (np.array([PLANE_AXES.get(p, (0, 0, 0))[k] for p in range(PLANE_YZ + 1)])
-                                    for k in range(3))
+#: Normal axis by arc plane code (PLANE_AXES as a lookup table).
+_NORMAL_AXIS = np.array([PLANE_AXES.get(p, (0, 0, 0))[2] for p in range(PLANE_YZ + 1)])
 
 
 @contextmanager
@@ -116,50 +113,6 @@ def _gc_paused():
 def _r(a, decimals: int):
     """Rounded nested lists of plain floats (no -0.0)."""
     return (np.round(np.asarray(a, dtype=np.float64), decimals) + 0.0).tolist()
-
-
-def _rounded_length_mm(tp, kinds, decimals: int) -> float:
-    """``round(path_length_mm(tp, kinds=kinds), decimals)`` with the arcs' lengths computed at once.
-
-    The arcs are added one by one in the same order (a cumulative sum), each as
-    ``hypot(|sweep| r, rise)``; np.arctan2 / np.hypot may differ from math's in the last bits, so arcs
-    whose sweep lies near 0 or 360 degrees take :func:`arc_sweep_rad` itself, and a total within
-    reach of a rounding tie is recomputed by :func:`path_length_mm`."""
-    arcs = np.flatnonzero(np.isin(tp.kind, [k for k in kinds if k in (ARC_CW, ARC_CCW)]))
-    arcs = arcs[arcs > 0]
-    if not arcs.size:
-        return round(path_length_mm(tp, kinds=kinds), decimals)
-    xyz = tp.xyz_mm
-    dist = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
-    straight = np.isin(tp.kind[1:], [k for k in kinds if k in (RAPID, FEED)])
-    total = 0.0
-    total += float(dist[straight].sum())
-    rows = np.arange(arcs.size)
-    pl = tp.plane[arcs]
-    a, b, n = _PLANE_A[pl], _PLANE_B[pl], _NORMAL_AXIS[pl]
-    s, e, c = xyz[arcs - 1], xyz[arcs], tp.centre_mm[arcs]
-    u0, v0 = s[rows, a] - c[rows, a], s[rows, b] - c[rows, b]
-    u1, v1 = e[rows, a] - c[rows, a], e[rows, b] - c[rows, b]
-    t0, t1 = np.arctan2(v0, u0), np.arctan2(v1, u1)
-    ccw = tp.kind[arcs] == ARC_CCW
-    two_pi = 2 * math.pi
-    sw = np.where(ccw, np.mod(t1 - t0, two_pi), -np.mod(t0 - t1, two_pi))
-    zero = sw == 0.0
-    sw[zero] = np.where(ccw[zero], two_pi, -two_pi)
-    r = np.hypot(u0, v0)
-    rise = e[rows, n] - s[rows, n]
-    length = np.hypot(np.abs(sw) * r, rise)
-    for j in np.flatnonzero(np.minimum(np.abs(sw), two_pi - np.abs(sw)) < 1e-9):
-        i = arcs[j]
-        _, sw_j, r_j = arc_sweep_rad(s[j], e[j], c[j], tp.plane[i], tp.kind[i] == ARC_CCW)
-        length[j] = math.hypot(abs(sw_j) * r_j, rise[j])
-        r[j] = r_j
-    total = float(np.cumsum(np.concatenate([[total], length]))[-1])
-    p = abs(total) * 10.0 ** decimals
-    if abs(p - math.floor(p) - 0.5) <= 1e-13 * (float(r.sum()) + float(length.sum()) + abs(total) + 1.0) \
-            * 10.0 ** decimals + 1e-9:
-        return round(path_length_mm(tp, kinds=kinds), decimals)
-    return round(total, decimals)
 
 
 def neutral_moves(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis, rotary_deg, profile,
@@ -353,8 +306,8 @@ def _document(operations, frame, *, tool_axis, rotary_deg, profile, placement_mm
             "feed_mm_min": float(op.feed_mm_min),
             "plunge_mm_min": float(op.plunge_mm_min),
             "tip_offset_mm": float(tp.tip_offset_mm),
-            "cut_length_mm": _rounded_length_mm(tp, (FEED, ARC_CW, ARC_CCW), d),
-            "rapid_length_mm": _rounded_length_mm(tp, (RAPID,), d),
+            "cut_length_mm": round(path_length_mm(tp), d),
+            "rapid_length_mm": round(path_length_mm(tp, kinds=(RAPID,)), d),
             "moves": moves,
             "arcs": arcs,
         }

@@ -146,34 +146,39 @@ def densify(tp: Toolpath, max_step_mm: float = 0.05, *, start_index: int = 1) ->
     return np.concatenate(out), np.concatenate(mv)
 
 
+def move_lengths_mm(tp: Toolpath) -> np.ndarray:
+    """(P,) length of every move, mm: straight moves by their chord, arcs by their true length
+    ``hypot(|sweep| r, rise along the plane normal)`` (as :func:`densify` draws them); move 0 is 0.
+    Vectorised over the moves."""
+    xyz = tp.xyz_mm
+    out = np.zeros(tp.n_moves)
+    if tp.n_moves < 2:
+        return out
+    out[1:] = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
+    arcs = np.flatnonzero((tp.kind == ARC_CW) | (tp.kind == ARC_CCW))
+    arcs = arcs[arcs > 0]
+    if arcs.size:
+        axes = np.array([PLANE_AXES[int(p)] for p in tp.plane[arcs]]).T      # (3, n): first, second, normal
+        rows = np.arange(arcs.size)
+        s, e, c = xyz[arcs - 1], xyz[arcs], tp.centre_mm[arcs]
+        u0, v0 = s[rows, axes[0]] - c[rows, axes[0]], s[rows, axes[1]] - c[rows, axes[1]]
+        u1, v1 = e[rows, axes[0]] - c[rows, axes[0]], e[rows, axes[1]] - c[rows, axes[1]]
+        t0, t1 = np.arctan2(v0, u0), np.arctan2(v1, u1)
+        ccw = tp.kind[arcs] == ARC_CCW
+        sweep = np.where(ccw, np.mod(t1 - t0, 2 * math.pi), np.mod(t0 - t1, 2 * math.pi))
+        sweep[sweep == 0.0] = 2 * math.pi                    # start = end: a full turn (arc_sweep_rad)
+        out[arcs] = np.hypot(sweep * np.hypot(u0, v0), e[rows, axes[2]] - s[rows, axes[2]])
+    return out
+
+
 def path_length_mm(tp: Toolpath, *, kinds=(FEED, ARC_CW, ARC_CCW)) -> float:
     """Length of the moves of the given kinds (arcs by their true arc length), mm."""
-    total = 0.0
-    d = np.linalg.norm(np.diff(tp.xyz_mm, axis=0), axis=1)
-    straight = np.isin(tp.kind[1:], [k for k in kinds if k in (RAPID, FEED)])
-    total += float(d[straight].sum())
-    for i in np.flatnonzero(np.isin(tp.kind, [k for k in kinds if k in (ARC_CW, ARC_CCW)])):
-        if i == 0:
-            continue
-        s, e, c = tp.xyz_mm[i - 1], tp.xyz_mm[i], tp.centre_mm[i]
-        _, sw, r = arc_sweep_rad(s, e, c, tp.plane[i], tp.kind[i] == ARC_CCW)
-        n = PLANE_AXES[int(tp.plane[i])][2]
-        total += math.hypot(abs(sw) * r, e[n] - s[n])
-    return total
+    return float(move_lengths_mm(tp)[np.isin(tp.kind, kinds)].sum())
 
 
 def machining_time_s(tp: Toolpath, *, feed_mm_min: float, plunge_mm_min: float,
                      rapid_mm_min: float) -> float:
     """Time to run the path at the given rates (no acceleration limits), seconds."""
-    segs = np.zeros(tp.n_moves)
-    d = np.linalg.norm(np.diff(tp.xyz_mm, axis=0), axis=1)
-    segs[1:] = d
-    arc = np.flatnonzero(np.isin(tp.kind, [ARC_CW, ARC_CCW]))
-    for i in arc[arc > 0]:
-        s, e, c = tp.xyz_mm[i - 1], tp.xyz_mm[i], tp.centre_mm[i]
-        _, sw, r = arc_sweep_rad(s, e, c, tp.plane[i], tp.kind[i] == ARC_CCW)
-        n = PLANE_AXES[int(tp.plane[i])][2]
-        segs[i] = math.hypot(abs(sw) * r, e[n] - s[n])
     rate = np.where(tp.use == USE_RAPID, rapid_mm_min,
                     np.where(tp.use == USE_CUT, feed_mm_min, plunge_mm_min)).astype(np.float64)
-    return float((segs / rate).sum() * 60.0)
+    return float((move_lengths_mm(tp) / rate).sum() * 60.0)

@@ -34,7 +34,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
-from scipy.spatial import cKDTree
 
 from planning.errors import ParameterError
 from planning.toolpath.balldrop import DropSurface
@@ -49,7 +48,6 @@ from planning.toolpath.moves import (
 )
 from planning.toolpath.verify import BinnedCloud, move_clearance
 
-_CHUNK = 256        # moves per KD-tree query in min_clearance (bounds the gathered points)
 _ADAPT_ROUNDS = 8   # fixed-point rounds of an adaptive side step
 
 
@@ -94,43 +92,6 @@ def step_over_mm(radius_mm: float, scallop_mm: float) -> float:
     if not (R > 0 and 0 < h <= R):
         raise ParameterError(f"scallop height {scallop_mm} mm must be in (0, R = {radius_mm}]")
     return 2.0 * math.sqrt(2 * R * h - h * h)
-
-
-def min_clearance(cl_mm: np.ndarray, feed: np.ndarray, points: np.ndarray, radius_mm: float, *,
-                  tree: cKDTree | None = None) -> np.ndarray:
-    """Reference (KD-tree, numpy) for the numba clearance of :mod:`planning.toolpath.verify`, used by the
-    tests. Per feed move i (from ``cl_mm[i-1]`` to ``cl_mm[i]`` where ``feed[i]``): the smallest distance
-    from a cloud point to that segment (``inf`` where no point is within ``2 R``; NaN for non-feed
-    entries). Exact point-to-segment distances over the points a KD-tree (``tree``, built on
-    ``points`` when not given) finds near each move, in chunks of moves."""
-    cl = np.asarray(cl_mm, dtype=np.float64)
-    points = np.asarray(points, dtype=np.float64)
-    out = np.full(cl.shape[0], np.nan)
-    idx = np.flatnonzero(np.asarray(feed, dtype=bool))
-    idx = idx[idx > 0]
-    if idx.size == 0:
-        return out
-    out[idx] = np.inf
-    tree = cKDTree(points) if tree is None else tree
-    a, b = cl[idx - 1], cl[idx]
-    mid = 0.5 * (a + b)
-    reach = 0.5 * np.linalg.norm(b - a, axis=1) + 2 * float(radius_mm)
-    for c0 in range(0, idx.size, _CHUNK):
-        c1 = min(c0 + _CHUNK, idx.size)
-        near = tree.query_ball_point(mid[c0:c1], reach[c0:c1])
-        counts = np.fromiter((len(x) for x in near), dtype=np.int64, count=c1 - c0)
-        if counts.sum() == 0:
-            continue
-        own = np.repeat(np.arange(c0, c1), counts)
-        q = points[np.concatenate([np.asarray(x, dtype=np.int64) for x in near])]
-        d = b[own] - a[own]
-        L2 = (d * d).sum(axis=1)
-        u = np.clip(np.where(L2 > 0, ((q - a[own]) * d).sum(axis=1) / np.where(L2 > 0, L2, 1.0), 0.0), 0.0, 1.0)
-        dist = np.sqrt(((q - (a[own] + u[:, None] * d)) ** 2).sum(axis=1))
-        has = np.flatnonzero(counts)
-        first = np.concatenate([[0], np.cumsum(counts)[:-1]])[has]
-        out[idx[c0 + has]] = np.minimum.reduceat(dist, first)
-    return out
 
 
 def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_mm: float,

@@ -24,7 +24,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from planning.collision import cloud_collision_free
-from planning.errors import InputError, ParameterError
+from planning.errors import ParameterError
 from planning.fixtures import BoxFixture, CylinderFixture, TableFixture, load_mesh
 from planning.fixtures import fixture_collision_free
 from planning.tool import ToolAssembly
@@ -36,13 +36,17 @@ _UNITS_MM = {"mm": 1.0, "m": 1000.0, "in": 25.4}
 @dataclass
 class GlobalVisibility:
     """``visible`` (n, m) bool after every filter; ``removed[name]`` (m,) int: sampled points that
-    filter removed per axis; ``placement_mm`` (3,): the part placement used; ``seconds[name]``."""
+    filter removed per axis; ``placement_mm`` (3,): the part placement used; ``fixtures``: the
+    fixture solids and table, ``forbidden_mm`` (K,3) the forbidden points (built once here, also the
+    tool paths' obstacles); ``seconds[name]``."""
 
     visible: np.ndarray
     removed: dict[str, np.ndarray]
     placement_mm: np.ndarray
     table_z_mm: Optional[float]
     n_obstacles: int
+    fixtures: list = field(default_factory=list)
+    forbidden_mm: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -115,10 +119,9 @@ def global_visibility(points: np.ndarray, sample_index: np.ndarray, normals: np.
         seconds["travel"] = time.perf_counter() - t0
         report(0.05, f"travel: {int(removed['travel'].sum())} pairs out of X/Y/Z travel")
 
-    table_z = None
+    solids, forbidden, table_z = build_fixtures(fixtures_params, placement, base_dir=base_dir)
     n_obst = 0
     if check_global:
-        solids, forbidden, table_z = build_fixtures(fixtures_params, placement, base_dir=base_dir)
         if solids:
             t0 = time.perf_counter()
             ok = fixture_collision_free(centres, axes, tool, solids, candidates=vis,
@@ -138,5 +141,6 @@ def global_visibility(points: np.ndarray, sample_index: np.ndarray, normals: np.
         removed["cloud_collision"] = (vis & ~ok).sum(axis=0)
         vis &= ok
         seconds["cloud_collision"] = time.perf_counter() - t0
-    return GlobalVisibility(visible=vis, removed=removed, placement_mm=placement, table_z_mm=table_z,
-                            n_obstacles=n_obst, seconds=seconds)
+    return GlobalVisibility(visible=vis, removed=removed, placement_mm=placement,
+                            table_z_mm=table_z if check_global else None, n_obstacles=n_obst, fixtures=solids,
+                            forbidden_mm=forbidden, seconds=seconds)

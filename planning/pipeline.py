@@ -18,7 +18,7 @@ from planning.areas import Areas, assign_areas
 from planning.cloud import Cloud
 from planning.errors import InputError, ParameterError
 from planning.gaussmap import candidate_axes
-from planning.globalvis import build_fixtures, global_visibility
+from planning.globalvis import global_visibility
 from planning.machine import load_profile, machine_visibility
 from planning.normals import sphere_throwing
 from planning.post.programs import post_areas
@@ -250,13 +250,12 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     area_paths = []
     pp = config.paths
     if (pp.finishing.enabled or pp.roughing.enabled) and selected.size:
-        solids, forbidden, _ = build_fixtures(config.fixtures, gv.placement_mm, base_dir=base_dir)
         area_paths = timed("paths", lambda: area_toolpaths(
-            points, areas.input_labels, sel_axes, tool=config.tool.assembly(), paths_params=pp, fixtures=solids,
-            forbidden=forbidden, max_slope_deg=min(float(config.visibility.cone_deg[1]), 87.0),
+            points, areas.input_labels, sel_axes, tool=config.tool.assembly(), paths_params=pp, fixtures=gv.fixtures,
+            forbidden=gv.forbidden_mm, max_slope_deg=min(float(config.visibility.cone_deg[1]), 87.0),
             progress=_stage_progress(progress, "paths")))
         for ap in area_paths:
-            if ap.finishing is not None and ap.min_clearance_mm < config.tool.diameter_mm / 2 - pp.finishing.tolerance_mm:
+            if ap.finishing is not None and not ap.gouge_free:
                 warnings.append(f"area {ap.area}: the finishing path comes {ap.min_clearance_mm:.4f} mm from a cloud "
                                 f"point, closer than R - tolerance: it would gouge")
             if ap.holder_collisions or ap.fixture_collisions:

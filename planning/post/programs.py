@@ -78,7 +78,7 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, co
                 n_cl_before_reduction=int(info.toolpath.n_moves), n_arcs=int(ap.n_arcs),
                 n_retracts=int(info.n_retracts), length_mm=round(float(_cut_length(ap.finishing)), 3),
                 tolerance_mm=float(fp.tolerance_mm), min_clearance_mm=round(float(ap.min_clearance_mm), 6),
-                gouge_free=bool(ap.min_clearance_mm >= R - fp.tolerance_mm - 1e-12),
+                gouge_free=ap.gouge_free,
                 holder_collisions=int(ap.holder_collisions), fixture_collisions=int(ap.fixture_collisions),
                 machining_time_s=round(machining_time_s(ap.finishing, feed_mm_min=post.feed_mm_min,
                                                         plunge_mm_min=post.plunge_mm_min,

@@ -62,12 +62,18 @@ class AreaPaths:
     finishing_info: FinishingPath | None
     roughing: Toolpath | None = None
     roughing_info: object = None
+    radius_mm: float = 0.0
+    tolerance_mm: float = 0.0
     min_clearance_mm: float = math.inf
-    n_cl_dropped: int = 0
     n_arcs: int = 0
     holder_collisions: int = 0
     fixture_collisions: int = 0
     seconds: dict = field(default_factory=dict)
+
+    @property
+    def gouge_free(self) -> bool:
+        """The final finishing moves keep at least R - tolerance from every cloud point."""
+        return self.min_clearance_mm >= self.radius_mm - self.tolerance_mm - 1e-12
 
 
 def rotate_frame(frame: AreaFrame, angle_deg: float) -> AreaFrame:
@@ -102,9 +108,8 @@ def _fixture_points(f) -> np.ndarray:
     raise TypeError(f"no bounding points for {type(f).__name__}")
 
 
-def obstacle_top_mm(frame: AreaFrame, fixtures: Sequence, forbidden: np.ndarray, xy_lo, xy_hi,
-                    reach_mm: float) -> float:
-    """The highest frame z (mm) of the fixtures, the table and the forbidden points over the window
+def obstacle_top_mm(frame: AreaFrame, fixtures: Sequence, xy_lo, xy_hi, reach_mm: float) -> float:
+    """The highest frame z (mm) of the fixtures and the table over the window
     ``[xy_lo, xy_hi]`` (frame x, y) grown by ``reach_mm`` (the holder's largest radius): the tool
     moving at a height above it, over that window, cannot touch them. Finite fixtures are bounded by
     their corners / circumscribed rims / vertices; the table (a plane) by its height at the window's
@@ -112,7 +117,6 @@ def obstacle_top_mm(frame: AreaFrame, fixtures: Sequence, forbidden: np.ndarray,
     lo = np.asarray(xy_lo, dtype=np.float64) - reach_mm
     hi = np.asarray(xy_hi, dtype=np.float64) + reach_mm
     top = -math.inf
-    pts = [np.asarray(forbidden, dtype=np.float64).reshape(-1, 3)]
     for f in fixtures:
         if isinstance(f, TableFixture):
             corners = np.array([[x, y] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])])
@@ -124,13 +128,6 @@ def obstacle_top_mm(frame: AreaFrame, fixtures: Sequence, forbidden: np.ndarray,
             z = (d - corners @ n[:2]) / n[2]
             if n[2] > 0:                                 # frame +z points away from the table: material below
                 top = max(top, float(z.max()))
-    q = frame.to_frame(pts[0])
-    if q.size:
-        inside = np.all((q[:, :2] >= lo) & (q[:, :2] <= hi), axis=1)
-        if inside.any():
-            top = max(top, float(q[inside, 2].max()))
-    for f in fixtures:
-        if isinstance(f, TableFixture):
             continue
         qq = frame.to_frame(_fixture_points(f))
         # a solid whose frame bounding box meets the window counts with its highest point
@@ -178,11 +175,12 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
         area_f = cloud_f[:points.shape[0]][mine]
         lo = area_f[:, :2].min(axis=0) - fp.margin_mm - R
         hi = area_f[:, :2].max(axis=0) + fp.margin_mm + R
-        fix_top = obstacle_top_mm(frame, fixtures, np.zeros((0, 3)), lo, hi, reach)
+        fix_top = obstacle_top_mm(frame, fixtures, lo, hi, reach)
         top = max(0.0, float(cloud_f[:, 2].max()), fix_top)
         safe = top + paths_params.safe_clearance_mm + R
         sec["frame"] = time.perf_counter() - t0
-        ap = AreaPaths(area=i, frame=frame, safe_z_mm=safe, finishing=None, finishing_info=None)
+        ap = AreaPaths(area=i, frame=frame, safe_z_mm=safe, finishing=None, finishing_info=None, radius_mm=R,
+                       tolerance_mm=tol)
 
         floor = float(area_f[:, 2].min()) + rp.stock_allowance_mm
         if rp.enabled and floor < float(cloud_f[:, 2].max()) + rp.stock_margin_mm:
@@ -205,7 +203,6 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
                                    safe_z_mm=safe, lead_mm=fp.lead_mm, max_slope_deg=max_slope_deg, binned=binned)
             sec["finishing"] = time.perf_counter() - t0
             tp = fin.toolpath
-            n0 = tp.n_moves
             t0 = time.perf_counter()
             # arc fitting also reduces the straight stretches it leaves, against the ORIGINAL CL
             # points (reducing first would let the arcs drift 2 tol from them)
@@ -220,7 +217,6 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
             ap.min_clearance_mm = min(ap.min_clearance_mm, float(R))
             sec["verify"] = time.perf_counter() - t0
             ap.finishing, ap.finishing_info = tp, fin
-            ap.n_cl_dropped = n0 - tp.n_moves
             ap.n_arcs = _count_arcs(tp)
             # cutter, shank and holder above the ball at every CL point of the cut
             t0 = time.perf_counter()

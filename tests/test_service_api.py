@@ -108,7 +108,8 @@ def test_artifacts_list_and_download(a, done_job):
         assert nc.status_code == 200 and nc.headers["content-type"].startswith("text/plain")
         assert "G68.2" in nc.text and nc.text.rstrip().endswith("%")
         moves = a.get(items[st["path"]["moves"]]["href"]).json()
-        assert moves and nc.text.count("\n") > 20
+        assert moves["area_id"] == st["id"] and moves["setup"]["tool_axis_part"] == pytest.approx(st["tool_axis"])
+        assert nc.text.count("\n") > 20
         assert npz[f"cl_{st['id']}"].shape[0] == st["path"]["finishing"]["n_cl"]
 
 

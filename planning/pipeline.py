@@ -177,10 +177,11 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
 
     # 3. tool visibility (§2.2.3), then travel (Fig. 4c) and global visibility (§2.2.4)
     vp = config.visibility
+    tool = config.tool.assembly()          # cutter, shank and holder: visibility, paths and posts
 
     def visibility():
         cone = cone_visibility(normals, axes, vp.cone_deg)
-        gv = global_visibility(points, sample_index, normals, axes, angles, cone, tool=config.tool.assembly(),
+        gv = global_visibility(points, sample_index, normals, axes, angles, cone, tool=tool,
                                profile=profile, fixtures_params=config.fixtures, check_global=vp.global_,
                                check_travel=vp.travel, obstacles=vp.obstacles, base_dir=base_dir,
                                progress=_stage_progress(progress, "visibility"))
@@ -251,7 +252,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     pp = config.paths
     if (pp.finishing.enabled or pp.roughing.enabled) and selected.size:
         area_paths = timed("paths", lambda: area_toolpaths(
-            points, areas.input_labels, sel_axes, tool=config.tool.assembly(), paths_params=pp, fixtures=gv.fixtures,
+            points, areas.input_labels, sel_axes, tool=tool, paths_params=pp, fixtures=gv.fixtures,
             forbidden=gv.forbidden_mm, max_slope_deg=min(float(config.visibility.cone_deg[1]), 87.0),
             progress=_stage_progress(progress, "paths")))
         for ap in area_paths:
@@ -266,7 +267,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     if area_paths:
         programs, path_summaries = timed("post", lambda: post_areas(
             area_paths, setups_axes=sel_axes, rotary_deg=angles[selected], profile=profile,
-            placement_mm=gv.placement_mm, config=config))
+            placement_mm=gv.placement_mm, gauge_length_mm=tool.gauge_length_mm, config=config))
 
     names = _ROTARY_NAMES[profile.kinematics]
     setups = []

@@ -42,13 +42,13 @@ def _operations(ap, config) -> list[Operation]:
     return ops
 
 
-def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, config):
+def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, gauge_length_mm, config):
     """Programs ``{artifact name: text}`` and path summaries ``{area: AreaPathSummary}`` for every
-    area in ``area_paths``; ``rotary_deg`` (k,2) (tilt, rotary) of each set-up."""
+    area in ``area_paths``; ``rotary_deg`` (k,2) (tilt, rotary) of each set-up; ``gauge_length_mm``:
+    tool tip to spindle gauge line of the finishing tool."""
     post = config.post
     fp = config.paths.finishing
     R = config.tool.diameter_mm / 2.0
-    tool = config.tool.assembly()
     files: dict[str, str] = {}
     summaries: dict[int, AreaPathSummary] = {}
     for ap in area_paths:
@@ -64,7 +64,7 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, co
                 name = f"area_{i}.{dialect}.nc"
                 files[name] = _POSTS[dialect](ops, ap.frame, setup_id=i, area_id=i, tool_axis=setups_axes[i],
                                               rotary_deg=rotary_deg[i], profile=profile, placement_mm=placement_mm,
-                                              gauge_length_mm=tool.gauge_length_mm, options=options)
+                                              gauge_length_mm=gauge_length_mm, options=options)
                 names[dialect] = name
             moves_name = f"area_{i}.moves.json"
             files[moves_name] = neutral_json(

@@ -163,6 +163,16 @@ def cmd_serve(args) -> int:
                  config=args.config, log_level=args.log_level)
 
 
+def cmd_worker(args) -> int:
+    from scanmill.worker import run_worker
+    return run_worker(concurrency=args.concurrency, name=args.name, config=args.config, log_level=args.log_level)
+
+
+def cmd_db(args) -> int:
+    from scanmill.worker import upgrade_database
+    return upgrade_database(args.config)
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="scanmill", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -200,6 +210,18 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--config", help="settings file, TOML or JSON (SCANMILL_CONFIG)")
     v.add_argument("--log-level", choices=["critical", "error", "warning", "info", "debug"])
     v.set_defaults(func=cmd_serve)
+
+    w = sub.add_parser("worker", help="run a Celery worker for the distributed backend (SCANMILL_BROKER_URL)")
+    w.add_argument("--concurrency", type=int, help="jobs run at once on this machine (SCANMILL_WORKERS)")
+    w.add_argument("--name", help="Celery node name (default scanmill-PID@HOST)")
+    w.add_argument("--config", help="settings file, TOML or JSON (SCANMILL_CONFIG)")
+    w.add_argument("--log-level", choices=["critical", "error", "warning", "info", "debug"])
+    w.set_defaults(func=cmd_worker)
+
+    d = sub.add_parser("db", help="job database maintenance (SCANMILL_DATABASE_URL)")
+    d.add_argument("action", choices=["upgrade"], help="upgrade: create or migrate the schema to the newest")
+    d.add_argument("--config", help="settings file, TOML or JSON (SCANMILL_CONFIG)")
+    d.set_defaults(func=cmd_db)
     return ap
 
 

@@ -1,9 +1,10 @@
-"""``scanmill serve``: run the planning service (FastAPI under uvicorn) on the embedded defaults.
+"""``scanmill serve``: run the planning service (FastAPI under uvicorn).
 
-Defaults: SQLite job store and files under ``SCANMILL_DATA_DIR`` (``./scanmill-data``), local
-worker processes, ``127.0.0.1:8000``. Settings come from ``SCANMILL_*`` variables and an optional
-TOML/JSON file (``--config`` or ``SCANMILL_CONFIG``); the flags here win over both. One server per
-data directory (a lock file enforces it); uvicorn runs one process, which holds the job runner.
+Defaults (embedded): SQLite job store and files under ``SCANMILL_DATA_DIR`` (``./scanmill-data``),
+local worker processes, ``127.0.0.1:8000``; one server per data directory (a lock file enforces it).
+With ``SCANMILL_BACKEND=celery`` the server only accepts and serves jobs: ``scanmill worker``
+processes run them (see README, "Scale out"). Settings come from ``SCANMILL_*`` variables and an
+optional TOML/JSON file (``--config`` or ``SCANMILL_CONFIG``); the flags here win over both.
 """
 
 from __future__ import annotations
@@ -16,7 +17,9 @@ def serve(*, host: str | None = None, port: int | None = None, data_dir: str | N
           workers: int | None = None, config: str | None = None, log_level: str | None = None) -> int:
     """Load the settings, build the app and serve it until interrupted. Returns an exit status."""
     from service.settings import SettingsError, load_settings
-    from service.storage import Storage, StorageLocked
+    from service.db import DatabaseError, database_url
+    from service.storage import StorageLocked, open_storage
+    from service.store import JobStore
 
     try:
         settings = load_settings(config, host=host, port=port, data_dir=data_dir, workers=workers,
@@ -24,11 +27,15 @@ def serve(*, host: str | None = None, port: int | None = None, data_dir: str | N
     except SettingsError as exc:
         print(f"error [invalid_settings]: {exc}", file=sys.stderr)
         return 2
-    storage = Storage(settings.data_dir)
+    storage = open_storage(settings.data_dir, settings.storage_kind)
     try:                       # fail early and clearly if another server holds this data directory
         storage.open()
+        JobStore(database_url(settings.database_url, settings.data_dir)).close()   # reachable, migrated
     except StorageLocked as exc:
         print(f"error [data_dir_locked]: {exc}", file=sys.stderr)
+        return 2
+    except DatabaseError as exc:
+        print(f"error [database_unavailable]: {exc}", file=sys.stderr)
         return 2
     finally:
         storage.close()
@@ -43,8 +50,10 @@ def serve(*, host: str | None = None, port: int | None = None, data_dir: str | N
             f"loopback clients only, although it listens on {settings.host}"
         print(f"warning: SCANMILL_API_KEYS is empty: no authentication; anonymous requests accepted from {where}",
               file=sys.stderr)
-    print(f"scanmill serve: http://{settings.host}:{settings.port}  data: {settings.data_dir.resolve()}  "
-          f"workers: {settings.workers}", file=sys.stderr, flush=True)
+    runs = f"workers: {settings.workers}" if settings.backend == "embedded" else \
+        f"backend: celery (queue {settings.celery_queue})"
+    print(f"scanmill serve: http://{settings.host}:{settings.port}  data: {settings.data_dir.resolve()}  {runs}",
+          file=sys.stderr, flush=True)
     app = create_app(settings)
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=settings.log_level,
                 timeout_graceful_shutdown=10, access_log=settings.log_level == "debug")

@@ -6,11 +6,20 @@ cd "$(dirname "$0")/.."
 VENV=${VENV:-.venv}
 PYTHON=${PYTHON:-python3}
 
-if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
-  echo "setup: installing libusb-1.0-0 (needed by Open3D)"
+# System packages: libusb-1.0-0 (Open3D's wheel links it); redis-server and postgresql, which the tests
+# of the distributed backend start on 127.0.0.1 (SCANMILL_SKIP_SERVERS=1 leaves them out where only
+# the embedded service is wanted).
+APT=()
+ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || APT+=(libusb-1.0-0)
+if [ "${SCANMILL_SKIP_SERVERS:-0}" != "1" ]; then
+  command -v redis-server >/dev/null 2>&1 || [ -x /usr/bin/redis-server ] || APT+=(redis-server)
+  ls /usr/lib/postgresql/*/bin/postgres >/dev/null 2>&1 || APT+=(postgresql)
+fi
+if [ ${#APT[@]} -gt 0 ]; then
+  echo "setup: installing ${APT[*]} (apt)"
   SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
   $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${APT[@]}" >/dev/null
 fi
 
 if [ ! -x "$VENV/bin/python" ]; then

@@ -1,8 +1,10 @@
 """The application factory: ``create_app(settings)`` builds the FastAPI app of ``scanmill serve``.
 
-At start (lifespan) it opens the data directory (taking its lock), the SQLite job store, recovers
-jobs a previous run left running, and starts the worker runner; at shutdown it stops the workers
-and puts their jobs back in the queue. Routers are thin; the settings, the job service and the
+At start (lifespan) it opens the storage (the local form takes the data directory's lock), the job
+store (SQLite or PostgreSQL, migrated to the newest schema) and the execution backend
+(``SCANMILL_BACKEND``: embedded worker processes, or Celery workers through Redis), which settles
+what a previous run left behind and starts; at shutdown the embedded backend stops its workers and
+puts their jobs back in the queue. Routers are thin; the settings, the job service and the
 caller are injected as dependencies (``service.deps``).
 """
 
@@ -22,9 +24,10 @@ from service.problems import install_handlers
 from service.routers import jobs as jobs_routes
 from service.routers import system as system_routes
 from service.settings import Settings, load_settings
-from service.storage import Storage
+from service.backends import make_backend
+from service.db import database_url
+from service.storage import open_storage
 from service.store import JobStore
-from service.workers import JobRunner
 
 log = logging.getLogger("scanmill.service")
 
@@ -50,25 +53,29 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        storage = Storage(settings.data_dir)
+        storage = open_storage(settings.data_dir, settings.storage_kind)
         storage.open()
-        store = JobStore(storage.db_path)
-        runner = JobRunner(settings, store, storage)
-        recovered = runner.recover()
+        try:
+            store = JobStore(database_url(settings.database_url, settings.data_dir))
+        except BaseException:
+            storage.close()
+            raise
+        backend = make_backend(settings, store, storage)
+        recovered = backend.recover()
         if any(recovered.values()):
             log.warning("recovered jobs left running by the previous run: %s",
                         {k: len(v) for k, v in recovered.items()})
         if settings.anonymous:
             log.warning("SCANMILL_API_KEYS is empty: anonymous requests are accepted from loopback clients only")
-        runner.start()
-        app.state.storage, app.state.store, app.state.runner = storage, store, runner
-        app.state.jobs = JobService(settings, store, storage, runner, anyio.CapacityLimiter(1))
-        log.info("scanmill %s serving; data in %s; %d worker(s)", scanmill.__version__, storage.root,
-                 settings.workers)
+        backend.start()
+        app.state.storage, app.state.store, app.state.backend = storage, store, backend
+        app.state.jobs = JobService(settings, store, storage, backend, anyio.CapacityLimiter(1))
+        log.info("scanmill %s serving; backend %s; jobs in %s; files in %s (%s)", scanmill.__version__,
+                 backend.name, store.display_url, storage.root, storage.kind)
         try:
             yield
         finally:
-            runner.stop()
+            backend.stop()
             store.close()
             storage.close()
 

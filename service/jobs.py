@@ -1,6 +1,6 @@
 """The jobs use cases behind the routes: submit, read, list, cancel, delete, results and artifacts.
 
-:class:`JobService` glues the store (SQLite), the storage (files) and the runner (workers); the
+:class:`JobService` glues the store (SQL), the storage (files) and the execution backend; the
 routers only parse HTTP and call it. :func:`job_view` turns a stored row into the public
 :class:`schemas.api.Job` resource.
 """
@@ -37,7 +37,7 @@ from service.problems import ApiError
 from service.settings import Settings
 from service.storage import Storage, is_job_id, media_type, new_job_id
 from service.store import IdempotencyConflict, JobRecord, JobStore
-from service.workers import JobRunner
+from service.backends import ExecutionBackend
 
 log = logging.getLogger("scanmill.service")
 
@@ -81,9 +81,10 @@ def decode_cursor(cursor: str) -> int:
 class JobService:
     """What the routes do, independent of HTTP details."""
 
-    def __init__(self, settings: Settings, store: JobStore, storage: Storage, runner: JobRunner,
+    def __init__(self, settings: Settings, store: JobStore, storage: Storage, backend: ExecutionBackend,
                  limiter: anyio.CapacityLimiter):
-        self.settings, self.store, self.storage, self.runner, self.limiter = settings, store, storage, runner, limiter
+        self.settings, self.store, self.storage, self.backend, self.limiter = (settings, store, storage, backend,
+                                                                              limiter)
 
     # -- submit ----------------------------------------------------------------------------------
     async def submit(self, request: Request, who: Principal, idempotency_key: str | None) -> tuple[Job, bool]:
@@ -102,7 +103,7 @@ class JobService:
                 return self._replay(exc.existing, sub), True
         finally:
             self.storage.discard(sub.staging)      # a no-op once it was moved into the job's folder
-        self.runner.wake()
+        await anyio.to_thread.run_sync(self.backend.submitted, job)
         log.info("job %s: accepted (%s, %s points)", job.id, job.input.get("name"), job.input.get("n_points"))
         return job_view(job), False
 
@@ -152,13 +153,13 @@ class JobService:
         if job.status not in FINISHED_STATUSES:
             cancelled = self.store.cancel(job.id, who.owner)
             if cancelled is not None:
-                if self.runner.kill(job.id, "cancel"):
+                if self.backend.cancel(job.id):
                     log.info("job %s: cancelled; its worker was stopped", job.id)
                 else:
                     log.info("job %s: cancelled before it started", job.id)
                 return job_view(self.store.get(job.id) or cancelled)
             job = self._get(job_id, who)           # it finished meanwhile: delete it below
-        self.runner.kill(job.id, "cancel")         # a cancelled job's worker may still be stopping
+        self.backend.cancel(job.id)                # a cancelled job's worker may still be stopping
         if self.store.delete(job.id, who.owner):
             self.storage.remove_job(job.id)
             log.info("job %s: deleted with its files", job.id)

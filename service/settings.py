@@ -15,7 +15,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, Mapping
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 ENV_PREFIX = "SCANMILL_"
 
@@ -34,7 +34,43 @@ class Settings(BaseModel):
     model_config = ConfigDict(extra="forbid", validate_assignment=True)
 
     data_dir: Path = Field(Path("scanmill-data"),
-                           description="Job database (SQLite), uploads and artifacts live here.")
+                           description="Uploads and artifacts live here (and the SQLite job database when "
+                                       "SCANMILL_DATABASE_URL is unset). With the Celery backend every API and "
+                                       "worker machine mounts the same shared directory here.")
+    backend: str = Field("embedded", pattern="^(embedded|celery)$",
+                         description="Where jobs run: 'embedded' (worker processes of the API server) or "
+                                     "'celery' (a pool of `scanmill worker` machines fed through the broker).")
+    database_url: str | None = Field(
+        None, description="Job store: unset = SQLite in data_dir; postgresql+psycopg://USER:PASSWORD@HOST:PORT/DB "
+                          "for PostgreSQL (needed when API and workers are on several machines).")
+    broker_url: str | None = Field(None, description="Celery broker, redis://HOST:PORT/DB (backend 'celery' only).")
+    storage: str | None = Field(
+        None, pattern="^(local|shared)$",
+        description="Artifact storage: 'local' (one server owns data_dir, takes a lock on it) or 'shared' "
+                    "(a directory mounted by several machines: no lock, per-host upload staging). "
+                    "Unset: local for the embedded backend, shared for Celery.")
+    celery_queue: str = Field("scanmill", pattern="^[A-Za-z0-9_.-]{1,64}$", description="Celery queue of the jobs.")
+    max_tasks_per_child: int = Field(
+        10, ge=1, le=100000, description="Celery: jobs a worker child process runs before it is replaced "
+                                         "(returns memory numpy/open3d kept).")
+    heartbeat_s: float = Field(5.0, gt=0, le=600,
+                               description="Celery: a running job writes a heartbeat to the job store this often, s.")
+    lease_s: float = Field(
+        30.0, gt=0, le=86400,
+        description="Celery: a running job whose heartbeat is older than this (s) has lost its worker; a "
+                    "redelivered task takes it over, or the API's reaper queues it again.")
+    reaper_interval_s: float = Field(
+        10.0, ge=0, le=3600,
+        description="Celery: how often the API hands unsent jobs to the broker and re-queues jobs whose worker "
+                    "is gone (s); 0 turns the reaper off (then only the broker's redelivery recovers them).")
+    hard_time_limit_grace_s: float = Field(
+        60.0, ge=1, le=86400,
+        description="Celery: a job's hard time limit (the child is killed) is its soft limit plus this, s.")
+    broker_visibility_timeout_s: float | None = Field(
+        None, gt=0, le=30 * 86400,
+        description="Redis: an unacknowledged task is delivered again after this many seconds (its worker is "
+                    "presumed dead). Must exceed the longest job: default job_time_limit_s + "
+                    "hard_time_limit_grace_s + 600.")
     host: str = Field("127.0.0.1", description="Address uvicorn binds to.")
     port: int = Field(8000, ge=0, le=65535, description="TCP port (0: any free port).")
     api_keys: list[str] = Field(
@@ -76,6 +112,24 @@ class Settings(BaseModel):
                     raise ValueError("every API key needs at least 8 characters and no spaces")
             return keys
         return v
+
+    @model_validator(mode="after")
+    def _backend_needs(self) -> "Settings":
+        if self.backend == "celery" and not self.broker_url:
+            raise ValueError("backend 'celery' needs SCANMILL_BROKER_URL (redis://HOST:PORT/DB)")
+        if self.broker_url and not self.broker_url.startswith(("redis://", "rediss://", "memory://")):
+            raise ValueError("SCANMILL_BROKER_URL must be a redis:// (or rediss://) URL")
+        return self
+
+    @property
+    def storage_kind(self) -> str:
+        """'local' or 'shared' (the setting, or the backend's default)."""
+        return self.storage or ("shared" if self.backend == "celery" else "local")
+
+    @property
+    def visibility_timeout_s(self) -> float:
+        """The broker's redelivery timeout: set, or longer than the longest job can run."""
+        return self.broker_visibility_timeout_s or (self.job_time_limit_s + self.hard_time_limit_grace_s + 600.0)
 
     @property
     def anonymous(self) -> bool:
@@ -128,6 +182,9 @@ def load_settings(config_file: str | os.PathLike | None = None, *, env: Mapping[
     except ValidationError as exc:
         msgs = []
         for e in exc.errors():
-            name = str(e["loc"][0]) if e.get("loc") else "?"
+            if not e.get("loc"):            # a check across settings: its message names the variables
+                msgs.append(str(e["msg"]).removeprefix("Value error, "))
+                continue
+            name = str(e["loc"][0])
             msgs.append(f"{source.get(name, ENV_PREFIX + name.upper())}: {e['msg']}")
         raise SettingsError("invalid settings: " + "; ".join(msgs)) from None

@@ -1,10 +1,22 @@
 """Files of the service under ``SCANMILL_DATA_DIR``: uploads, artifacts, atomic writes, safe names.
 
+The storage interface is :class:`Storage`: the API stages uploads and serves artifacts through it,
+workers read inputs and publish artifacts through it; both address a job's files only by job id,
+attempt and artifact name (the job store keeps paths relative to the job's folder). Two forms
+(``SCANMILL_STORAGE``):
+
+* ``local`` (:class:`Storage`, the embedded default): one server owns the directory, takes a lock
+  on it, and at start sweeps everything no job owns.
+* ``shared`` (:class:`SharedStorage`, the Celery default): a directory that every API and worker
+  machine mounts (NFS, CephFS, SMB, or an S3 bucket through a POSIX mount that supports rename,
+  such as s3fs or JuiceFS). No lock; each host stages uploads in its own ``tmp/HOST/``; the start
+  sweep removes only this host's staging and job folders that no job has owned for an hour.
+
 Layout::
 
-    DATA_DIR/scanmill.sqlite3        the job store (service/store.py)
-    DATA_DIR/server.lock             held by the one server using this directory
-    DATA_DIR/tmp/                    uploads being received (emptied at start)
+    DATA_DIR/scanmill.sqlite3        the job store when SCANMILL_DATABASE_URL is unset (service/store.py)
+    DATA_DIR/server.lock             held by the one server using this directory (local form)
+    DATA_DIR/tmp/                    uploads being received (emptied at start; tmp/HOST/ in the shared form)
     DATA_DIR/jobs/ID/input/          the accepted cloud (cloud.EXT) and fixtures (fixture-N.EXT)
     DATA_DIR/jobs/ID/work-N/         attempt N writing its artifacts (removed when it ends)
     DATA_DIR/jobs/ID/result/         the artifacts of the succeeded job (renamed from work-N)
@@ -25,6 +37,8 @@ import hashlib
 import os
 import re
 import shutil
+import socket
+import time
 import uuid
 from pathlib import Path
 from typing import BinaryIO, Iterable
@@ -123,7 +137,9 @@ def copy_stream(src: BinaryIO, dst_path: Path, *, max_bytes: int, chunk: int = 1
 
 
 class Storage:
-    """The service's data directory: paths, staging, atomic moves, cleanup."""
+    """The service's data directory, owned by one server (local form): paths, staging, atomic moves, cleanup."""
+
+    kind = "local"
 
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root).resolve()
@@ -254,3 +270,55 @@ class Storage:
                 shutil.rmtree(w, ignore_errors=True)
                 removed.append(str(w))
         return removed
+
+
+class SharedStorage(Storage):
+    """A data directory mounted by several API and worker machines (shared form).
+
+    No directory lock; uploads are staged in ``tmp/HOST/`` so that one host's start sweep never
+    touches another host's uploads in flight; job folders without a job are removed only once they
+    are older than ``orphan_age_s`` (a job's folder exists a moment before its row is committed).
+    """
+
+    kind = "shared"
+
+    def __init__(self, root: str | os.PathLike, *, host: str | None = None, orphan_age_s: float = 3600.0):
+        super().__init__(root)
+        self.host = re.sub(r"[^A-Za-z0-9_.-]", "_", host or socket.gethostname())[:64] or "host"
+        self.tmp_dir = self.root / "tmp" / self.host
+        self.orphan_age_s = float(orphan_age_s)
+
+    def open(self) -> None:
+        """Create the folders (no lock: other machines use the directory at the same time)."""
+        for d in (self.root, self.jobs_dir, self.tmp_dir):
+            d.mkdir(parents=True, exist_ok=True)
+
+    def close(self) -> None:
+        pass
+
+    def sweep(self, known_jobs: Iterable[str]) -> list[str]:
+        """Remove this host's staged uploads and job folders no job has owned for ``orphan_age_s``."""
+        known = set(known_jobs)
+        removed: list[str] = []
+        for p in self.tmp_dir.iterdir():
+            shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+            removed.append(str(p))
+        horizon = time.time() - self.orphan_age_s
+        for p in self.jobs_dir.iterdir():
+            try:
+                old = p.stat().st_mtime < horizon
+            except OSError:
+                continue
+            if p.name not in known and old:
+                shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+                removed.append(str(p))
+        return removed
+
+
+def open_storage(data_dir: str | os.PathLike, kind: str = "local") -> Storage:
+    """The storage of ``kind`` ('local' or 'shared') over ``data_dir``, not yet opened."""
+    if kind == "shared":
+        return SharedStorage(data_dir)
+    if kind == "local":
+        return Storage(data_dir)
+    raise ValueError(f"unknown storage kind {kind!r} (local or shared)")

@@ -1,65 +1,43 @@
-"""The durable job store: one SQLite database in WAL mode, one row per job.
+"""The durable job store: one row per job in SQLite (embedded default) or PostgreSQL, through SQLAlchemy.
 
-Every state change is one short transaction with ``synchronous=FULL``, so an accepted job survives
-a crash of the process (and of the machine). Transitions are conditional updates, so a late worker
-cannot overwrite a job that was cancelled or re-run meanwhile::
+Every state change is one short conditional statement in its own transaction (SQLite: WAL with
+``synchronous=FULL``), so an accepted job survives a crash of the process (and of the machine),
+and a late worker cannot overwrite a job that was cancelled or re-run meanwhile (fencing by
+``status`` and ``attempts``)::
 
     queued  --claim-->  running  --finish-->  succeeded | failed
     queued | running  --cancel-->  cancelled
-    running  --recover (at start)-->  queued (again, attempts < max) | failed 'interrupted' | succeeded
+    running  --recover (embedded, at start)-->  queued (attempts < max) | failed 'interrupted' | succeeded
+    running, heartbeat older than the lease  --take over (Celery redelivery)-->  running (attempts + 1)
+                                             --requeue (reaper)-->  queued | failed 'worker_lost'
 
-Each thread gets its own connection; reads never block on the writer (WAL).
+The schema comes from the Alembic migrations (:mod:`service.db`), applied when a store opens.
 """
 
 from __future__ import annotations
 
 import json
-import sqlite3
-import threading
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any, Iterator
 
-SCHEMA_VERSION = 1
+import sqlalchemy as sa
+from sqlalchemy.engine import URL
 
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS jobs (
-    seq             INTEGER PRIMARY KEY AUTOINCREMENT,
-    id              TEXT NOT NULL UNIQUE,
-    owner           TEXT NOT NULL,
-    status          TEXT NOT NULL CHECK (status IN ('queued','running','succeeded','failed','cancelled')),
-    stage           TEXT,
-    progress        REAL NOT NULL DEFAULT 0,
-    message         TEXT,
-    created_at      TEXT NOT NULL,
-    started_at      TEXT,
-    finished_at     TEXT,
-    updated_at      TEXT NOT NULL,
-    attempts        INTEGER NOT NULL DEFAULT 0,
-    time_limit_s    REAL NOT NULL,
-    parameters      TEXT NOT NULL,
-    input           TEXT NOT NULL,
-    error_code      TEXT,
-    error_message   TEXT,
-    result          TEXT,
-    warnings        TEXT NOT NULL DEFAULT '[]',
-    idempotency_key TEXT,
-    request_hash    TEXT,
-    UNIQUE (owner, idempotency_key)
-);
-CREATE INDEX IF NOT EXISTS jobs_owner_seq ON jobs (owner, seq);
-CREATE INDEX IF NOT EXISTS jobs_status_seq ON jobs (status, seq);
-"""
+from service.db import database_url, jobs, make_engine, upgrade
 
-_COLUMNS = ("seq, id, owner, status, stage, progress, message, created_at, started_at, finished_at, updated_at, "
-            "attempts, time_limit_s, parameters, input, error_code, error_message, result, warnings, "
-            "idempotency_key, request_hash")
+_COLS = [c for c in jobs.c]
 
 
 def now_iso() -> str:
     """The current UTC time, RFC 3339 with milliseconds."""
     return datetime.now(timezone.utc).isoformat(timespec="milliseconds")
+
+
+def iso_ago(seconds: float) -> str:
+    """The UTC time ``seconds`` ago, formatted like :func:`now_iso` (so that text comparison orders times)."""
+    return (datetime.now(timezone.utc) - timedelta(seconds=float(seconds))).isoformat(timespec="milliseconds")
 
 
 class IdempotencyConflict(Exception):
@@ -96,10 +74,13 @@ class JobRecord:
     warnings: list[str] = field(default_factory=list)
     idempotency_key: str | None = None
     request_hash: str | None = None
+    worker: str | None = None
+    heartbeat_at: str | None = None
+    dispatched_at: str | None = None
 
     @classmethod
-    def from_row(cls, row: sqlite3.Row) -> "JobRecord":
-        d = dict(row)
+    def from_row(cls, row: Any) -> "JobRecord":
+        d = dict(row._mapping)
         d["parameters"] = json.loads(d["parameters"])
         d["input"] = json.loads(d["input"])
         d["result"] = json.loads(d["result"]) if d["result"] else None
@@ -108,61 +89,47 @@ class JobRecord:
 
 
 class JobStore:
-    """Jobs in SQLite (WAL). Safe to use from many threads; one connection per thread."""
+    """Jobs in SQLite or PostgreSQL. Safe to use from many threads and many processes.
 
-    def __init__(self, path: str | Path):
-        self.path = str(path)
-        self._local = threading.local()
-        self._conns: list[sqlite3.Connection] = []
-        self._conns_lock = threading.Lock()
-        c = self._conn()
-        c.executescript(_SCHEMA)          # idempotent; executescript commits by itself
-        version = c.execute("PRAGMA user_version").fetchone()[0]
-        if version == 0:
-            c.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
-        elif version > SCHEMA_VERSION:
-            raise RuntimeError(f"the job database {self.path} was written by a newer scanmill "
-                               f"(schema {version} > {SCHEMA_VERSION})")
+    ``database``: a SQLAlchemy URL (``sqlite:///PATH``, ``postgresql+psycopg://...``) or the path of
+    a SQLite file. The schema is migrated to the newest revision when the store opens.
+    """
 
-    # -- connections -------------------------------------------------------------------------
-    def _conn(self) -> sqlite3.Connection:
-        c = getattr(self._local, "conn", None)
-        if c is None:
-            c = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
-            c.row_factory = sqlite3.Row
-            c.execute("PRAGMA journal_mode=WAL")
-            c.execute("PRAGMA synchronous=FULL")
-            c.execute("PRAGMA busy_timeout=30000")
-            c.execute("PRAGMA foreign_keys=ON")
-            self._local.conn = c
-            with self._conns_lock:
-                self._conns.append(c)
-        return c
+    def __init__(self, database: str | Path | URL, *, migrate: bool = True):
+        if isinstance(database, Path) or (isinstance(database, str) and "://" not in database):
+            url = database_url(None, Path(database).parent).set(database=str(Path(database).resolve()))
+        else:
+            url = database_url(str(database) if not isinstance(database, URL) else
+                               database.render_as_string(hide_password=False), ".")
+        self.url = url
+        self.engine = make_engine(url)
+        self.dialect = self.engine.dialect.name
+        if migrate:
+            upgrade(self.engine)
 
-    class _Tx:
-        def __init__(self, conn: sqlite3.Connection):
-            self.conn = conn
-
-        def __enter__(self) -> sqlite3.Connection:
-            self.conn.execute("BEGIN IMMEDIATE")
-            return self.conn
-
-        def __exit__(self, exc_type, exc, tb) -> None:
-            self.conn.execute("COMMIT" if exc_type is None else "ROLLBACK")
-
-    def _tx(self) -> "_Tx":
-        return self._Tx(self._conn())
+    @property
+    def display_url(self) -> str:
+        """The database URL without its password (for logs)."""
+        return self.url.render_as_string(hide_password=True)
 
     def close(self) -> None:
-        """Close every connection (at shutdown)."""
-        with self._conns_lock:
-            for c in self._conns:
-                try:
-                    c.close()
-                except sqlite3.Error:  # pragma: no cover
-                    pass
-            self._conns.clear()
-        self._local = threading.local()
+        """Close every pooled connection (at shutdown)."""
+        self.engine.dispose()
+
+    # -- helpers -------------------------------------------------------------------------------
+    def _one(self, stmt) -> JobRecord | None:
+        with self.engine.begin() as c:
+            row = c.execute(stmt).fetchone()
+        return JobRecord.from_row(row) if row else None
+
+    def _count(self, stmt) -> int:
+        with self.engine.begin() as c:
+            return c.execute(stmt).rowcount
+
+    @staticmethod
+    def _is(job_id: str, attempt: int | None = None):
+        cond = (jobs.c.id == job_id) & (jobs.c.status == "running")
+        return cond if attempt is None else cond & (jobs.c.attempts == int(attempt))
 
     # -- create and read -----------------------------------------------------------------------
     def create(self, *, job_id: str, owner: str, parameters: dict[str, Any], input: dict[str, Any],
@@ -170,139 +137,184 @@ class JobStore:
                request_hash: str | None = None) -> JobRecord:
         """Insert a queued job. Raises :class:`IdempotencyConflict` if the owner already used the key."""
         t = now_iso()
+        stmt = jobs.insert().values(
+            id=job_id, owner=owner, status="queued", progress=0.0, created_at=t, updated_at=t,
+            time_limit_s=float(time_limit_s), parameters=json.dumps(parameters), input=json.dumps(input),
+            warnings=json.dumps(warnings or []), idempotency_key=idempotency_key, request_hash=request_hash,
+            message="waiting for a worker").returning(*_COLS)
         try:
-            with self._tx() as c:
-                row = c.execute(
-                    "INSERT INTO jobs (id, owner, status, progress, created_at, updated_at, time_limit_s, parameters, "
-                    "input, warnings, idempotency_key, request_hash, message) "
-                    "VALUES (?, ?, 'queued', 0, ?, ?, ?, ?, ?, ?, ?, ?, 'waiting for a worker') "
-                    f"RETURNING {_COLUMNS}",
-                    (job_id, owner, t, t, float(time_limit_s), json.dumps(parameters), json.dumps(input),
-                     json.dumps(warnings or []), idempotency_key, request_hash)).fetchone()
-        except sqlite3.IntegrityError:
+            return self._one(stmt)
+        except sa.exc.IntegrityError:
             existing = self.find_by_idempotency_key(owner, idempotency_key) if idempotency_key else None
             if existing is None:
                 raise
             raise IdempotencyConflict(existing) from None
-        return JobRecord.from_row(row)
 
     def get(self, job_id: str, owner: str | None = None) -> JobRecord | None:
         """The job, or None (also when ``owner`` is given and is not the job's owner)."""
-        if owner is None:
-            row = self._conn().execute(f"SELECT {_COLUMNS} FROM jobs WHERE id = ?", (job_id,)).fetchone()
-        else:
-            row = self._conn().execute(f"SELECT {_COLUMNS} FROM jobs WHERE id = ? AND owner = ?",
-                                       (job_id, owner)).fetchone()
+        cond = jobs.c.id == job_id
+        if owner is not None:
+            cond &= jobs.c.owner == owner
+        with self.engine.connect() as c:
+            row = c.execute(sa.select(*_COLS).where(cond)).fetchone()
         return JobRecord.from_row(row) if row else None
 
     def find_by_idempotency_key(self, owner: str, key: str) -> JobRecord | None:
-        row = self._conn().execute(f"SELECT {_COLUMNS} FROM jobs WHERE owner = ? AND idempotency_key = ?",
-                                   (owner, key)).fetchone()
+        with self.engine.connect() as c:
+            row = c.execute(sa.select(*_COLS).where((jobs.c.owner == owner) & (jobs.c.idempotency_key == key))
+                            ).fetchone()
         return JobRecord.from_row(row) if row else None
 
     def list(self, owner: str, *, status: str | None = None, before_seq: int | None = None,
              limit: int = 20) -> tuple[list[JobRecord], bool]:
         """The owner's jobs newest first (by acceptance order), after ``before_seq``; and whether more follow."""
-        sql = f"SELECT {_COLUMNS} FROM jobs WHERE owner = ?"
-        args: list[Any] = [owner]
+        q = sa.select(*_COLS).where(jobs.c.owner == owner)
         if status is not None:
-            sql += " AND status = ?"
-            args.append(status)
+            q = q.where(jobs.c.status == status)
         if before_seq is not None:
-            sql += " AND seq < ?"
-            args.append(int(before_seq))
-        sql += " ORDER BY seq DESC LIMIT ?"
-        args.append(int(limit) + 1)
-        rows = self._conn().execute(sql, args).fetchall()
+            q = q.where(jobs.c.seq < int(before_seq))
+        q = q.order_by(jobs.c.seq.desc()).limit(int(limit) + 1)
+        with self.engine.connect() as c:
+            rows = c.execute(q).fetchall()
         return [JobRecord.from_row(r) for r in rows[:limit]], len(rows) > limit
 
     def counts(self) -> dict[str, int]:
         """Number of jobs per status."""
-        rows = self._conn().execute("SELECT status, COUNT(*) FROM jobs GROUP BY status").fetchall()
+        with self.engine.connect() as c:
+            rows = c.execute(sa.select(jobs.c.status, sa.func.count()).group_by(jobs.c.status)).fetchall()
         return {r[0]: int(r[1]) for r in rows}
 
     def ids(self) -> Iterator[str]:
-        for (i,) in self._conn().execute("SELECT id FROM jobs"):
-            yield i
+        with self.engine.connect() as c:
+            return iter([r[0] for r in c.execute(sa.select(jobs.c.id))])
 
     # -- transitions ---------------------------------------------------------------------------
-    def claim_next(self) -> JobRecord | None:
-        """Move the oldest queued job to running (attempts + 1) and return it, or None."""
+    def claim_next(self, worker: str | None = None) -> JobRecord | None:
+        """Move the oldest queued job to running (attempts + 1) and return it, or None (embedded runner)."""
         t = now_iso()
-        with self._tx() as c:
-            row = c.execute(
-                "UPDATE jobs SET status = 'running', attempts = attempts + 1, started_at = ?, updated_at = ?, "
-                "stage = 'read', progress = 0, message = 'starting' "
-                "WHERE seq = (SELECT seq FROM jobs WHERE status = 'queued' ORDER BY seq LIMIT 1) "
-                "AND status = 'queued' "
-                f"RETURNING {_COLUMNS}", (t, t)).fetchone()
-        return JobRecord.from_row(row) if row else None
+        oldest = (sa.select(jobs.c.seq).where(jobs.c.status == "queued").order_by(jobs.c.seq).limit(1)
+                  .with_for_update(skip_locked=True).scalar_subquery())
+        return self._one(jobs.update().where((jobs.c.seq == oldest) & (jobs.c.status == "queued")).values(
+            status="running", attempts=jobs.c.attempts + 1, started_at=t, updated_at=t, heartbeat_at=t,
+            worker=worker, stage="read", progress=0.0, message="starting").returning(*_COLS))
+
+    def claim(self, job_id: str, worker: str, *, lease_s: float, max_attempts: int) -> tuple[str, JobRecord | None]:
+        """Start an attempt of ``job_id`` for a delivered task message (Celery backend).
+
+        Returns ``(outcome, job)``:
+        ``claimed`` the job was queued and now runs here (attempts + 1);
+        ``taken_over`` it was running but its heartbeat is older than ``lease_s`` (its worker died):
+        it now runs here (attempts + 1);
+        ``exhausted`` as ``taken_over`` but it had started ``max_attempts`` times: it is now failed
+        with code ``worker_lost``;
+        ``busy`` it runs elsewhere with a fresh heartbeat; ``finished`` it has ended or is gone.
+        """
+        t = now_iso()
+        start = dict(status="running", attempts=jobs.c.attempts + 1, started_at=t, updated_at=t, heartbeat_at=t,
+                     worker=worker, stage="read", progress=0.0, message=f"starting on {worker}"[:500])
+        job = self._one(jobs.update().where((jobs.c.id == job_id) & (jobs.c.status == "queued"))
+                        .values(**start).returning(*_COLS))
+        if job is not None:
+            return "claimed", job
+        stale = iso_ago(lease_s)
+        abandoned = self._is(job_id) & (jobs.c.heartbeat_at < stale)
+        job = self._one(jobs.update().where(abandoned & (jobs.c.attempts < int(max_attempts)))
+                        .values(**start).returning(*_COLS))
+        if job is not None:
+            return "taken_over", job
+        job = self._one(jobs.update().where(abandoned & (jobs.c.attempts >= int(max_attempts))).values(
+            status="failed", finished_at=t, updated_at=t, error_code="worker_lost",
+            error_message=self.lost_message(max_attempts), message="failed: worker_lost").returning(*_COLS))
+        if job is not None:
+            return "exhausted", job
+        current = self.get(job_id)
+        return ("busy" if current is not None and current.status == "running" else "finished"), current
+
+    @staticmethod
+    def lost_message(max_attempts: int) -> str:
+        return (f"the worker running this job stopped answering (crashed, killed or cut off), and the job had "
+                f"already been started {max_attempts} time(s) (SCANMILL_MAX_ATTEMPTS); it was not started "
+                "again. Submit it again, possibly with a smaller cloud.")
+
+    def heartbeat(self, job_id: str, attempt: int) -> bool:
+        """Record that the attempt is alive; False if the job is no longer that attempt (stop working on it)."""
+        t = now_iso()
+        return self._count(jobs.update().where(self._is(job_id, attempt)).values(heartbeat_at=t)) == 1
 
     def update_progress(self, job_id: str, attempt: int, stage: str, progress: float, message: str) -> bool:
         """Record the progress of a running attempt; False if the job is no longer that attempt."""
-        with self._tx() as c:
-            cur = c.execute(
-                "UPDATE jobs SET stage = ?, progress = ?, message = ?, updated_at = ? "
-                "WHERE id = ? AND status = 'running' AND attempts = ?",
-                (stage, max(0.0, min(1.0, float(progress))), message[:500], now_iso(), job_id, attempt))
-        return cur.rowcount == 1
+        t = now_iso()
+        return self._count(jobs.update().where(self._is(job_id, attempt)).values(
+            stage=stage, progress=max(0.0, min(1.0, float(progress))), message=message[:500], updated_at=t,
+            heartbeat_at=t)) == 1
 
     def succeed(self, job_id: str, attempt: int, result: dict[str, Any], warnings: list[str]) -> bool:
         """running -> succeeded, for that attempt only."""
         t = now_iso()
-        with self._tx() as c:
-            cur = c.execute(
-                "UPDATE jobs SET status = 'succeeded', stage = 'write', progress = 1, message = 'done', "
-                "finished_at = ?, updated_at = ?, result = ?, warnings = ?, error_code = NULL, error_message = NULL "
-                "WHERE id = ? AND status = 'running' AND attempts = ?",
-                (t, t, json.dumps(result), json.dumps(warnings), job_id, attempt))
-        return cur.rowcount == 1
+        return self._count(jobs.update().where(self._is(job_id, attempt)).values(
+            status="succeeded", stage="write", progress=1.0, message="done", finished_at=t, updated_at=t,
+            result=json.dumps(result), warnings=json.dumps(warnings), error_code=None, error_message=None)) == 1
 
     def fail(self, job_id: str, attempt: int | None, code: str, message: str) -> bool:
         """running (that attempt, or any if None) -> failed with a code and message."""
         t = now_iso()
-        sql = ("UPDATE jobs SET status = 'failed', finished_at = ?, updated_at = ?, error_code = ?, "
-               "error_message = ?, message = ? WHERE id = ? AND status = 'running'")
-        args: list[Any] = [t, t, code, message[:2000], f"failed: {code}", job_id]
-        if attempt is not None:
-            sql += " AND attempts = ?"
-            args.append(attempt)
-        with self._tx() as c:
-            cur = c.execute(sql, args)
-        return cur.rowcount == 1
+        return self._count(jobs.update().where(self._is(job_id, attempt)).values(
+            status="failed", finished_at=t, updated_at=t, error_code=code, error_message=message[:2000],
+            message=f"failed: {code}")) == 1
 
     def requeue(self, job_id: str, attempt: int, message: str, *, count_attempt: bool = True) -> bool:
         """running (that attempt) -> queued; ``count_attempt=False`` gives the attempt back (clean shutdown)."""
-        with self._tx() as c:
-            cur = c.execute(
-                "UPDATE jobs SET status = 'queued', stage = NULL, progress = 0, message = ?, updated_at = ?, "
-                "attempts = attempts - ? WHERE id = ? AND status = 'running' AND attempts = ?",
-                (message, now_iso(), 0 if count_attempt else 1, job_id, attempt))
-        return cur.rowcount == 1
+        return self._count(jobs.update().where(self._is(job_id, attempt)).values(
+            status="queued", stage=None, progress=0.0, message=message, updated_at=now_iso(), worker=None,
+            heartbeat_at=None, dispatched_at=None,
+            attempts=jobs.c.attempts - (0 if count_attempt else 1))) == 1
 
     def cancel(self, job_id: str, owner: str) -> JobRecord | None:
         """queued | running -> cancelled. Returns the job after the change, or None if it was not active."""
         t = now_iso()
-        with self._tx() as c:
-            row = c.execute(
-                "UPDATE jobs SET status = 'cancelled', finished_at = ?, updated_at = ?, error_code = 'cancelled', "
-                "error_message = 'cancelled by the client (DELETE /jobs/{id})', message = 'cancelled' "
-                f"WHERE id = ? AND owner = ? AND status IN ('queued', 'running') RETURNING {_COLUMNS}",
-                (t, t, job_id, owner)).fetchone()
-        return JobRecord.from_row(row) if row else None
+        return self._one(jobs.update().where(
+            (jobs.c.id == job_id) & (jobs.c.owner == owner) & jobs.c.status.in_(("queued", "running"))).values(
+            status="cancelled", finished_at=t, updated_at=t, error_code="cancelled",
+            error_message="cancelled by the client (DELETE /jobs/{id})", message="cancelled").returning(*_COLS))
 
     def delete(self, job_id: str, owner: str) -> bool:
         """Remove a finished job's row (its files are removed by the caller)."""
-        with self._tx() as c:
-            cur = c.execute("DELETE FROM jobs WHERE id = ? AND owner = ? "
-                            "AND status IN ('succeeded', 'failed', 'cancelled')", (job_id, owner))
-        return cur.rowcount == 1
+        return self._count(jobs.delete().where(
+            (jobs.c.id == job_id) & (jobs.c.owner == owner)
+            & jobs.c.status.in_(("succeeded", "failed", "cancelled")))) == 1
 
     def running(self) -> list[JobRecord]:
-        rows = self._conn().execute(f"SELECT {_COLUMNS} FROM jobs WHERE status = 'running' ORDER BY seq").fetchall()
+        with self.engine.connect() as c:
+            rows = c.execute(sa.select(*_COLS).where(jobs.c.status == "running").order_by(jobs.c.seq)).fetchall()
         return [JobRecord.from_row(r) for r in rows]
+
+    def abandoned(self, lease_s: float) -> list[JobRecord]:
+        """Running jobs whose last heartbeat is older than ``lease_s`` seconds (their worker is presumably gone)."""
+        stale = iso_ago(lease_s)
+        last_sign = sa.func.coalesce(jobs.c.heartbeat_at, jobs.c.updated_at)
+        q = sa.select(*_COLS).where((jobs.c.status == "running") & (last_sign < stale)).order_by(jobs.c.seq)
+        with self.engine.connect() as c:
+            return [JobRecord.from_row(r) for r in c.execute(q).fetchall()]
+
+    def undispatched(self, limit: int = 100) -> list[str]:
+        """Ids of queued jobs not yet handed to the broker, oldest first (Celery backend)."""
+        q = (sa.select(jobs.c.id).where((jobs.c.status == "queued") & jobs.c.dispatched_at.is_(None))
+             .order_by(jobs.c.seq).limit(int(limit)))
+        with self.engine.connect() as c:
+            return [r[0] for r in c.execute(q)]
+
+    def mark_dispatched(self, job_id: str) -> bool:
+        """Take the right to publish a queued job's task message (once per queued period); False if taken."""
+        return self._count(jobs.update().where((jobs.c.id == job_id) & (jobs.c.status == "queued")
+                                               & jobs.c.dispatched_at.is_(None)).values(dispatched_at=now_iso())) == 1
+
+    def undo_dispatched(self, job_id: str) -> None:
+        """The publication failed: leave the job for the next publication round."""
+        self._count(jobs.update().where((jobs.c.id == job_id) & (jobs.c.status == "queued"))
+                    .values(dispatched_at=None))
 
     def status_of(self, job_id: str) -> tuple[str, int] | None:
         """(status, attempts) of a job, or None if it is gone."""
-        row = self._conn().execute("SELECT status, attempts FROM jobs WHERE id = ?", (job_id,)).fetchone()
+        with self.engine.connect() as c:
+            row = c.execute(sa.select(jobs.c.status, jobs.c.attempts).where(jobs.c.id == job_id)).fetchone()
         return (row[0], int(row[1])) if row else None

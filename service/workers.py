@@ -138,8 +138,47 @@ class _Reporter:
         self.conn.send(("progress", str(stage), float(fraction), str(message)[:300]))
 
 
+def plan_attempt(spec: dict[str, Any], report) -> tuple[dict[str, Any], list[str]]:
+    """One attempt of a job, in whatever process runs it: read the stored cloud, plan, write the artifacts.
+
+    ``spec`` holds ``parameters``, ``input_path``, ``fmt``, ``max_points``, ``work_dir`` (where the
+    artifacts go), ``name`` and ``start_delay_s``; ``report(stage, fraction, message)`` receives the
+    progress. Returns the result summary and the plan's warnings; raises what the planning raises
+    (see :func:`error_of`).
+    """
+    from planning.pipeline import run_plan
+    from planning.report import write_plan
+    from schemas.params import parse_config
+
+    report("read", 0.0, "reading the cloud")
+    if spec.get("start_delay_s"):
+        time.sleep(float(spec["start_delay_s"]))
+    config = parse_config(spec["parameters"])
+    cloud = read_job_cloud(spec["input_path"], spec.get("fmt"), config, spec["max_points"])
+    report("read", 1.0, f"{cloud.points.shape[0]} points ({cloud.source_format})")
+    outcome = run_plan(cloud, config, name=spec.get("name"), progress=report)
+    report("write", 0.0, "writing the artifacts")
+    work = Path(spec["work_dir"])
+    work.mkdir(parents=True, exist_ok=True)
+    write_plan(outcome, work)
+    report("write", 1.0, "artifacts written")
+    r = outcome.result
+    return plan_summary(r), list(r.warnings)
+
+
+def error_of(exc: BaseException) -> tuple[str, str]:
+    """The job error (code, message) of an exception an attempt raised (unexpected ones are logged)."""
+    if isinstance(exc, PlanningError):
+        return exc.code, exc.message
+    if isinstance(exc, MemoryError):
+        return "out_of_memory", ("the plan needed more memory than the service has; decimate the cloud and "
+                                 "submit it again")
+    traceback.print_exception(exc, file=sys.stderr)
+    return "internal_error", f"the planning failed unexpectedly: {type(exc).__name__}: {exc}"
+
+
 def run_job(spec: dict[str, Any], conn) -> None:
-    """Worker entry point: read the stored cloud, run the plan, write the artifacts into ``spec['work_dir']``.
+    """Embedded worker entry point: :func:`plan_attempt` with progress sent over ``conn`` to the server.
 
     Sends ``("progress", stage, fraction, message)`` while it runs and ends with one
     ``("done", summary, warnings)`` or ``("error", code, message)``.
@@ -147,37 +186,24 @@ def run_job(spec: dict[str, Any], conn) -> None:
     _die_with_parent(conn)
     pin_thread_env(spec["threads"])
     signal.signal(signal.SIGINT, signal.SIG_IGN)    # Ctrl-C in the terminal goes to the server, which stops us
-    report = _Reporter(conn)
     try:
-        from planning.pipeline import run_plan
-        from planning.report import write_plan
-        from schemas.params import parse_config
-
-        report("read", 0.0, "reading the cloud")
-        if spec.get("start_delay_s"):
-            time.sleep(float(spec["start_delay_s"]))
-        config = parse_config(spec["parameters"])
-        cloud = read_job_cloud(spec["input_path"], spec.get("fmt"), config, spec["max_points"])
-        report("read", 1.0, f"{cloud.points.shape[0]} points ({cloud.source_format})")
-        outcome = run_plan(cloud, config, name=spec.get("name"), progress=report)
-        report("write", 0.0, "writing the artifacts")
-        work = Path(spec["work_dir"])
-        work.mkdir(parents=True, exist_ok=True)
-        write_plan(outcome, work)
-        report("write", 1.0, "artifacts written")
-        r = outcome.result
-        conn.send(("done", plan_summary(r), list(r.warnings)))
+        summary, warnings = plan_attempt(spec, _Reporter(conn))
+        conn.send(("done", summary, warnings))
     except Exception as exc:  # noqa: BLE001 - every failure becomes a job error with a reason
-        if isinstance(exc, PlanningError):
-            conn.send(("error", exc.code, exc.message))
-        elif isinstance(exc, MemoryError):
-            conn.send(("error", "out_of_memory", "the plan needed more memory than the service has; "
-                                                 "decimate the cloud and submit it again"))
-        else:
-            traceback.print_exc(file=sys.stderr)
-            conn.send(("error", "internal_error", f"the planning failed unexpectedly: {type(exc).__name__}: {exc}"))
+        conn.send(("error", *error_of(exc)))
     finally:
         conn.close()
+
+
+def job_spec(job: JobRecord, settings: Settings, storage: Storage) -> dict[str, Any]:
+    """What :func:`plan_attempt` needs to run the current attempt of ``job``."""
+    return {
+        "job_id": job.id, "attempt": job.attempts, "parameters": job.parameters,
+        "input_path": str(storage.job_dir(job.id) / job.input["path"]), "fmt": job.input.get("fmt"),
+        "name": job.input.get("name"), "work_dir": str(storage.work_dir(job.id, job.attempts)),
+        "max_points": settings.max_points, "threads": settings.worker_threads,
+        "start_delay_s": settings.worker_start_delay_s,
+    }
 
 
 def _noop() -> None:
@@ -198,7 +224,10 @@ class _Active:
 
 
 class JobRunner:
-    """Runs queued jobs in worker processes, at most ``settings.workers`` at once."""
+    """The embedded execution backend: runs queued jobs in worker processes of this server, at most
+    ``settings.workers`` at once (see :class:`service.backends.ExecutionBackend`)."""
+
+    name = "embedded"
 
     def __init__(self, settings: Settings, store: JobStore, storage: Storage):
         self.settings, self.store, self.storage = settings, store, storage
@@ -239,6 +268,18 @@ class JobRunner:
     def wake(self) -> None:
         """A job was queued: let the dispatcher look now."""
         self._wake.set()
+
+    def submitted(self, job: JobRecord) -> None:
+        """A job was accepted: the dispatcher claims it from the store."""
+        self.wake()
+
+    def cancel(self, job_id: str) -> bool:
+        """The job was cancelled in the store: stop its worker if it runs here."""
+        return self.kill(job_id, "cancel")
+
+    def health(self) -> dict[str, int]:
+        """Worker slots and how many are busy."""
+        return {"workers": self.settings.workers, "busy_workers": self.busy}
 
     @property
     def busy(self) -> int:
@@ -322,13 +363,7 @@ class JobRunner:
                 self._launch(job)
 
     def _launch(self, job: JobRecord) -> None:
-        spec = {
-            "job_id": job.id, "attempt": job.attempts, "parameters": job.parameters,
-            "input_path": str(self.storage.job_dir(job.id) / job.input["path"]), "fmt": job.input.get("fmt"),
-            "name": job.input.get("name"), "work_dir": str(self.storage.work_dir(job.id, job.attempts)),
-            "max_points": self.settings.max_points, "threads": self.settings.worker_threads,
-            "start_delay_s": self.settings.worker_start_delay_s,
-        }
+        spec = job_spec(job, self.settings, self.storage)
         self.storage.remove_work(job.id, job.attempts)
         parent_conn, child_conn = self._ctx.Pipe(duplex=False)
         proc = self._ctx.Process(target=run_job, args=(spec, child_conn), name=f"scanmill-job-{job.id[:8]}",

@@ -1,4 +1,4 @@
-"""The service's parts without HTTP: settings, the SQLite job store's transitions, file storage."""
+"""The service's parts without HTTP: settings, the job store's transitions (SQLite and PostgreSQL), file storage."""
 
 from __future__ import annotations
 
@@ -13,6 +13,8 @@ from service.storage import (Storage, StorageLocked, UploadTooLarge, atomic_writ
                              safe_artifact_name)
 from service.store import IdempotencyConflict, JobStore
 from service.workers import JOB_STAGES, overall_progress
+
+from servers import postgres_server, postgres_url  # noqa: F401  (fixtures: a real PostgreSQL on 127.0.0.1)
 
 
 # -- settings ----------------------------------------------------------------------------------
@@ -50,9 +52,11 @@ def test_unknown_setting_in_file(tmp_path):
 
 # -- store -------------------------------------------------------------------------------------
 
-@pytest.fixture
-def store(tmp_path):
-    s = JobStore(tmp_path / "db.sqlite3")
+@pytest.fixture(params=["sqlite", "postgresql"])
+def store(request, tmp_path):
+    """The same transitions on both databases the store supports."""
+    s = JobStore(tmp_path / "db.sqlite3" if request.param == "sqlite" else request.getfixturevalue("postgres_url"))
+    assert s.dialect == request.param
     yield s
     s.close()
 
@@ -108,7 +112,8 @@ def test_store_survives_reopening(tmp_path):
     s.close()
     s2 = JobStore(tmp_path / "db.sqlite3")
     assert s2.get("c" * 32).status == "queued"
-    assert s2._conn().execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    with s2.engine.connect() as c:
+        assert c.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
     s2.close()
 
 

@@ -24,7 +24,8 @@ def get_health(request: Request) -> Health:
         counts = state.store.counts()
     except Exception as exc:  # noqa: BLE001 - reported as not ready
         raise ApiError(503, "store_unavailable", f"The job store does not answer: {exc}") from None
-    return Health(status="ok", workers=state.settings.workers, busy_workers=state.runner.busy,
+    slots = state.backend.health()
+    return Health(status="ok", workers=slots["workers"], busy_workers=slots["busy_workers"],
                   queued_jobs=counts.get("queued", 0), running_jobs=counts.get("running", 0))
 
 

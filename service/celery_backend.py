@@ -1,0 +1,134 @@
+"""The Celery execution backend, API side: publish jobs to the broker, revoke cancelled ones, reap.
+
+Publishing follows the outbox pattern: a job is committed to the store first, then its message is
+published and ``dispatched_at`` recorded. A job whose publication failed (broker down) stays queued
+with ``dispatched_at`` unset, and the reaper thread publishes it when the broker is back, so an
+accepted job is never lost between the store and the broker.
+
+The reaper (every ``SCANMILL_REAPER_INTERVAL_S``) also settles running jobs whose heartbeat is
+older than ``SCANMILL_LEASE_S``: past their time limit they fail ``time_limit_exceeded`` (the hard
+limit killed them); started ``SCANMILL_MAX_ATTEMPTS`` times they fail ``worker_lost``; otherwise
+they are queued and published again. The broker's own redelivery (acks_late) usually gets there
+first; the reaper covers messages that were acknowledged without the job ending (hard time limit)
+or are only redelivered after the long visibility timeout. Every transition is fenced in the store,
+so several API replicas may each run a reaper.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from datetime import datetime, timezone
+
+from service.celery_app import TASK_NAME, configure
+from service.settings import Settings
+from service.storage import Storage
+from service.store import JobRecord, JobStore
+
+log = logging.getLogger("scanmill.service")
+
+
+class CeleryBackend:
+    """Jobs run on ``scanmill worker`` machines through the Redis broker (see the module docstring)."""
+
+    name = "celery"
+
+    def __init__(self, settings: Settings, store: JobStore, storage: Storage):
+        self.settings, self.store, self.storage = settings, store, storage
+        self.app = configure(settings)
+        self._stop = threading.Event()
+        self._reaper: threading.Thread | None = None
+        self._publish_lock = threading.Lock()
+
+    # -- lifecycle -------------------------------------------------------------------------------
+    def recover(self) -> dict[str, list[str]]:
+        """Nothing runs in this process: only sweep this host's staging (workers elsewhere own the rest)."""
+        self.storage.sweep(self.store.ids())
+        return {}
+
+    def start(self) -> None:
+        if self.settings.reaper_interval_s > 0:
+            self._reaper = threading.Thread(target=self._reap_loop, name="job-reaper", daemon=True)
+            self._reaper.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._reaper is not None:
+            self._reaper.join(10)
+        try:
+            self.app.pool.force_close_all()
+        except Exception:  # noqa: BLE001 - closing at shutdown is best effort
+            pass
+
+    # -- jobs ------------------------------------------------------------------------------------
+    def submitted(self, job: JobRecord) -> None:
+        """Publish the job's task now (if the broker is down, the reaper publishes it later)."""
+        self.publish(job.id, job.time_limit_s)
+
+    def publish(self, job_id: str, time_limit_s: float) -> bool:
+        """Publish ``scanmill.plan_job(job_id)`` once per queued period of the job; True if published."""
+        if not self.store.mark_dispatched(job_id):
+            return False                         # not queued any more, or another replica published it
+        soft = float(time_limit_s)
+        try:
+            with self._publish_lock:
+                self.app.send_task(TASK_NAME, args=[job_id], task_id=job_id, queue=self.settings.celery_queue,
+                                   soft_time_limit=soft, time_limit=soft + self.settings.hard_time_limit_grace_s,
+                                   retry=True, retry_policy={"max_retries": 2, "interval_start": 0.2,
+                                                             "interval_step": 0.5, "interval_max": 1.0})
+        except Exception as exc:  # noqa: BLE001 - the broker is down: the outbox keeps the job
+            self.store.undo_dispatched(job_id)
+            log.warning("job %s: could not publish it to the broker (%s); it stays queued and is published "
+                        "when the broker answers", job_id, exc)
+            return False
+        return True
+
+    def cancel(self, job_id: str) -> bool:
+        """Revoke the job's task (a worker running it kills its child process)."""
+        try:
+            self.app.control.revoke(job_id, terminate=True, signal="SIGKILL")
+        except Exception as exc:  # noqa: BLE001 - the worker's heartbeat stops the job anyway
+            log.warning("job %s: revoke not sent (%s); its worker stops at its next heartbeat", job_id, exc)
+            return False
+        return True
+
+    def health(self) -> dict[str, int]:
+        """Job slots are on the worker machines: report the running jobs as busy, slots unknown (0)."""
+        running = self.store.counts().get("running", 0)
+        return {"workers": 0, "busy_workers": running}
+
+    # -- reaper ----------------------------------------------------------------------------------
+    def reap_once(self) -> dict[str, list[str]]:
+        """Publish unsent queued jobs and settle running jobs whose worker is gone; ids per action."""
+        out: dict[str, list[str]] = {"published": [], "requeued": [], "failed": []}
+        s = self.settings
+        for job_id in self.store.undispatched():
+            job = self.store.get(job_id)
+            if job is not None and self.publish(job.id, job.time_limit_s):
+                out["published"].append(job.id)
+        now = datetime.now(timezone.utc)
+        for job in self.store.abandoned(s.lease_s):
+            started = datetime.fromisoformat(job.started_at) if job.started_at else now
+            if (now - started).total_seconds() > job.time_limit_s:
+                if self.store.fail(job.id, job.attempts, "time_limit_exceeded",
+                                   f"the job ran longer than its time limit of {job.time_limit_s:g} s and its "
+                                   "worker was stopped (time_limit_s, at most SCANMILL_JOB_TIME_LIMIT_S)"):
+                    out["failed"].append(job.id)
+            elif job.attempts >= s.max_attempts:
+                if self.store.fail(job.id, job.attempts, "worker_lost", self.store.lost_message(s.max_attempts)):
+                    out["failed"].append(job.id)
+            elif self.store.requeue(job.id, job.attempts, f"queued again: its worker {job.worker} stopped "
+                                                          "answering"):
+                out["requeued"].append(job.id)
+                if self.publish(job.id, job.time_limit_s):
+                    out["published"].append(job.id)
+        if any(out.values()):
+            log.warning("reaper: %s", {k: v for k, v in out.items() if v})
+        return out
+
+    def _reap_loop(self) -> None:
+        while not self._stop.wait(self.settings.reaper_interval_s):
+            try:
+                self.reap_once()
+            except Exception:  # noqa: BLE001 - the store or broker may be back on the next round
+                log.exception("reaper round failed")

@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 OUT ?= scanmill-out
 
-.PHONY: setup run serve test test-slow bench bench-service
+.PHONY: setup run serve test test-slow bench bench-service bench-distributed
 
 setup: $(VENV)/.installed
 
@@ -30,3 +30,6 @@ bench: setup
 bench-service: setup
 	$(BIN)/python bench/bench_service_load.py --jobs 20 --pollers 50 --interval-s 0.5
 	$(BIN)/python bench/bench_service_load.py --jobs 20 --pollers 50 --interval-s 0.05
+
+bench-distributed: setup
+	$(BIN)/python bench/bench_distributed.py --jobs 16 --workers 1 2

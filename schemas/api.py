@@ -159,8 +159,9 @@ class Health(_Model):
     """Liveness and readiness of the service."""
 
     status: Literal["ok"]
-    workers: int = Field(..., ge=0, description="Size of the worker pool.")
-    busy_workers: int = Field(..., ge=0)
+    workers: int = Field(..., ge=0, description="Size of the worker pool of this server (0 with the Celery "
+                                                "backend, whose workers run on other machines).")
+    busy_workers: int = Field(..., ge=0, description="Jobs running (on this server's pool, or on any Celery worker).")
     queued_jobs: int = Field(..., ge=0)
     running_jobs: int = Field(..., ge=0)
 

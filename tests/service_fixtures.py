@@ -197,3 +197,73 @@ def ascii_ply(points: np.ndarray, *, claim: int | None = None) -> bytes:
             "end_header\n")
     body = "".join(f"{x} {y} {z}\n" for x, y, z in points)
     return (head + body).encode()
+
+
+class WorkerProcess:
+    """``scanmill worker`` (a Celery worker) in a subprocess and its own session, logging to a file.
+
+    ``settings`` become ``SCANMILL_*`` variables (broker, database, data directory, ...).
+    :meth:`kill9` sends SIGKILL to the worker's main process only, as ``kill -9 PID`` would.
+    """
+
+    def __init__(self, name: str, log_dir: Path, **settings):
+        self.name, self.log_dir, self.settings = name, Path(log_dir), settings
+        self.proc: subprocess.Popen | None = None
+        self.log_path = self.log_dir / f"worker-{name}.log"
+
+    def env(self) -> dict[str, str]:
+        env = {k: v for k, v in os.environ.items() if not k.startswith("SCANMILL_")}
+        env["PYTHONUNBUFFERED"] = "1"
+        for k, v in self.settings.items():
+            env["SCANMILL_" + k.upper()] = str(v)
+        return env
+
+    def start(self, max_polls: int = 600) -> "WorkerProcess":
+        """Start it and wait (at most ``max_polls`` x 0.1 s) until Celery logs that the worker is ready."""
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        with open(self.log_path, "ab") as log:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "scanmill.cli", "worker", "--name", f"{self.name}@test",
+                 "--log-level", "info"], cwd=ROOT, env=self.env(), stdout=log, stderr=subprocess.STDOUT,
+                start_new_session=True)
+        for _ in range(max_polls):
+            if self.proc.poll() is not None:
+                break
+            if f"{self.name}@test ready" in self.log_text():
+                return self
+            time.sleep(0.1)
+        self.stop()
+        raise RuntimeError(f"worker {self.name} did not start:\n{self.log_text()[-3000:]}")
+
+    def log_text(self) -> str:
+        return self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
+
+    def children(self) -> list[int]:
+        """Pids of the pool's child processes."""
+        import psutil
+        try:
+            return [c.pid for c in psutil.Process(self.proc.pid).children() if c.status() != psutil.STATUS_ZOMBIE]
+        except psutil.Error:
+            return []
+
+    def kill9(self) -> None:
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait(60)
+
+    def stop(self) -> None:
+        """Warm shutdown (SIGTERM), then SIGKILL of the whole session if it does not end."""
+        if self.proc is None or self.proc.poll() is not None:
+            return
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            self.proc.wait(30)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait(30)
+
+    def __enter__(self) -> "WorkerProcess":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

@@ -236,3 +236,27 @@ def test_serve_refuses_bad_settings_with_a_message(capsys, monkeypatch):
     assert main(["serve", "--workers", "0"]) == 2
     err = capsys.readouterr().err
     assert "--workers" in err and "SCANMILL_JOB_TIME_LIMIT_S" in err
+
+
+def test_shared_storage_has_no_lock_stages_per_host_and_spares_young_folders(tmp_path):
+    from service.storage import SharedStorage, open_storage
+    a = SharedStorage(tmp_path / "data", host="api-1")
+    b = open_storage(tmp_path / "data", "shared")
+    b.host = "api-2"
+    b.tmp_dir = b.root / "tmp" / "api-2"
+    a.open()
+    b.open()                                            # several machines at once: no lock
+    st_a, st_b = a.new_staging(), b.new_staging()
+    assert st_a.parent.name == "api-1" and st_b.parent.name == "api-2"
+    young = a.jobs_dir / ("1" * 32)                     # a folder whose job row is about to be committed
+    young.mkdir()
+    old = a.jobs_dir / ("2" * 32)
+    old.mkdir()
+    os.utime(old, (0, 0))
+    work = a.jobs_dir / ("3" * 32) / "work-1"           # an attempt running on some worker
+    work.mkdir(parents=True)
+    removed = a.sweep(["3" * 32])
+    assert sorted(removed) == sorted([str(st_a), str(old)])
+    assert st_b.exists() and young.exists() and work.exists()
+    with pytest.raises(ValueError, match="unknown storage kind"):
+        open_storage(tmp_path, "s3")

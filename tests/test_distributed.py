@@ -1,0 +1,216 @@
+"""The distributed backend end to end: API -> Redis -> Celery workers -> PostgreSQL, on real servers.
+
+Redis and PostgreSQL are started on 127.0.0.1 by tests/servers.py; the API (``scanmill serve``) and
+the workers (``scanmill worker``) run as separate processes, as on separate machines: they share
+only the broker, the database and the data directory, which the workers reach through another
+path (a symlink standing for a network mount). Timings are shortened through the documented
+settings (heartbeat 0.5 s, lease 3 s, broker visibility timeout 6 s). Every wait is bounded in
+count; nothing asserts on elapsed time.
+"""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+import sqlalchemy as sa
+
+from service_fixtures import ServerProcess, WorkerProcess, submit, wait_status, wait_until, write_half_sphere
+from servers import postgres_server, postgres_url, redis_server, redis_url  # noqa: F401  (fixtures)
+
+
+@pytest.fixture
+def cluster(tmp_path, redis_url, postgres_url):
+    """Settings shared by the API and the workers, and the worker's view of the shared directory."""
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    mount = tmp_path / "mnt-scanmill"
+    mount.symlink_to(shared, target_is_directory=True)
+    common = dict(backend="celery", broker_url=redis_url, database_url=postgres_url, heartbeat_s=0.5, lease_s=3,
+                  broker_visibility_timeout_s=6, max_attempts=3)
+    return {"api": dict(common, reaper_interval_s=1), "worker": dict(common, data_dir=mount),
+            "shared": shared, "logs": tmp_path / "logs", "cloud": write_half_sphere(tmp_path / "half_sphere.ply"),
+            "database_url": postgres_url}
+
+
+def _api(cluster, **extra) -> ServerProcess:
+    cluster["logs"].mkdir(exist_ok=True)
+    return ServerProcess(cluster["shared"], log_dir=cluster["logs"], **dict(cluster["api"], **extra))
+
+
+def _worker(cluster, name, **extra) -> WorkerProcess:
+    return WorkerProcess(name, cluster["logs"], **dict(cluster["worker"], **extra))
+
+
+def _row(cluster, job_id) -> dict:
+    eng = sa.create_engine(cluster["database_url"])
+    try:
+        with eng.connect() as c:
+            return dict(c.execute(sa.text("SELECT * FROM jobs WHERE id = :i"), {"i": job_id}).one()._mapping)
+    finally:
+        eng.dispose()
+
+
+def test_a_job_runs_through_redis_a_worker_and_postgres(cluster):
+    with _api(cluster) as api, _worker(cluster, "w1"), api.client() as c:
+        r = submit(c, cluster["cloud"])
+        assert r.status_code == 202, r.text
+        jid = r.json()["id"]
+        seen = set()
+
+        def progressed():
+            j = c.get(f"/jobs/{jid}").json()
+            seen.add((j["status"], j["stage"]))
+            return j if j["status"] in ("succeeded", "failed", "cancelled") else None
+
+        job = wait_until(progressed, max_polls=1200, interval=0.05)
+        assert job["status"] == "succeeded", job
+        assert job["attempts"] == 1 and job["result"]["n_setups"] >= 1
+        assert any(s == "running" for s, _ in seen)            # progress came back through the job store
+        names = {a["name"] for a in c.get(f"/jobs/{jid}/artifacts").json()["items"]}
+        assert {"plan.json", "plan.npz"} <= names and any(n.endswith(".nc") for n in names)
+        plan = c.get(f"/jobs/{jid}/result").json()
+        assert plan["status"] == job["result"]["status"] and len(plan["setups"]) == job["result"]["n_setups"]
+        row = _row(cluster, jid)                                 # the record lives in PostgreSQL
+        assert row["status"] == "succeeded" and row["worker"].startswith("w1@test/") and row["dispatched_at"]
+        # the worker wrote through its own mount path; the API serves the same files
+        assert (cluster["shared"] / "jobs" / jid / "result" / "plan.json").is_file()
+        assert not list((cluster["shared"] / "jobs" / jid).glob("work-*"))
+        health = c.get("/healthz").json()
+        assert health["queued_jobs"] == 0 and health["running_jobs"] == 0
+
+
+def test_a_killed_worker_job_is_redelivered_and_finishes(cluster):
+    """kill -9 a worker in the middle of a job: the broker delivers the message again and another worker
+    takes the job over. The API's reaper is off, so the broker's redelivery is the only way back."""
+    with _api(cluster, reaper_interval_s=0) as api, api.client() as c:
+        a = _worker(cluster, "wa", worker_start_delay_s=60).start()     # wa's attempts stall after claiming
+        try:
+            jid = submit(c, cluster["cloud"]).json()["id"]
+            wait_until(lambda: _row(cluster, jid)["status"] == "running", max_polls=600)
+            assert _row(cluster, jid)["worker"].startswith("wa@test/")
+            children = a.children()
+            assert children
+            a.kill9()
+            import psutil                                      # the pool child dies with its worker
+            wait_until(lambda: not any(psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE
+                                       for p in children), max_polls=300)
+        finally:
+            a.stop()
+        assert c.get(f"/jobs/{jid}").json()["status"] == "running"   # nobody has noticed yet
+        with _worker(cluster, "wb") as b:
+            job = wait_status(c, jid, max_polls=1200)
+            assert job["status"] == "succeeded", job
+            assert job["attempts"] == 2
+            assert _row(cluster, jid)["worker"].startswith("wb@test/")
+            assert f"job {jid}: attempt 2 took over from a lost worker" in b.log_text()
+            assert f"job {jid}: succeeded on attempt 2" in b.log_text()
+
+
+def test_two_workers_drain_a_queue_and_no_job_completes_twice(cluster):
+    n = 8
+    with _api(cluster) as api, _worker(cluster, "w1") as w1, _worker(cluster, "w2") as w2, api.client() as c:
+        ids = [submit(c, cluster["cloud"]).json()["id"] for _ in range(n)]
+        jobs = [wait_status(c, j, max_polls=3000) for j in ids]
+        assert [j["status"] for j in jobs] == ["succeeded"] * n
+        assert all(j["attempts"] == 1 for j in jobs)
+        done = re.compile(r"job ([0-9a-f]{32}): succeeded on attempt (\d+)")
+        by_worker = {w.name: [m.group(1) for m in done.finditer(w.log_text())] for w in (w1, w2)}
+        completions = by_worker["w1"] + by_worker["w2"]
+        assert sorted(completions) == sorted(ids)              # each job completed once, by one worker
+        assert by_worker["w1"] and by_worker["w2"]             # and both workers took part
+        workers = {_row(cluster, j)["worker"].split("@")[0] for j in ids}
+        assert workers == {"w1", "w2"}
+
+
+def test_cancel_revokes_the_running_task(cluster):
+    with _api(cluster) as api, _worker(cluster, "wc", worker_start_delay_s=60) as w, api.client() as c:
+        jid = submit(c, cluster["cloud"]).json()["id"]
+        wait_until(lambda: c.get(f"/jobs/{jid}").json()["status"] == "running", max_polls=600)
+        before = set(w.children())
+        r = c.delete(f"/jobs/{jid}")
+        assert r.status_code == 200 and r.json()["status"] == "cancelled", r.text
+        wait_until(lambda: f"Terminating {jid}" in w.log_text(), max_polls=300)
+        wait_until(lambda: set(w.children()) and not (set(w.children()) & before), max_polls=300)  # child replaced
+        assert c.get(f"/jobs/{jid}").json()["status"] == "cancelled"
+        assert _row(cluster, jid)["status"] == "cancelled"
+
+
+def test_a_job_accepted_while_the_broker_is_down_is_published_later(cluster, redis_server, tmp_path):
+    """The outbox: the API keeps the job queued in PostgreSQL and its reaper publishes it once Redis answers."""
+    dead = "redis://127.0.0.1:1/0"
+    with _api(cluster, broker_url=dead) as api, api.client() as c:
+        r = submit(c, cluster["cloud"])
+        assert r.status_code == 202, r.text
+        jid = r.json()["id"]
+        assert _row(cluster, jid)["dispatched_at"] is None and r.json()["status"] == "queued"
+    # the API comes back with a reachable broker: the reaper publishes the job and a worker runs it
+    with _api(cluster) as api, _worker(cluster, "w1"), api.client() as c:
+        job = wait_status(c, jid, max_polls=1200)
+        assert job["status"] == "succeeded" and job["attempts"] == 1
+
+
+def test_worker_refuses_to_start_without_a_broker_or_database(cluster, tmp_path):
+    import subprocess
+    import sys
+
+    from service_fixtures import ROOT
+    w = _worker(cluster, "bad")
+    env = w.env()
+    env.pop("SCANMILL_BROKER_URL")
+    env.pop("SCANMILL_BACKEND")
+    out = subprocess.run([sys.executable, "-m", "scanmill.cli", "worker"], cwd=ROOT, env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 2 and "SCANMILL_BROKER_URL" in out.stderr
+    env = w.env()
+    env["SCANMILL_DATABASE_URL"] = "postgresql+psycopg://nobody@127.0.0.1:1/none"
+    out = subprocess.run([sys.executable, "-m", "scanmill.cli", "worker"], cwd=ROOT, env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 2 and "cannot reach the job database" in out.stderr
+
+
+def test_a_redelivery_watches_the_heartbeat_before_taking_a_job_over(tmp_path):
+    """A message delivered again right after its holder died finds a fresh heartbeat: it must wait for it to
+    go stale (then take over) rather than drop the job; a holder that keeps beating keeps the job."""
+    import threading
+
+    from service.celery_tasks import _Context, _wait_for_holder
+    from service.settings import Settings
+    from service.storage import Storage
+    from service.store import JobStore
+
+    store = JobStore(tmp_path / "jobs.sqlite3")
+    ctx = _Context(Settings(heartbeat_s=0.2, lease_s=1.0, max_attempts=3), store, Storage(tmp_path), 0)
+    for jid, holder_alive in (("a" * 32, False), ("b" * 32, True)):
+        store.create(job_id=jid, owner="o", parameters={}, input={}, time_limit_s=60)
+        outcome, job = store.claim(jid, "first", lease_s=1.0, max_attempts=3)
+        stop = threading.Event()
+
+        def beat(job=job, stop=stop):
+            while not stop.wait(0.2):
+                store.heartbeat(job.id, job.attempts)
+
+        t = threading.Thread(target=beat)
+        if holder_alive:
+            t.start()
+        try:
+            outcome, after = _wait_for_holder(ctx, job, "second")
+        finally:
+            stop.set()
+            if holder_alive:
+                t.join()
+        if holder_alive:
+            assert outcome == "busy" and store.get(jid).worker == "first" and store.get(jid).attempts == 1
+        else:
+            assert outcome == "taken_over" and after.worker == "second" and after.attempts == 2
+    store.close()
+
+
+def test_the_soft_time_limit_fails_the_job_on_the_worker(cluster):
+    with _api(cluster, hard_time_limit_grace_s=5) as api, \
+            _worker(cluster, "wt", worker_start_delay_s=60, hard_time_limit_grace_s=5) as w, api.client() as c:
+        r = submit(c, cluster["cloud"], time_limit_s=2)
+        assert r.status_code == 202, r.text
+        job = wait_status(c, r.json()["id"], max_polls=600)
+        assert job["status"] == "failed" and job["error"]["code"] == "time_limit_exceeded", job
+        assert f"job {job['id']}: stopped at its time limit" in w.log_text()

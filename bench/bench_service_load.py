@@ -81,7 +81,8 @@ async def run(args) -> dict:
     with tempfile.TemporaryDirectory(prefix="scanmill-bench-") as tmp:
         tmp = Path(tmp)
         cloud = write_half_sphere(tmp / "half_sphere.ply").read_bytes()
-        srv = ServerProcess(tmp / "data", workers=args.workers, log_level="warning").start()
+        srv = ServerProcess(tmp / "data", workers=args.workers, worker_threads=args.worker_threads,
+                            log_level="warning").start()
         try:
             async with httpx.AsyncClient(base_url=srv.url, timeout=60,
                                          limits=httpx.Limits(max_connections=args.pollers + 10,
@@ -156,6 +157,8 @@ def main(argv=None) -> int:
     ap.add_argument("--pollers", type=int, default=50)
     ap.add_argument("--interval-s", type=float, default=0.05, help="pause of each poller between its requests")
     ap.add_argument("--workers", type=int, default=1, help="SCANMILL_WORKERS of the server")
+    ap.add_argument("--worker-threads", type=int, default=1,
+                    help="SCANMILL_WORKER_THREADS (1: the job leaves a core to the API on a 2-core machine)")
     ap.add_argument("--max-seconds", type=float, default=300.0)
     ap.add_argument("--max-requests", type=int, default=200_000)
     args = ap.parse_args(argv)

@@ -30,7 +30,7 @@ def run_worker(*, concurrency: int | None = None, name: str | None = None, confi
               file=sys.stderr)
         return 2
     from service.workers import PRELOAD, pin_thread_env
-    pin_thread_env(settings.worker_threads)          # before numpy is imported anywhere in this process
+    pin_thread_env(settings.threads_per_job)          # before numpy is imported anywhere in this process
     logging.basicConfig(level=settings.log_level.upper(),
                         format="%(asctime)s %(levelname)s %(processName)s %(name)s: %(message)s")
     from service.db import DatabaseError, database_url
@@ -52,7 +52,7 @@ def run_worker(*, concurrency: int | None = None, name: str | None = None, confi
     import service.celery_tasks  # noqa: F401 - registers the task
     node = name or f"scanmill-{os.getpid()}@{socket.gethostname()}"
     print(f"scanmill worker {node}: broker {_redact(settings.broker_url)}, queue {settings.celery_queue}, "
-          f"{settings.workers} job(s) at once, {settings.worker_threads} BLAS thread(s) each, files in "
+          f"{settings.workers} job(s) at once, {settings.threads_per_job} BLAS thread(s) each, files in "
           f"{settings.data_dir.resolve()}", file=sys.stderr, flush=True)
     argv = ["worker", "--pool=prefork", f"--concurrency={settings.workers}", f"--hostname={node}",
             f"--queues={settings.celery_queue}", f"--loglevel={settings.log_level.upper()}",

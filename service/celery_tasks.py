@@ -74,13 +74,22 @@ def _child_init(**_: Any) -> None:
     except (OSError, AttributeError):  # pragma: no cover - not Linux/glibc
         pass
     settings = getattr(app.conf, "scanmill_settings", None)
-    threads = settings.worker_threads if settings else 1
+    threads = settings.threads_per_job if settings else 1
     pin_thread_env(threads)
+    effective: dict[str, int] = {}
     try:
-        from threadpoolctl import threadpool_limits
+        from threadpoolctl import threadpool_info, threadpool_limits
         threadpool_limits(threads)
+        effective = {i.get("internal_api", "?"): int(i.get("num_threads", 0)) for i in threadpool_info()}
     except Exception:  # noqa: BLE001 - pinning is best effort; the environment is already set
         pass
+    try:
+        import numba
+        effective["numba"] = int(numba.config.NUMBA_NUM_THREADS)
+    except Exception:  # noqa: BLE001 - numba not loaded in this process
+        pass
+    log.info("pool child %d: %d thread(s) per job; effective: %s", os.getpid(), threads,
+             ", ".join(f"{k}={v}" for k, v in sorted(effective.items())) or "-")
 
 
 class _Progress:

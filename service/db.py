@@ -109,7 +109,9 @@ def make_engine(url: URL | str) -> Engine:
     if u.get_backend_name() == "sqlite":
         if u.database and u.database != ":memory:":
             Path(u.database).parent.mkdir(parents=True, exist_ok=True)
-        engine = sa.create_engine(u, isolation_level="AUTOCOMMIT", connect_args={"timeout": 30.0})
+        # autocommit: every statement commits itself, so a returned connection has nothing to roll back
+        engine = sa.create_engine(u, isolation_level="AUTOCOMMIT", connect_args={"timeout": 30.0},
+                                  pool_reset_on_return=None)
         sa.event.listen(engine, "connect", _sqlite_pragmas)
         return engine
     return sa.create_engine(u, pool_pre_ping=True, pool_size=10, max_overflow=20,

@@ -78,8 +78,10 @@ class Settings(BaseModel):
         description="Accepted bearer keys. Empty: anonymous requests are accepted from loopback clients only.")
     workers: int = Field(default_factory=_default_workers, ge=1, le=64,
                          description="Jobs run at once (worker processes).")
-    worker_threads: int = Field(1, ge=1, le=64,
-                                description="BLAS/OpenMP threads per worker (OMP/OPENBLAS/MKL_NUM_THREADS).")
+    worker_threads: int | None = Field(
+        None, ge=1, le=64,
+        description="BLAS/OpenMP/numba threads per job (OMP/OPENBLAS/MKL/NUMBA_NUM_THREADS); unset: the cores "
+                    "shared out over the jobs run at once (cores // workers, at least 1).")
     start_method: str = Field("forkserver", pattern="^(forkserver|spawn)$",
                               description="multiprocessing start method of the workers.")
     job_time_limit_s: float = Field(
@@ -99,6 +101,12 @@ class Settings(BaseModel):
         0.0, ge=0, le=3600,
         description="Testing aid only: a worker waits this long before reading the cloud, so that cancellation, "
                     "time limits and restarts can be exercised on small clouds. Keep 0 in production.")
+
+    @field_validator("worker_threads", "database_url", "broker_url", "storage", "broker_visibility_timeout_s",
+                     mode="before")
+    @classmethod
+    def _empty_is_unset(cls, v: Any) -> Any:
+        return None if isinstance(v, str) and not v.strip() else v
 
     @field_validator("api_keys", mode="before")
     @classmethod
@@ -120,6 +128,11 @@ class Settings(BaseModel):
         if self.broker_url and not self.broker_url.startswith(("redis://", "rediss://", "memory://")):
             raise ValueError("SCANMILL_BROKER_URL must be a redis:// (or rediss://) URL")
         return self
+
+    @property
+    def threads_per_job(self) -> int:
+        """``worker_threads``, or the machine's cores shared out over ``workers`` jobs."""
+        return self.worker_threads or max(1, (os.cpu_count() or 1) // self.workers)
 
     @property
     def storage_kind(self) -> str:

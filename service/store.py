@@ -27,7 +27,17 @@ from sqlalchemy.engine import URL
 
 from service.db import database_url, jobs, make_engine, upgrade
 
-_COLS = [c for c in jobs.c]
+# the statements of the hot paths (polling, progress), built once: building a statement costs more than running it
+_GET = sa.select(jobs).where(jobs.c.id == sa.bindparam("id"))
+_GET_OWNED = sa.select(jobs).where((jobs.c.id == sa.bindparam("id")) & (jobs.c.owner == sa.bindparam("owner")))
+_STATUS = sa.select(jobs.c.status, jobs.c.attempts).where(jobs.c.id == sa.bindparam("id"))
+_RUNNING_ATTEMPT = ((jobs.c.id == sa.bindparam("b_id")) & (jobs.c.status == "running")
+                    & (jobs.c.attempts == sa.bindparam("b_attempt")))
+_PROGRESS = jobs.update().where(_RUNNING_ATTEMPT).values(
+    stage=sa.bindparam("b_stage"), progress=sa.bindparam("b_progress"), message=sa.bindparam("b_message"),
+    updated_at=sa.bindparam("t"), heartbeat_at=sa.bindparam("t"))
+_HEARTBEAT = jobs.update().where(_RUNNING_ATTEMPT).values(heartbeat_at=sa.bindparam("t"))
+_COUNTS = sa.select(jobs.c.status, sa.func.count()).group_by(jobs.c.status)
 
 
 def now_iso() -> str:
@@ -80,7 +90,7 @@ class JobRecord:
 
     @classmethod
     def from_row(cls, row: Any) -> "JobRecord":
-        d = dict(row._mapping)
+        d = row._asdict()
         d["parameters"] = json.loads(d["parameters"])
         d["input"] = json.loads(d["input"])
         d["result"] = json.loads(d["result"]) if d["result"] else None
@@ -141,7 +151,7 @@ class JobStore:
             id=job_id, owner=owner, status="queued", progress=0.0, created_at=t, updated_at=t,
             time_limit_s=float(time_limit_s), parameters=json.dumps(parameters), input=json.dumps(input),
             warnings=json.dumps(warnings or []), idempotency_key=idempotency_key, request_hash=request_hash,
-            message="waiting for a worker").returning(*_COLS)
+            message="waiting for a worker").returning(jobs)
         try:
             return self._one(stmt)
         except sa.exc.IntegrityError:
@@ -152,23 +162,21 @@ class JobStore:
 
     def get(self, job_id: str, owner: str | None = None) -> JobRecord | None:
         """The job, or None (also when ``owner`` is given and is not the job's owner)."""
-        cond = jobs.c.id == job_id
-        if owner is not None:
-            cond &= jobs.c.owner == owner
         with self.engine.connect() as c:
-            row = c.execute(sa.select(*_COLS).where(cond)).fetchone()
+            row = (c.execute(_GET, {"id": job_id}) if owner is None else
+                   c.execute(_GET_OWNED, {"id": job_id, "owner": owner})).fetchone()
         return JobRecord.from_row(row) if row else None
 
     def find_by_idempotency_key(self, owner: str, key: str) -> JobRecord | None:
         with self.engine.connect() as c:
-            row = c.execute(sa.select(*_COLS).where((jobs.c.owner == owner) & (jobs.c.idempotency_key == key))
+            row = c.execute(sa.select(jobs).where((jobs.c.owner == owner) & (jobs.c.idempotency_key == key))
                             ).fetchone()
         return JobRecord.from_row(row) if row else None
 
     def list(self, owner: str, *, status: str | None = None, before_seq: int | None = None,
              limit: int = 20) -> tuple[list[JobRecord], bool]:
         """The owner's jobs newest first (by acceptance order), after ``before_seq``; and whether more follow."""
-        q = sa.select(*_COLS).where(jobs.c.owner == owner)
+        q = sa.select(jobs).where(jobs.c.owner == owner)
         if status is not None:
             q = q.where(jobs.c.status == status)
         if before_seq is not None:
@@ -181,7 +189,7 @@ class JobStore:
     def counts(self) -> dict[str, int]:
         """Number of jobs per status."""
         with self.engine.connect() as c:
-            rows = c.execute(sa.select(jobs.c.status, sa.func.count()).group_by(jobs.c.status)).fetchall()
+            rows = c.execute(_COUNTS).fetchall()
         return {r[0]: int(r[1]) for r in rows}
 
     def ids(self) -> Iterator[str]:
@@ -196,7 +204,7 @@ class JobStore:
                   .with_for_update(skip_locked=True).scalar_subquery())
         return self._one(jobs.update().where((jobs.c.seq == oldest) & (jobs.c.status == "queued")).values(
             status="running", attempts=jobs.c.attempts + 1, started_at=t, updated_at=t, heartbeat_at=t,
-            worker=worker, stage="read", progress=0.0, message="starting").returning(*_COLS))
+            worker=worker, stage="read", progress=0.0, message="starting").returning(jobs))
 
     def claim(self, job_id: str, worker: str, *, lease_s: float, max_attempts: int) -> tuple[str, JobRecord | None]:
         """Start an attempt of ``job_id`` for a delivered task message (Celery backend).
@@ -213,18 +221,18 @@ class JobStore:
         start = dict(status="running", attempts=jobs.c.attempts + 1, started_at=t, updated_at=t, heartbeat_at=t,
                      worker=worker, stage="read", progress=0.0, message=f"starting on {worker}"[:500])
         job = self._one(jobs.update().where((jobs.c.id == job_id) & (jobs.c.status == "queued"))
-                        .values(**start).returning(*_COLS))
+                        .values(**start).returning(jobs))
         if job is not None:
             return "claimed", job
         stale = iso_ago(lease_s)
         abandoned = self._is(job_id) & (jobs.c.heartbeat_at < stale)
         job = self._one(jobs.update().where(abandoned & (jobs.c.attempts < int(max_attempts)))
-                        .values(**start).returning(*_COLS))
+                        .values(**start).returning(jobs))
         if job is not None:
             return "taken_over", job
         job = self._one(jobs.update().where(abandoned & (jobs.c.attempts >= int(max_attempts))).values(
             status="failed", finished_at=t, updated_at=t, error_code="worker_lost",
-            error_message=self.lost_message(max_attempts), message="failed: worker_lost").returning(*_COLS))
+            error_message=self.lost_message(max_attempts), message="failed: worker_lost").returning(jobs))
         if job is not None:
             return "exhausted", job
         current = self.get(job_id)
@@ -238,15 +246,15 @@ class JobStore:
 
     def heartbeat(self, job_id: str, attempt: int) -> bool:
         """Record that the attempt is alive; False if the job is no longer that attempt (stop working on it)."""
-        t = now_iso()
-        return self._count(jobs.update().where(self._is(job_id, attempt)).values(heartbeat_at=t)) == 1
+        with self.engine.begin() as c:
+            return c.execute(_HEARTBEAT, {"b_id": job_id, "b_attempt": int(attempt), "t": now_iso()}).rowcount == 1
 
     def update_progress(self, job_id: str, attempt: int, stage: str, progress: float, message: str) -> bool:
         """Record the progress of a running attempt; False if the job is no longer that attempt."""
-        t = now_iso()
-        return self._count(jobs.update().where(self._is(job_id, attempt)).values(
-            stage=stage, progress=max(0.0, min(1.0, float(progress))), message=message[:500], updated_at=t,
-            heartbeat_at=t)) == 1
+        with self.engine.begin() as c:
+            return c.execute(_PROGRESS, {"b_id": job_id, "b_attempt": int(attempt), "b_stage": stage,
+                                         "b_progress": max(0.0, min(1.0, float(progress))),
+                                         "b_message": message[:500], "t": now_iso()}).rowcount == 1
 
     def succeed(self, job_id: str, attempt: int, result: dict[str, Any], warnings: list[str]) -> bool:
         """running -> succeeded, for that attempt only."""
@@ -275,7 +283,7 @@ class JobStore:
         return self._one(jobs.update().where(
             (jobs.c.id == job_id) & (jobs.c.owner == owner) & jobs.c.status.in_(("queued", "running"))).values(
             status="cancelled", finished_at=t, updated_at=t, error_code="cancelled",
-            error_message="cancelled by the client (DELETE /jobs/{id})", message="cancelled").returning(*_COLS))
+            error_message="cancelled by the client (DELETE /jobs/{id})", message="cancelled").returning(jobs))
 
     def delete(self, job_id: str, owner: str) -> bool:
         """Remove a finished job's row (its files are removed by the caller)."""
@@ -285,14 +293,14 @@ class JobStore:
 
     def running(self) -> list[JobRecord]:
         with self.engine.connect() as c:
-            rows = c.execute(sa.select(*_COLS).where(jobs.c.status == "running").order_by(jobs.c.seq)).fetchall()
+            rows = c.execute(sa.select(jobs).where(jobs.c.status == "running").order_by(jobs.c.seq)).fetchall()
         return [JobRecord.from_row(r) for r in rows]
 
     def abandoned(self, lease_s: float) -> list[JobRecord]:
         """Running jobs whose last heartbeat is older than ``lease_s`` seconds (their worker is presumably gone)."""
         stale = iso_ago(lease_s)
         last_sign = sa.func.coalesce(jobs.c.heartbeat_at, jobs.c.updated_at)
-        q = sa.select(*_COLS).where((jobs.c.status == "running") & (last_sign < stale)).order_by(jobs.c.seq)
+        q = sa.select(jobs).where((jobs.c.status == "running") & (last_sign < stale)).order_by(jobs.c.seq)
         with self.engine.connect() as c:
             return [JobRecord.from_row(r) for r in c.execute(q).fetchall()]
 
@@ -316,5 +324,5 @@ class JobStore:
     def status_of(self, job_id: str) -> tuple[str, int] | None:
         """(status, attempts) of a job, or None if it is gone."""
         with self.engine.connect() as c:
-            row = c.execute(sa.select(jobs.c.status, jobs.c.attempts).where(jobs.c.id == job_id)).fetchone()
+            row = c.execute(_STATUS, {"id": job_id}).fetchone()
         return (row[0], int(row[1])) if row else None

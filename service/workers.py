@@ -50,7 +50,7 @@ if TYPE_CHECKING:
 log = logging.getLogger("scanmill.service")
 
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS",
-               "VECLIB_MAXIMUM_THREADS", "BLIS_NUM_THREADS")
+               "VECLIB_MAXIMUM_THREADS", "BLIS_NUM_THREADS", "NUMBA_NUM_THREADS")
 #: Modules the fork server imports once, so that every worker starts with them loaded.
 PRELOAD = ["numpy", "planning.cloud", "planning.pipeline", "planning.report", "schemas.params"]
 
@@ -201,7 +201,7 @@ def job_spec(job: JobRecord, settings: Settings, storage: Storage) -> dict[str, 
         "job_id": job.id, "attempt": job.attempts, "parameters": job.parameters,
         "input_path": str(storage.job_dir(job.id) / job.input["path"]), "fmt": job.input.get("fmt"),
         "name": job.input.get("name"), "work_dir": str(storage.work_dir(job.id, job.attempts)),
-        "max_points": settings.max_points, "threads": settings.worker_threads,
+        "max_points": settings.max_points, "threads": settings.threads_per_job,
         "start_delay_s": settings.worker_start_delay_s,
     }
 
@@ -241,7 +241,7 @@ class JobRunner:
     # -- lifecycle -------------------------------------------------------------------------------
     def start(self) -> None:
         """Pin worker threads, start the fork server (in the background) and the dispatcher."""
-        pin_thread_env(self.settings.worker_threads)
+        pin_thread_env(self.settings.threads_per_job)
         method = self.settings.start_method
         if method == "forkserver" and "forkserver" not in multiprocessing.get_all_start_methods():
             method = "spawn"  # pragma: no cover - not on Linux

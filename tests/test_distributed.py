@@ -52,7 +52,11 @@ def _row(cluster, job_id) -> dict:
 
 
 def test_a_job_runs_through_redis_a_worker_and_postgres(cluster):
-    with _api(cluster) as api, _worker(cluster, "w1"), api.client() as c:
+    with _api(cluster) as api, _worker(cluster, "w1", worker_threads=3) as w, api.client() as c:
+        # the pool child runs with its BLAS/OpenMP and numba thread pools at SCANMILL_WORKER_THREADS
+        line = wait_until(lambda: re.search(r"pool child \d+: 3 thread\(s\) per job; effective: (.*)", w.log_text()))
+        effective = dict(kv.split("=") for kv in line.group(1).split(", "))
+        assert effective.get("numba") == "3" and effective.get("openblas") == "3", effective
         r = submit(c, cluster["cloud"])
         assert r.status_code == 202, r.text
         jid = r.json()["id"]

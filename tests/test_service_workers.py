@@ -101,7 +101,7 @@ def test_workers_pin_blas_threads(server, c, cloud):
     jid = submit(c, cloud).json()["id"]
     _, pids = _running(c, server, jid)
     env = psutil.Process(pids[0]).environ()
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
         assert env.get(var) == "3", var      # SCANMILL_WORKER_THREADS, a value nobody sets by chance
     assert c.delete(f"/jobs/{jid}").status_code == 200
 

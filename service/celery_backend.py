@@ -84,7 +84,10 @@ class CeleryBackend:
         return True
 
     def cancel(self, job_id: str) -> bool:
-        """Revoke the job's task (a worker running it kills its child process)."""
+        """Revoke the job's task (a worker running it kills its child process); nothing for a job that ended."""
+        st = self.store.status_of(job_id)
+        if st is not None and st[0] in ("succeeded", "failed"):
+            return False
         try:
             self.app.control.revoke(job_id, terminate=True, signal="SIGKILL")
         except Exception as exc:  # noqa: BLE001 - the worker's heartbeat stops the job anyway

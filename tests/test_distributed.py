@@ -111,6 +111,24 @@ def test_a_killed_worker_job_is_redelivered_and_finishes(cluster):
             assert f"job {jid}: succeeded on attempt 2" in b.log_text()
 
 
+def test_the_reaper_requeues_a_job_whose_worker_died_before_the_broker_would(cluster):
+    """With the production-like visibility timeout (an hour) the broker would wait; the API's reaper sees the
+    heartbeat go silent for a lease, queues the job again and publishes it: another worker runs attempt 2."""
+    with _api(cluster, broker_visibility_timeout_s=3600) as api, api.client() as c:
+        a = _worker(cluster, "wa", worker_start_delay_s=60, broker_visibility_timeout_s=3600).start()
+        try:
+            jid = submit(c, cluster["cloud"]).json()["id"]
+            wait_until(lambda: _row(cluster, jid)["status"] == "running", max_polls=600)
+            a.kill9()
+        finally:
+            a.stop()
+        with _worker(cluster, "wb", broker_visibility_timeout_s=3600) as b:
+            job = wait_status(c, jid, max_polls=1200)
+            assert job["status"] == "succeeded" and job["attempts"] == 2, job
+            assert f"job {jid}: attempt 2 started on wb@test/" in b.log_text()       # claimed from the queue
+        assert f"'requeued': ['{jid}']" in api.log_text()
+
+
 def test_two_workers_drain_a_queue_and_no_job_completes_twice(cluster):
     n = 8
     with _api(cluster) as api, _worker(cluster, "w1") as w1, _worker(cluster, "w2") as w2, api.client() as c:

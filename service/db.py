@@ -162,11 +162,19 @@ def head_revision() -> str:
     return ScriptDirectory.from_config(cfg).get_current_head()
 
 
+def _unreachable(engine: Engine, exc: sa.exc.OperationalError) -> DatabaseError:
+    first = str(exc.orig).strip().splitlines()[0] if exc.orig else str(exc)
+    return DatabaseError(f"cannot reach the job database {engine.url.render_as_string(hide_password=True)}: {first}")
+
+
 def current_revision(engine: Engine) -> str | None:
     """The revision the database is at (None: not migrated yet)."""
     from alembic.runtime.migration import MigrationContext
-    with engine.connect() as conn:
-        return MigrationContext.configure(conn).get_current_revision()
+    try:
+        with engine.connect() as conn:
+            return MigrationContext.configure(conn).get_current_revision()
+    except sa.exc.OperationalError as exc:
+        raise _unreachable(engine, exc) from None
 
 
 def upgrade(engine: Engine, revision: str = "head") -> str:
@@ -201,8 +209,7 @@ def upgrade(engine: Engine, revision: str = "head") -> str:
             conn.commit()
             return MigrationContext.configure(conn).get_current_revision()
     except sa.exc.OperationalError as exc:
-        raise DatabaseError(f"cannot reach the job database {engine.url.render_as_string(hide_password=True)}: "
-                            f"{str(exc.orig).strip().splitlines()[0] if exc.orig else exc}") from None
+        raise _unreachable(engine, exc) from None
 
 
 def downgrade(engine: Engine, revision: str) -> str | None:

@@ -165,6 +165,10 @@ def build_openapi(app: FastAPI) -> dict[str, Any]:
             if not isinstance(op, dict) or "responses" not in op:
                 continue
             resp = op["responses"]
+            if op.get("operationId") != "get_version":          # every store-backed operation may answer 503
+                resp.setdefault("503", {"description": "The job store does not answer (retry after Retry-After "
+                                                       "seconds); nothing was changed.",
+                                        "content": {"application/problem+json": {"schema": PROBLEM_REF}}})
             r422 = resp.get("422")
             if r422 is not None:
                 content = r422.get("content", {})

@@ -15,6 +15,7 @@ import re
 from typing import Any
 
 from fastapi import FastAPI, Request
+from sqlalchemy import exc as sa_exc
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -152,6 +153,16 @@ def install_handlers(app: FastAPI) -> None:
             log.error("HTTP %s on %s: %s", status, request.url.path, detail)
         return problem_response(status, codes.get(status, "http_error"), detail, instance=request.url.path,
                                 headers=headers)
+
+    @app.exception_handler(sa_exc.OperationalError)
+    @app.exception_handler(sa_exc.InterfaceError)
+    async def _store_unavailable(request: Request, exc: Exception):
+        # the job database is down or unreachable: nothing was changed; the client may retry
+        log.error("job store unavailable on %s %s: %s", request.method, request.url.path,
+                  str(getattr(exc, "orig", exc)).strip().splitlines()[0] if str(getattr(exc, "orig", exc)) else exc)
+        return problem_response(503, "store_unavailable",
+                                "The job store does not answer right now; nothing was changed. Retry in a few "
+                                "seconds.", instance=request.url.path, headers={"Retry-After": "5"})
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception):  # pragma: no cover - a bug if reached

@@ -236,3 +236,28 @@ def test_the_soft_time_limit_fails_the_job_on_the_worker(cluster):
         job = wait_status(c, r.json()["id"], max_polls=600)
         assert job["status"] == "failed" and job["error"]["code"] == "time_limit_exceeded", job
         assert f"job {job['id']}: stopped at its time limit" in w.log_text()
+
+
+def test_embedded_backend_on_postgres_and_a_store_outage_answers_503(tmp_path):
+    """The embedded backend runs on PostgreSQL too; when the database goes away the API answers 503 problems
+    (Retry-After) instead of 500, and a submission during the outage leaves no files behind."""
+    from servers import PostgresServer
+
+    from service_fixtures import stray_files
+    pg = PostgresServer().start()
+    try:
+        cloud = write_half_sphere(tmp_path / "half_sphere.ply")
+        with ServerProcess(tmp_path / "data", database_url=pg.create_database(), workers=1) as api, \
+                api.client() as c:
+            jid = submit(c, cloud).json()["id"]
+            assert wait_status(c, jid, max_polls=1200)["status"] == "succeeded"
+            pg.stop()
+            for r in (c.get(f"/jobs/{jid}"), submit(c, cloud), c.get("/jobs"), c.get("/healthz")):
+                assert r.status_code == 503, r.text
+                assert r.headers["content-type"].startswith("application/problem+json")
+                assert r.json()["code"] == "store_unavailable"
+            assert stray_files(tmp_path / "data", [jid]) == []
+            doc = c.get("/openapi.json").json()
+            assert "503" in doc["paths"]["/jobs/{job_id}"]["get"]["responses"]
+    finally:
+        pg.stop()

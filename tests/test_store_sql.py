@@ -194,3 +194,19 @@ def test_concurrent_claims_never_share_a_job(db_url):
     assert sorted(got) == sorted(ids)                   # every job once, none twice
     assert all(j.attempts == 1 for j in store.running()) and len(store.running()) == 40
     store.close()
+
+
+def test_scanmill_db_upgrade_migrates_the_configured_database(db_url, monkeypatch, capsys, tmp_path):
+    from scanmill.cli import main
+    for k in [k for k in __import__("os").environ if k.startswith("SCANMILL_")]:
+        monkeypatch.delenv(k)
+    monkeypatch.setenv("SCANMILL_DATABASE_URL", db_url)
+    monkeypatch.setenv("SCANMILL_DATA_DIR", str(tmp_path / "data"))
+    assert main(["db", "upgrade"]) == 0
+    assert "revision (empty) -> 0002" in capsys.readouterr().out
+    assert main(["db", "upgrade"]) == 0
+    assert "revision 0002 -> 0002" in capsys.readouterr().out
+    assert current_revision(make_engine(db_url)) == "0002"
+    monkeypatch.setenv("SCANMILL_DATABASE_URL", "postgresql://nobody@127.0.0.1:1/none")
+    assert main(["db", "upgrade"]) == 2
+    assert "cannot reach the job database" in capsys.readouterr().err

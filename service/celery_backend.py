@@ -24,6 +24,7 @@ from service.celery_app import TASK_NAME, configure
 from service.settings import Settings
 from service.storage import Storage
 from service.store import JobRecord, JobStore
+from service.workers import time_limit_message
 
 log = logging.getLogger("scanmill.service")
 
@@ -113,9 +114,7 @@ class CeleryBackend:
         for job in self.store.abandoned(s.lease_s):
             started = datetime.fromisoformat(job.started_at) if job.started_at else now
             if (now - started).total_seconds() > job.time_limit_s:
-                if self.store.fail(job.id, job.attempts, "time_limit_exceeded",
-                                   f"the job ran longer than its time limit of {job.time_limit_s:g} s and its "
-                                   "worker was stopped (time_limit_s, at most SCANMILL_JOB_TIME_LIMIT_S)"):
+                if self.store.fail(job.id, job.attempts, "time_limit_exceeded", time_limit_message(job.time_limit_s)):
                     out["failed"].append(job.id)
             elif job.attempts >= s.max_attempts:
                 if self.store.fail(job.id, job.attempts, "worker_lost", self.store.lost_message(s.max_attempts)):

@@ -34,7 +34,15 @@ from service.celery_app import TASK_NAME, app
 from service.settings import Settings, load_settings
 from service.storage import Storage
 from service.store import JobRecord, JobStore
-from service.workers import error_of, job_spec, overall_progress, pin_thread_env, plan_attempt
+from service.workers import (
+    complete_attempt,
+    error_of,
+    job_spec,
+    overall_progress,
+    pin_thread_env,
+    plan_attempt,
+    time_limit_message,
+)
 
 log = logging.getLogger("scanmill.worker")
 
@@ -182,10 +190,7 @@ def _run_attempt(ctx: _Context, job: JobRecord) -> str:
     except SoftTimeLimitExceeded:
         stop.set()
         storage.remove_work(job.id, job.attempts)
-        store.fail(job.id, job.attempts, "time_limit_exceeded",
-                   f"the job ran longer than its time limit of {job.time_limit_s:g} s and was stopped "
-                   "(time_limit_s, at most SCANMILL_JOB_TIME_LIMIT_S); decimate the cloud or coarsen the "
-                   "orientations and submit it again")
+        store.fail(job.id, job.attempts, "time_limit_exceeded", time_limit_message(job.time_limit_s))
         log.info("job %s: stopped at its time limit", job.id)
         return "time_limit_exceeded"
     except Exception as exc:  # noqa: BLE001 - every failure becomes a job error with a reason
@@ -197,15 +202,7 @@ def _run_attempt(ctx: _Context, job: JobRecord) -> str:
         return "failed"
     finally:
         stop.set()
-    warnings = list(job.warnings) + [w for w in warnings if w not in job.warnings]
-    if store.status_of(job.id) != ("running", job.attempts):
-        storage.remove_work(job.id, job.attempts)
-        log.info("job %s: attempt %d finished but the job changed meanwhile; its artifacts were dropped",
-                 job.id, job.attempts)
-        return "discarded"
-    storage.publish_result(job.id, job.attempts)
-    if not store.succeed(job.id, job.attempts, summary, warnings):
-        shutil.rmtree(storage.result_dir(job.id), ignore_errors=True)
+    if not complete_attempt(store, storage, job, summary, warnings):
         log.info("job %s: attempt %d finished but the job changed meanwhile; its artifacts were dropped",
                  job.id, job.attempts)
         return "discarded"

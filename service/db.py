@@ -145,21 +145,27 @@ def _migration_lock(engine: Engine) -> Iterator[Connection]:
             conn.commit()
 
 
-def _alembic_config(conn: Connection):
+def _alembic_config(conn: Connection | None = None):
     from alembic.config import Config
     cfg = Config()
     cfg.set_main_option("script_location", str(MIGRATIONS))
-    cfg.attributes["connection"] = conn
+    if conn is not None:
+        cfg.attributes["connection"] = conn
     return cfg
+
+
+def _revision_known(rev: str) -> bool:
+    from alembic.script import ScriptDirectory
+    try:
+        return ScriptDirectory.from_config(_alembic_config()).get_revision(rev) is not None
+    except Exception:  # noqa: BLE001 - alembic raises for an unknown id
+        return False
 
 
 def head_revision() -> str:
     """The newest migration's revision id."""
     from alembic.script import ScriptDirectory
-    from alembic.config import Config
-    cfg = Config()
-    cfg.set_main_option("script_location", str(MIGRATIONS))
-    return ScriptDirectory.from_config(cfg).get_current_head()
+    return ScriptDirectory.from_config(_alembic_config()).get_current_head()
 
 
 def _unreachable(engine: Engine, exc: sa.exc.OperationalError) -> DatabaseError:
@@ -200,9 +206,8 @@ def upgrade(engine: Engine, revision: str = "head") -> str:
                                         f"{version})")
                 command.stamp(_alembic_config(conn), "0001")
                 conn.commit()
-            heads = head_revision()
             current = MigrationContext.configure(conn).get_current_revision()
-            if current is not None and current != heads and not _known_revision(current):
+            if current is not None and not _revision_known(current):
                 raise DatabaseError(f"the job database is at revision {current}, which this scanmill does not "
                                     "know: it was migrated by a newer scanmill")
             command.upgrade(_alembic_config(conn), revision)
@@ -219,14 +224,3 @@ def downgrade(engine: Engine, revision: str) -> str | None:
         command.downgrade(_alembic_config(conn), revision)
         conn.commit()
     return current_revision(engine)
-
-
-def _known_revision(rev: str) -> bool:
-    from alembic.config import Config
-    from alembic.script import ScriptDirectory
-    cfg = Config()
-    cfg.set_main_option("script_location", str(MIGRATIONS))
-    try:
-        return ScriptDirectory.from_config(cfg).get_revision(rev) is not None
-    except Exception:  # noqa: BLE001 - alembic raises for an unknown id
-        return False

@@ -106,11 +106,12 @@ class JobStore:
     """
 
     def __init__(self, database: str | Path | URL, *, migrate: bool = True):
-        if isinstance(database, Path) or (isinstance(database, str) and "://" not in database):
-            url = database_url(None, Path(database).parent).set(database=str(Path(database).resolve()))
+        if isinstance(database, URL):
+            url = database
+        elif isinstance(database, Path) or "://" not in database:
+            url = sa.engine.make_url(f"sqlite:///{Path(database).resolve()}")
         else:
-            url = database_url(str(database) if not isinstance(database, URL) else
-                               database.render_as_string(hide_password=False), ".")
+            url = database_url(database, ".")
         self.url = url
         self.engine = make_engine(url)
         self.dialect = self.engine.dialect.name

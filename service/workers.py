@@ -195,6 +195,31 @@ def run_job(spec: dict[str, Any], conn) -> None:
         conn.close()
 
 
+def time_limit_message(limit_s: float) -> str:
+    """The error message of a job stopped at its time limit (code ``time_limit_exceeded``)."""
+    return (f"the job ran longer than its time limit of {limit_s:g} s and was stopped (time_limit_s, at most "
+            "SCANMILL_JOB_TIME_LIMIT_S); decimate the cloud or coarsen the orientations and submit it again")
+
+
+def complete_attempt(store: JobStore, storage: Storage, job: JobRecord, summary: dict[str, Any],
+                     warnings: list[str]) -> bool:
+    """Publish an attempt's artifacts and mark the job succeeded, for that attempt only.
+
+    If the job is no longer that attempt (cancelled, deleted, taken over) the artifacts are dropped
+    instead. The job's own warnings (from submission) come first. True if the job succeeded.
+    """
+    warnings = list(job.warnings) + [w for w in warnings if w not in job.warnings]
+    if store.status_of(job.id) != ("running", job.attempts):
+        storage.remove_work(job.id, job.attempts)
+        return False
+    storage.publish_result(job.id, job.attempts)
+    if not store.succeed(job.id, job.attempts, summary, warnings):
+        # cancelled between the check and now: its files go with it
+        shutil.rmtree(storage.result_dir(job.id), ignore_errors=True)
+        return False
+    return True
+
+
 def job_spec(job: JobRecord, settings: Settings, storage: Storage) -> dict[str, Any]:
     """What :func:`plan_attempt` needs to run the current attempt of ``job``."""
     return {
@@ -299,8 +324,7 @@ class JobRunner:
             if (work / "plan.json").is_file():
                 try:
                     r = PlanResult.model_validate(json.loads((work / "plan.json").read_text()))
-                    self.storage.publish_result(job.id, job.attempts)
-                    if self.store.succeed(job.id, job.attempts, plan_summary(r), list(r.warnings)):
+                    if complete_attempt(self.store, self.storage, job, plan_summary(r), list(r.warnings)):
                         out["succeeded"].append(job.id)
                         continue
                 except Exception:  # noqa: BLE001 - an unreadable plan is simply run again
@@ -451,16 +475,7 @@ class JobRunner:
         job = a.job
         if a.killed_for is None and outcome is not None and outcome[0] == "done":
             _, summary, warnings = outcome
-            warnings = list(job.warnings) + [w for w in warnings if w not in job.warnings]
-            st = self.store.status_of(job.id)
-            if st != ("running", job.attempts):
-                self.storage.remove_work(job.id, job.attempts)
-                return
-            self.storage.publish_result(job.id, job.attempts)
-            if not self.store.succeed(job.id, job.attempts, summary, warnings):
-                # cancelled between the check and now: its files go with it
-                shutil.rmtree(self.storage.result_dir(job.id), ignore_errors=True)
-            else:
+            if complete_attempt(self.store, self.storage, job, summary, warnings):
                 log.info("job %s: succeeded (%s)", job.id, summary.get("message"))
             return
         self.storage.remove_work(job.id, job.attempts)          # killed or failed: nothing to publish
@@ -471,10 +486,7 @@ class JobRunner:
         if a.killed_for == "cancel":
             return
         if a.killed_for == "time_limit":
-            self.store.fail(job.id, job.attempts, "time_limit_exceeded",
-                            f"the job ran longer than its time limit of {job.time_limit_s:g} s and was stopped "
-                            "(time_limit_s, at most SCANMILL_JOB_TIME_LIMIT_S); decimate the cloud or coarsen "
-                            "the orientations and submit it again")
+            self.store.fail(job.id, job.attempts, "time_limit_exceeded", time_limit_message(job.time_limit_s))
             log.info("job %s: stopped at its time limit", job.id)
             return
         if outcome is not None and outcome[0] == "error":

@@ -139,6 +139,24 @@ def _stop_process(proc: subprocess.Popen | None, first_signal: int, tries: int =
     _LIVE_PROCS.pop(proc.pid, None)
 
 
+def _wait_ready(server, probe, errors, failure: str) -> None:
+    """Call ``probe`` until it returns True (at most READY_TRIES times, ``errors`` meaning not yet), while the
+    server process lives; otherwise stop the server and raise RuntimeError with ``failure`` and its log tail."""
+    for _ in range(READY_TRIES):
+        if server.proc.poll() is not None:
+            break
+        try:
+            if probe():
+                return
+        except errors:
+            pass
+        time.sleep(READY_PAUSE_S)
+    code = server.proc.poll()
+    tail = _log_tail(server.log_path)
+    server.stop()
+    raise RuntimeError(f"{failure} (exit code {code}); log tail:\n{tail}")
+
+
 def _run_as_kwargs() -> dict:
     """Popen arguments that drop to the postgres system user when we are root."""
     if os.geteuid() == 0:
@@ -220,25 +238,15 @@ class RedisServer:
                 stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, cwd=self.dir,
                 start_new_session=True)
         _LIVE_PROCS[self.proc.pid] = (self.proc, signal.SIGTERM)
-        for _ in range(READY_TRIES):
-            if self.proc.poll() is not None:
-                break
+        def ping() -> bool:
+            client = redis.Redis(host="127.0.0.1", port=self.port, socket_connect_timeout=1, socket_timeout=1)
             try:
-                client = redis.Redis(host="127.0.0.1", port=self.port, socket_connect_timeout=1,
-                                     socket_timeout=1)
-                try:
-                    if client.ping():
-                        return self
-                finally:
-                    client.close()
-            except redis.exceptions.RedisError:
-                pass
-            time.sleep(READY_PAUSE_S)
-        code = self.proc.poll()
-        tail = _log_tail(self.log_path)
-        self.stop()
-        raise RuntimeError(f"redis-server on port {self.port} never answered PING "
-                           f"(exit code {code}); log tail:\n{tail}")
+                return bool(client.ping())
+            finally:
+                client.close()
+
+        _wait_ready(self, ping, redis.exceptions.RedisError, f"redis-server on port {self.port} never answered PING")
+        return self
 
     def stop(self) -> None:
         _stop_process(self.proc, signal.SIGTERM)
@@ -323,21 +331,13 @@ class PostgresServer:
                 stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, cwd=self.dir,
                 start_new_session=True, **as_user)
         _LIVE_PROCS[self.proc.pid] = (self.proc, signal.SIGINT)
-        for _ in range(READY_TRIES):
-            if self.proc.poll() is not None:
-                break
-            try:
-                with self._connect() as conn:
-                    conn.execute("SELECT 1")
-                return self
-            except psycopg.Error:
-                pass
-            time.sleep(READY_PAUSE_S)
-        code = self.proc.poll()
-        tail = _log_tail(self.log_path)
-        self.stop()
-        raise RuntimeError(f"postgres on port {self.port} never accepted connections "
-                           f"(exit code {code}); log tail:\n{tail}")
+        def select_1() -> bool:
+            with self._connect() as conn:
+                conn.execute("SELECT 1")
+            return True
+
+        _wait_ready(self, select_1, psycopg.Error, f"postgres on port {self.port} never accepted connections")
+        return self
 
     def create_database(self, name: str | None = None) -> str:
         """Create a fresh database (a random name if None) and return its SQLAlchemy URL."""

@@ -52,7 +52,42 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-class ServerProcess:
+class _ScanmillProcess:
+    """A ``scanmill`` command in a subprocess of its own session, configured by ``SCANMILL_*`` variables."""
+
+    settings: dict
+    proc: subprocess.Popen | None = None
+
+    def env(self) -> dict[str, str]:
+        """This environment without its SCANMILL_* variables, plus ``settings`` as SCANMILL_* variables."""
+        env = {k: v for k, v in os.environ.items() if not k.startswith("SCANMILL_")}
+        env["PYTHONUNBUFFERED"] = "1"
+        for k, v in self.settings.items():
+            env["SCANMILL_" + k.upper()] = ",".join(v) if isinstance(v, (list, tuple)) else str(v)
+        return env
+
+    def kill9(self) -> None:
+        """SIGKILL the main process only, as ``kill -9 PID`` (a crash) would; its children die with it."""
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait(60)
+
+    def stop(self) -> None:
+        """SIGTERM (a clean stop), then SIGKILL of the whole session if it does not end."""
+        if self.proc is None or self.proc.poll() is not None:
+            return
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            self.proc.wait(30)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait(30)
+
+    def __exit__(self, *exc) -> None:
+        self.stop()                                # a no-op after kill9()
+
+
+class ServerProcess(_ScanmillProcess):
     """``scanmill serve`` in a subprocess on 127.0.0.1 (a new free port for each start)."""
 
     def __init__(self, data_dir: Path, log_dir: Path | None = None, **settings):
@@ -66,19 +101,10 @@ class ServerProcess:
     def __enter__(self) -> "ServerProcess":
         return self.start()
 
-    def __exit__(self, *exc) -> None:
-        self.stop()                                # a no-op after kill9()
-
     @property
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
 
-    def env(self) -> dict[str, str]:
-        env = {k: v for k, v in os.environ.items() if not k.startswith("SCANMILL_")}
-        env["PYTHONUNBUFFERED"] = "1"
-        for k, v in self.settings.items():
-            env["SCANMILL_" + k.upper()] = ",".join(v) if isinstance(v, (list, tuple)) else str(v)
-        return env
 
     def start(self, max_polls: int = 600) -> "ServerProcess":
         """Start the server and wait (at most ``max_polls`` x 0.1 s) until /healthz answers 200."""
@@ -108,22 +134,6 @@ class ServerProcess:
         p = self.log_dir / f"server-{self.starts}.log"
         return p.read_text(errors="replace") if p.exists() else ""
 
-    def kill9(self) -> None:
-        """SIGKILL the server process (as a crash would); its workers die with it."""
-        assert self.proc is not None
-        self.proc.send_signal(signal.SIGKILL)
-        self.proc.wait(60)
-
-    def stop(self) -> None:
-        """SIGTERM, then SIGKILL if it does not end."""
-        if self.proc is None or self.proc.poll() is not None:
-            return
-        self.proc.send_signal(signal.SIGTERM)
-        try:
-            self.proc.wait(30)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait(30)
 
     def client(self, key: str | None = None, **kw) -> httpx.Client:
         headers = {"Authorization": f"Bearer {key}"} if key else {}
@@ -199,24 +209,16 @@ def ascii_ply(points: np.ndarray, *, claim: int | None = None) -> bytes:
     return (head + body).encode()
 
 
-class WorkerProcess:
+class WorkerProcess(_ScanmillProcess):
     """``scanmill worker`` (a Celery worker) in a subprocess and its own session, logging to a file.
 
     ``settings`` become ``SCANMILL_*`` variables (broker, database, data directory, ...).
-    :meth:`kill9` sends SIGKILL to the worker's main process only, as ``kill -9 PID`` would.
     """
 
     def __init__(self, name: str, log_dir: Path, **settings):
         self.name, self.log_dir, self.settings = name, Path(log_dir), settings
         self.proc: subprocess.Popen | None = None
         self.log_path = self.log_dir / f"worker-{name}.log"
-
-    def env(self) -> dict[str, str]:
-        env = {k: v for k, v in os.environ.items() if not k.startswith("SCANMILL_")}
-        env["PYTHONUNBUFFERED"] = "1"
-        for k, v in self.settings.items():
-            env["SCANMILL_" + k.upper()] = str(v)
-        return env
 
     def start(self, max_polls: int = 600) -> "WorkerProcess":
         """Start it and wait (at most ``max_polls`` x 0.1 s) until Celery logs that the worker is ready."""
@@ -246,24 +248,5 @@ class WorkerProcess:
         except psutil.Error:
             return []
 
-    def kill9(self) -> None:
-        assert self.proc is not None
-        self.proc.send_signal(signal.SIGKILL)
-        self.proc.wait(60)
-
-    def stop(self) -> None:
-        """Warm shutdown (SIGTERM), then SIGKILL of the whole session if it does not end."""
-        if self.proc is None or self.proc.poll() is not None:
-            return
-        self.proc.send_signal(signal.SIGTERM)
-        try:
-            self.proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(self.proc.pid, signal.SIGKILL)
-            self.proc.wait(30)
-
     def __enter__(self) -> "WorkerProcess":
         return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()

@@ -7,6 +7,7 @@ path (a symlink standing for a network mount). Timings are shortened through the
 settings (heartbeat 0.5 s, lease 3 s, broker visibility timeout 6 s). Every wait is bounded in
 count; nothing asserts on elapsed time.
 """
+# ruff: noqa: F811  (pytest fixtures imported from servers.py are redefined as test arguments)
 
 from __future__ import annotations
 
@@ -158,7 +159,7 @@ def test_cancel_revokes_the_running_task(cluster):
         assert _row(cluster, jid)["status"] == "cancelled"
 
 
-def test_a_job_accepted_while_the_broker_is_down_is_published_later(cluster, redis_server, tmp_path):
+def test_a_job_accepted_while_the_broker_is_down_is_published_later(cluster):
     """The outbox: the API keeps the job queued in PostgreSQL and its reaper publishes it once Redis answers."""
     dead = "redis://127.0.0.1:1/0"
     with _api(cluster, broker_url=dead) as api, api.client() as c:
@@ -172,7 +173,7 @@ def test_a_job_accepted_while_the_broker_is_down_is_published_later(cluster, red
         assert job["status"] == "succeeded" and job["attempts"] == 1
 
 
-def test_worker_refuses_to_start_without_a_broker_or_database(cluster, tmp_path):
+def test_worker_refuses_to_start_without_a_broker_or_database(cluster):
     import subprocess
     import sys
 

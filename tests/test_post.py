@@ -922,9 +922,10 @@ def test_safe_height_matches_the_per_arc_reference():
                 assert safe_height_mm(op, o) == _reference_safe_height_mm(op, o)
 
 
-def _reference_neutral_moves(operations, frame, *, tool_axis, rotary_deg, profile, placement_mm, setup_id=None,
-                             area_id=None, gauge_length_mm=None, decimals: int = 4) -> dict:
-    """neutral_moves as first written, one move at a time (the reference of the whole-array one)."""
+def _reference_neutral_operations(operations, frame, *, tool_axis, rotary_deg, profile, placement_mm,
+                                  gauge_length_mm=None, decimals: int = 4, **_header) -> list[dict]:
+    """The ``operations`` of neutral_moves as first written, one move at a time (the reference of the
+    whole-array one; the document's header around them is not per-move work and is not repeated here)."""
     from planning.machine import _profile, part_to_machine_rotation
     from planning.post.common import (
         check_frame,
@@ -934,16 +935,8 @@ def _reference_neutral_moves(operations, frame, *, tool_axis, rotary_deg, profil
         check_rotary,
         feed_for,
         gauge_of,
-        scanmill_version,
     )
-    from planning.post.neutral import (
-        _TYPE,
-        _UNIT_DECIMALS,
-        _USE,
-        NEUTRAL_FORMAT,
-        NEUTRAL_FORMAT_VERSION,
-        _r,
-    )
+    from planning.post.neutral import _TYPE, _UNIT_DECIMALS, _USE, _r
     from planning.toolpath.moves import path_length_mm
     from planning.travel import machine_position_affine
 
@@ -955,14 +948,12 @@ def _reference_neutral_moves(operations, frame, *, tool_axis, rotary_deg, profil
     place = check_placement(placement_mm)
     gauge = check_gauge(gauge_length_mm)
     Rrows = np.asarray(frame.rotation, dtype=np.float64)
-    origin = np.asarray(frame.origin_mm, dtype=np.float64)
     M = part_to_machine_rotation(rot, p)[0]
     if p.is_table_table:
         A_tip, b_tip = machine_position_affine(rot, p, placement_mm=place, tool_radius_mm=0.0, gauge_length_mm=0.0)
         A_tip, b_tip = A_tip[0], b_tip[0]
     else:
         A_tip, b_tip = np.eye(3), place.copy()
-    tilt_name, rot_name = p.axis_names
     out_ops = []
     for op in ops:
         tp = op.toolpath
@@ -995,24 +986,7 @@ def _reference_neutral_moves(operations, frame, *, tool_axis, rotary_deg, profil
             A_c, b_c = machine_position_affine(rot, p, placement_mm=place, tool_radius_mm=0.0, gauge_length_mm=G)
             entry["controlled_machine_mm"] = _r(tip_part @ A_c[0].T + b_c[0], d)
         out_ops.append(entry)
-    return {
-        "format": NEUTRAL_FORMAT, "format_version": NEUTRAL_FORMAT_VERSION, "scanmill_version": scanmill_version(),
-        "units": {"length": "mm", "angle": "deg", "feed": "mm/min", "spindle": "rev/min"}, "area_id": area_id,
-        "setup": {"id": setup_id, "tool_axis_part": _r(t, _UNIT_DECIMALS), "tool_axis_machine": _r(M @ t, _UNIT_DECIMALS),
-                  "rotary_deg": {tilt_name: float(rot[0]) + 0.0, rot_name: float(rot[1]) + 0.0},
-                  "axis_names": [tilt_name, rot_name],
-                  "angle_signs": "planning.machine: right-hand rule about the positive machine axis; "
-                                 + ("the table (part) turns" if p.is_table_table else "the head (tool) turns")},
-        "machine": {"profile": p.name, "kinematics": p.kinematics, "placement_mm": _r(place, d),
-                    "table_pivot_mm": _r(p.pivot_mm, d) if p.is_table_table else None,
-                    "head_pivot_length_mm": None if p.is_table_table else p.pivot_length_mm,
-                    "machine_frame": "origin at the table-top centre on the C axis with every rotary axis at 0, Z up; "
-                                     + ("tip_machine_mm = M (p + placement) + (I - R_tilt) P, the table turned"
-                                        if p.is_table_table else "tip_machine_mm = p + placement, the part fixed")},
-        "frame": {"origin_part_mm": _r(origin, d), "axes_part": _r(Rrows, _UNIT_DECIMALS),
-                  "axes_note": "rows: the area frame's x, y, z (= tool axis) in the part frame"},
-        "operations": out_ops,
-    }
+    return out_ops
 
 
 def test_neutral_matches_the_per_move_reference():
@@ -1034,7 +1008,8 @@ def test_neutral_matches_the_per_move_reference():
                   "placement_mm": [1.0, -2.0, 60.0], "setup_id": 1, "area_id": 2, "gauge_length_mm": gauge,
                   "decimals": d}
             doc = neutral_moves(ops, frame, **kw)
-            assert json.dumps(doc) == json.dumps(_reference_neutral_moves(ops, frame, **kw))
+            reference = dict(doc, operations=_reference_neutral_operations(ops, frame, **kw))
+            assert json.dumps(doc) == json.dumps(reference)
             assert neutral_json(ops, frame, **kw) == json.dumps(doc, separators=(",", ":"))
 
 

@@ -241,9 +241,9 @@ def test_serve_refuses_bad_settings_with_a_message(capsys, monkeypatch):
 def test_shared_storage_has_no_lock_stages_per_host_and_spares_young_folders(tmp_path):
     from service.storage import SharedStorage, open_storage
     a = SharedStorage(tmp_path / "data", host="api-1")
-    b = open_storage(tmp_path / "data", "shared")
-    b.host = "api-2"
-    b.tmp_dir = b.root / "tmp" / "api-2"
+    b = SharedStorage(tmp_path / "data", host="api-2")
+    assert isinstance(open_storage(tmp_path / "data", "shared"), SharedStorage)
+    assert type(open_storage(tmp_path / "data", "local")) is Storage
     a.open()
     b.open()                                            # several machines at once: no lock
     st_a, st_b = a.new_staging(), b.new_staging()

@@ -1,8 +1,8 @@
-"""Benchmark of the cloud collision test (global visibility, Makki 2010 §2.2.4; DESIGN.md target:
+"""Benchmark of the cloud collision test (global visibility, Makki 2010 §2.2.4; docs/design.md target:
 100k points x 216 orientations with cutter and holder within 5 s on 2 cores).
 
 A 100k-point femur-like part with its exact normals; 216 near-uniform (Fibonacci) axes over the
-whole sphere; every point is both a sample and an obstacle. Tools: the DESIGN.md yardstick
+whole sphere; every point is both a sample and an obstacle. Tools: the docs/design.md yardstick
 (R 3 mm cutter to 9 mm above the ball centre, then an unbounded R 10 mm holder) and scanmill's
 default assembly. Pairs: all n x m, and the pairs inside the tool cone [10, 80] deg (what the
 pipeline asks). One and two threads in the same run; ``--check`` compares a random subset of
@@ -19,9 +19,9 @@ import time
 
 import numpy as np
 
-import planning.collision as col
-from planning.samples import femur_like
-from planning.tool import Segment, ToolAssembly
+import planning.geometry.collision as col
+from planning.inputs.samples import femur_like
+from planning.geometry.tool import Segment, ToolAssembly
 from schemas.params import ToolParams
 
 

@@ -1,4 +1,4 @@
-"""Benchmark: global visibility against fixtures (planning.fixtures, Makki 2010 §2.2.4).
+"""Benchmark: global visibility against fixtures (planning.geometry.fixtures, Makki 2010 §2.2.4).
 
     .venv/bin/python bench/bench_fixtures.py                       # 100k centres x 216 axes
     .venv/bin/python bench/bench_fixtures.py --centres 20000 --check 100
@@ -9,7 +9,7 @@ ends), the machine table at z = -120. Ball centres: ``--centres`` random points 
 side faces of the part, offset by R along the face normal. Axes: tilt 5..80 deg by 15 deg from +Z
 x azimuth 0..350 by 10 deg (6 x 36 = 216), or ``--uniform`` random axes in the upper hemisphere.
 Tool: ball R 3, cutter to 12 mm and shank (dia 6) to 30 mm above the ball centre (flute length 15,
-stick-out 33 from the tip), holder dia 20 x 40 mm, then dia 40 x 60 mm (``planning.tool.ball_tool``).
+stick-out 33 from the tip), holder dia 20 x 40 mm, then dia 40 x 60 mm (``planning.geometry.tool.ball_tool``).
 
 Prints the seconds of ``fixture_collision_free`` (best of ``--repeats``), the pairs, how many the
 numpy broad phase decided and how many needed FCL (and the FCL calls), the free fraction, and,
@@ -28,13 +28,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from planning.fixtures import (
+from planning.geometry.fixtures import (
     BoxFixture,
     TableFixture,
     brute_force_fixture_collision_free,
     fixture_collision_free,
 )
-from planning.tool import ball_tool
+from planning.geometry.tool import ball_tool
 
 
 def scene():

@@ -1,10 +1,10 @@
-"""Benchmark: sphere throwing (planning.normals) against Open3D normals on the same ~1M-point cloud.
+"""Benchmark: sphere throwing (planning.normals.throwing) against Open3D normals on the same ~1M-point cloud.
 
     .venv/bin/python bench/bench_normals.py                      # femur-like, 1,000,000 points
     .venv/bin/python bench/bench_normals.py --cloud synthetic    # closed bar, 45 points/mm^2
     .venv/bin/python bench/bench_normals.py --repeats 3 --points 1000000 --threads 0
 
-Clouds: ``femur`` = ``planning.samples.femur_like`` (8 simulated views, noise 0.03 mm, ~19 points/mm^2);
+Clouds: ``femur`` = ``planning.inputs.samples.femur_like`` (8 simulated views, noise 0.03 mm, ~19 points/mm^2);
 ``synthetic`` = ``tests/surfaces.cylinder``: a closed bar R 15 mm, capped, length chosen for ``--points``
 at 45 points/mm^2 (the paper's density), noise 0.02 mm along the recording view. Both carry exact
 normals, so the angular error of each method is printed too (Open3D's normals are unoriented: its
@@ -36,12 +36,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from planning.normals import DEFAULT_DIRECTIONS, sphere_throwing  # noqa: E402
+from planning.normals.throwing import DEFAULT_DIRECTIONS, sphere_throwing  # noqa: E402
 
 
 def make_cloud(kind: str, n_points: int, seed: int):
     if kind == "femur":
-        from planning.samples import femur_like
+        from planning.inputs.samples import femur_like
         s = femur_like(n_points=n_points, seed=seed)
         return s.points, s.normals, s.description
     import surfaces

@@ -1,4 +1,4 @@
-"""Whole-plan benchmark on the femur-like reference scan (DESIGN.md "Performance").
+"""Whole-plan benchmark on the femur-like reference scan (docs/design.md "Performance").
 
 Prints, for a femur-like cloud (default 1,000,000 points, sphere 7 mm, five throwing directions,
 cone [10, 60] deg, max_setups 5, coverage 95 %): seconds and peak RSS after each pipeline stage,
@@ -44,11 +44,11 @@ def main() -> None:
 
     import open3d as o3d
 
-    from planning.cloud import Cloud
-    from planning.normals import sphere_throwing
+    from planning.inputs.cloud import Cloud
+    from planning.normals.throwing import sphere_throwing
     from planning.pipeline import run_plan
-    from planning.report import write_plan
-    from planning.samples import femur_like
+    from planning.report.plan_files import write_plan
+    from planning.inputs.samples import femur_like
     from schemas.params import parse_config
 
     print(f"cores: {os.cpu_count()}  numpy {np.__version__}  open3d {o3d.__version__}")

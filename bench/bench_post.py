@@ -29,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from planning.machine import machine_visibility
+from planning.orientations.kinematics import machine_visibility
 from planning.post import (
     Operation,
     PostOptions,

@@ -3,7 +3,7 @@
 planning/toolpath/area_paths.py and the default ``paths.roughing`` parameters: flat end mill
 Ø10, step down 2 mm, allowance 0.5 mm, margin 2 mm, zig-zag, contour pass).
 
-The cloud is ``planning.samples.femur_like(--points)`` (1,000,000 by default, about 3 s to
+The cloud is ``planning.inputs.samples.femur_like(--points)`` (1,000,000 by default, about 3 s to
 generate); for each ``--axis`` the whole cloud is put in the area frame
 (:func:`planning.toolpath.frames.area_frame`), the area being the points whose exact normal lies
 within 60 deg of the axis (the tool cone's upper angle; a stand-in for the pipeline's labels). The
@@ -40,7 +40,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from planning.samples import femur_like
+from planning.inputs.samples import femur_like
 from planning.toolpath import roughing
 from planning.toolpath.frames import area_frame
 

@@ -1,7 +1,9 @@
-"""The planning pipeline: cloud -> normals -> orientations -> visibility -> set-ups -> areas.
+"""The planning pipeline: cloud -> normals -> orientations -> visibility -> set-ups -> areas -> paths -> post.
 
-One function, :func:`run_plan`, calls each stage in turn (DESIGN.md "The pipeline", Makki 2010
-§2-3), times it, and gathers the ``plan.json`` document and the ``plan.npz`` arrays. No global
+One function, :func:`run_plan`, calls each stage in turn (docs/design.md "The pipeline", Makki 2010
+§2-3), times it, and gathers the ``plan.json`` document and the ``plan.npz`` arrays. The stages'
+algorithms live in their packages (``planning/normals``, ``planning/orientations``, ...); this module
+only passes their results on and turns them into the plan's summaries and warnings. No global
 state: the same cloud and parameters give the same plan.
 """
 
@@ -14,17 +16,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import scanmill
-from planning.areas import Areas, assign_areas
-from planning.cloud import Cloud
+from planning.areas.assign import Areas, assign_areas
 from planning.errors import InputError, ParameterError
-from planning.gaussmap import candidate_axes
-from planning.globalvis import global_visibility
-from planning.machine import load_profile, machine_visibility
-from planning.normals import sphere_throwing
+from planning.inputs.cloud import Cloud
+from planning.normals.throwing import sphere_throwing
+from planning.orientations.candidates import CandidateAxes, candidate_axes
+from planning.orientations.kinematics import load_profile, machine_visibility
 from planning.post.programs import post_areas
-from planning.setups import SetupSelection, select_setups
+from planning.setups.select import SetupSelection, select_setups
 from planning.toolpath.area_paths import area_toolpaths
-from planning.visibility import cone_visibility
+from planning.visibility.chain import GlobalVisibility, global_visibility
+from planning.visibility.cone import cone_visibility
 from schemas.params import BoxZone, IndexZone, PlanConfig, SphereZone
 from schemas.plan import (
     AxisFilters,
@@ -97,7 +99,51 @@ def zone_mask(points: np.ndarray, sample_index: np.ndarray, zones) -> tuple[np.n
     return mask, warnings
 
 
-def _normals_stage(cloud: Cloud, config: PlanConfig, progress) -> tuple[np.ndarray, np.ndarray, NormalsSummary]:
+class _Run:
+    """Timings and warnings of one plan; :meth:`stage` runs one stage with its progress lines."""
+
+    def __init__(self, progress: Progress | None):
+        self.progress = progress
+        self.timings: list[Timing] = []
+        self.warnings: list[str] = []
+
+    def stage(self, stage: str, fn):
+        """Run ``fn(stage_progress)``, time it as ``stage`` and report its start and end."""
+        progress = self.progress
+        t0 = time.perf_counter()
+        if progress:
+            progress(stage, 0.0, "start")
+        out = fn(_stage_progress(progress, stage))
+        self.timings.append(Timing(stage=stage, seconds=round(time.perf_counter() - t0, 4)))
+        if progress:
+            progress(stage, 1.0, f"done in {self.timings[-1].seconds:.2f} s")
+        return out
+
+
+@dataclass(frozen=True)
+class _Normals:
+    sample_index: np.ndarray     # (n,) int64 into the input points
+    normals: np.ndarray          # (n,3) unit, outward
+    summary: NormalsSummary
+
+
+@dataclass(frozen=True)
+class _Orientations:
+    candidates: CandidateAxes    # every candidate axis on the Gaussian sphere
+    feasible: np.ndarray         # (M,) bool: within the rotary travel
+    axes: np.ndarray             # (m,3) the feasible axes, the visibility matrix's columns
+    angles_deg: np.ndarray       # (m,2) their (tilt, rotary) positions
+
+
+@dataclass(frozen=True)
+class _Visibility:
+    cone: np.ndarray             # (n,m) bool: tool cone only
+    chain: GlobalVisibility      # after travel, fixtures and cloud collisions
+    summary: VisibilitySummary
+
+
+def _normals(cloud: Cloud, config: PlanConfig, progress) -> _Normals:
+    """Stage 2 (Makki §2.1): the file's normals, or sphere throwing's sampled points and normals."""
     p = config.normals
     n_input = cloud.points.shape[0]
     if p.method == "input":
@@ -114,7 +160,7 @@ def _normals_stage(cloud: Cloud, config: PlanConfig, progress) -> tuple[np.ndarr
         normals = nrm[good] / length[good, None]
         summary = NormalsSummary(method="input", n_sampled=int(sample_index.size),
                                  sampled_fraction=sample_index.size / n_input)
-        return sample_index, normals, summary
+        return _Normals(sample_index, normals, summary)
     res = sphere_throwing(cloud.points, sphere_diameter_mm=p.sphere_diameter_mm,
                           grid_spacing_mm=p.grid_spacing_mm, directions=p.directions, progress=progress)
     if res.sample_index.size == 0:
@@ -124,75 +170,51 @@ def _normals_stage(cloud: Cloud, config: PlanConfig, progress) -> tuple[np.ndarr
                              sampled_fraction=res.sample_index.size / n_input,
                              sphere_diameter_mm=float(res.sphere_diameter_mm),
                              grid_spacing_mm=float(res.grid_spacing_mm))
-    return np.asarray(res.sample_index, dtype=np.int64), np.asarray(res.normals, dtype=np.float64), summary
+    return _Normals(np.asarray(res.sample_index, dtype=np.int64), np.asarray(res.normals, dtype=np.float64), summary)
 
 
-def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
-             progress: Progress | None = None, base_dir=None) -> PlanOutcome:
-    """Plan the 3+2 machining of ``cloud`` (points in mm) with ``config`` (Makki 2010 §2-3).
+def _normals_warnings(nrm: _Normals) -> list[str]:
+    s = nrm.summary
+    if s.method == "sphere_throwing" and s.sampled_fraction < 0.01:
+        return [f"only {s.sampled_fraction:.1%} of the points got a normal: the cloud may be sparse "
+                "for the sphere diameter, or the grid spacing coarse"]
+    return []
 
-    Returns the ``plan.json`` model and the ``plan.npz`` arrays: ``sample_index`` (n,),
-    ``normals`` (n,3), ``candidate_axes`` (m,3) (machine-feasible axes), ``visibility`` (n,m),
-    ``selected`` (k,), ``labels`` (n,), ``integrated`` (n,), plus ``input_labels`` (N,).
-    ``base_dir``: where relative fixture mesh paths are looked up (the configuration's folder).
-    """
-    timings: list[Timing] = []
-    warnings: list[str] = []
-    points = cloud.points
 
-    def timed(stage, fn):
-        t0 = time.perf_counter()
-        if progress:
-            progress(stage, 0.0, "start")
-        out = fn()
-        timings.append(Timing(stage=stage, seconds=round(time.perf_counter() - t0, 4)))
-        if progress:
-            progress(stage, 1.0, f"done in {timings[-1].seconds:.2f} s")
-        return out
-
-    # 1. normals (Makki §2.1)
-    sample_index, normals, nsum = timed(
-        "normals", lambda: _normals_stage(cloud, config, _stage_progress(progress, "normals")))
-    if nsum.method == "sphere_throwing" and nsum.sampled_fraction < 0.01:
-        warnings.append(f"only {nsum.sampled_fraction:.1%} of the points got a normal: the cloud may be sparse "
-                        "for the sphere diameter, or the grid spacing coarse")
-
-    # 2. orientations + machine visibility (§2.2.1-2.2.2)
-    profile = load_profile(config.machine.profile)
-
-    def orientations():
-        o = config.orientations
-        cand = candidate_axes(o.sampling, phi_step_deg=o.phi_step_deg, theta_step_deg=o.theta_step_deg,
-                              resolution_deg=o.resolution_deg)
-        mv = machine_visibility(cand.axes, profile)
-        return cand, mv
-
-    cand, mv = timed("orientations", orientations)
+def _orientations(config: PlanConfig, profile) -> _Orientations:
+    """Stage 3 (Makki §2.2.1-2.2.2): candidate axes, and those within the machine's rotary travel."""
+    o = config.orientations
+    cand = candidate_axes(o.sampling, phi_step_deg=o.phi_step_deg, theta_step_deg=o.theta_step_deg,
+                          resolution_deg=o.resolution_deg)
+    mv = machine_visibility(cand.axes, profile)
     feasible = np.asarray(mv.feasible, dtype=bool)
     if not feasible.any():
         raise ParameterError(f"no candidate orientation lies within the rotary travel of machine profile "
                              f"'{profile.name}'")
-    axes = cand.axes[feasible]
-    angles = np.asarray(mv.angles_deg)[feasible]
+    return _Orientations(cand, feasible, cand.axes[feasible], np.asarray(mv.angles_deg)[feasible])
 
-    # 3. tool visibility (§2.2.3), then travel (Fig. 4c) and global visibility (§2.2.4)
+
+def _visibility(points: np.ndarray, nrm: _Normals, ori: _Orientations, config: PlanConfig, tool, profile,
+                base_dir, progress) -> tuple[np.ndarray, GlobalVisibility]:
+    """Stage 4 (Makki §2.2.3-2.2.4): the tool cone, then travel, fixture and cloud collisions."""
     vp = config.visibility
-    tool = config.tool.assembly()          # cutter, shank and holder: visibility, paths and posts
+    cone = cone_visibility(nrm.normals, ori.axes, vp.cone_deg)
+    gv = global_visibility(points, nrm.sample_index, nrm.normals, ori.axes, ori.angles_deg, cone, tool=tool,
+                           profile=profile, fixtures_params=config.fixtures, check_global=vp.global_,
+                           check_travel=vp.travel, obstacles=vp.obstacles, base_dir=base_dir,
+                           progress=progress)
+    return cone, gv
 
-    def visibility():
-        cone = cone_visibility(normals, axes, vp.cone_deg)
-        gv = global_visibility(points, sample_index, normals, axes, angles, cone, tool=tool,
-                               profile=profile, fixtures_params=config.fixtures, check_global=vp.global_,
-                               check_travel=vp.travel, obstacles=vp.obstacles, base_dir=base_dir,
-                               progress=_stage_progress(progress, "visibility"))
-        return cone, gv
 
-    cone, gv = timed("visibility", visibility)
+def _visibility_summary(config: PlanConfig, nrm: _Normals, ori: _Orientations, cone: np.ndarray,
+                        gv: GlobalVisibility) -> VisibilitySummary:
+    """plan.json ``visibility``: what each filter removed, per candidate axis (machine-infeasible ones too)."""
+    vp = config.visibility
+    cand = ori.candidates
     vis = gv.visible
-    n_s = int(sample_index.size)
-    feas_idx = np.flatnonzero(feasible)
+    n_s = int(nrm.sample_index.size)
     cone_counts = cone.sum(axis=0)
-    col = {int(c): k for k, c in enumerate(feas_idx)}
+    col = {int(c): k for k, c in enumerate(np.flatnonzero(ori.feasible))}
     per_axis = []
     for c in range(cand.axes.shape[0]):
         k = col.get(c)
@@ -206,25 +228,31 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
                 cone=int(n_s - cone_counts[k]), travel=int(gv.removed["travel"][k]),
                 fixture_collision=int(gv.removed["fixture_collision"][k]),
                 cloud_collision=int(gv.removed["cloud_collision"][k]), visible=int(vis[:, k].sum())))
-    vsum = VisibilitySummary(
+    return VisibilitySummary(
         global_checked=vp.global_, travel_checked=vp.travel, obstacles=vp.obstacles,
         n_obstacle_points=gv.n_obstacles, placement_mm=tuple(float(x) for x in gv.placement_mm),
         table_z_mm=gv.table_z_mm, pairs_cone=int(cone.sum()), pairs_visible=int(vis.sum()),
         removed_total={k: int(v.sum()) for k, v in gv.removed.items()}, per_axis=per_axis)
-    if not vis.any():
-        warnings.append("no sampled point is visible along any feasible axis after the travel and collision "
-                        "checks: check the tool length, holder, placement and fixtures")
 
-    # 4. set-ups (§3.1)
-    zmask, zwarn = zone_mask(points, sample_index, config.setups.functional_zones)
-    warnings.extend(zwarn)
+
+def _visibility_warnings(vis: _Visibility) -> list[str]:
+    if not vis.chain.visible.any():
+        return ["no sampled point is visible along any feasible axis after the travel and collision "
+                "checks: check the tool length, holder, placement and fixtures"]
+    return []
+
+
+def _setups(vis: _Visibility, zmask: np.ndarray, config: PlanConfig, progress) -> SetupSelection:
+    """Stage 5 (Makki §3.1): the fewest axes covering ``setups.coverage`` with the least overlap, exactly."""
     s = config.setups
-    sel: SetupSelection = timed("setups", lambda: select_setups(
-        vis, coverage=s.coverage, max_setups=s.max_setups, min_points=s.min_points,
+    return select_setups(
+        vis.chain.visible, coverage=s.coverage, max_setups=s.max_setups, min_points=s.min_points,
         zone_mask=zmask if zmask.any() else None, solver=s.solver, time_limit_s=s.time_limit_s,
-        progress=_stage_progress(progress, "setups")))
-    selected = np.asarray(sel.selected, dtype=np.int64)
-    sel_axes = axes[selected]
+        progress=progress)
+
+
+def _setups_warnings(sel: SetupSelection, vsum: VisibilitySummary, config: PlanConfig) -> list[str]:
+    warnings = []
     if sel.status in ("infeasible", "unknown"):
         warnings.append(sel.message)
         removed = {k: v for k, v in vsum.removed_total.items() if v}
@@ -235,77 +263,65 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
                 + " (per axis in plan.json 'visibility'): check fixtures.fixture_height_mm, the tool and holder "
                   "lengths and the machine profile's travel")
     elif sel.status == "feasible":
-        warnings.append(f"the set-up search hit setups.time_limit_s = {s.time_limit_s} s before proving "
+        warnings.append(f"the set-up search hit setups.time_limit_s = {config.setups.time_limit_s} s before proving "
                         f"optimality (gap {sel.gap:.1%}); the best plan found is returned")
+    return warnings
 
-    # 5. areas (§3.1)
-    areas: Areas = timed("areas", lambda: assign_areas(
-        points, sample_index, normals, vis, selected, sel_axes, config.visibility.cone_deg))
+
+def _areas_warnings(areas: Areas, nrm: _Normals) -> list[str]:
     n_integrated = int(areas.integrated.sum())
     if n_integrated:
-        warnings.append(f"{n_integrated} sampled points ({n_integrated / max(len(sample_index), 1):.1%}) are seen "
-                        "by no chosen orientation and were attached to the nearest area: their accessibility "
-                        "is not guaranteed")
+        return [f"{n_integrated} sampled points ({n_integrated / max(len(nrm.sample_index), 1):.1%}) are seen "
+                "by no chosen orientation and were attached to the nearest area: their accessibility "
+                "is not guaranteed"]
+    return []
 
-    # 6. tool paths per area (Makki §4; Sood; Popescu; Tchanchane & Bey) and 7. the NC programs
-    area_paths = []
-    pp = config.paths
-    if (pp.finishing.enabled or pp.roughing.enabled) and selected.size:
-        area_paths = timed("paths", lambda: area_toolpaths(
-            points, areas.input_labels, sel_axes, tool=tool, paths_params=pp, fixtures=gv.fixtures,
-            forbidden=gv.forbidden_mm, max_slope_deg=min(float(config.visibility.cone_deg[1]), 87.0),
-            progress=_stage_progress(progress, "paths")))
-        for ap in area_paths:
-            if ap.finishing is not None and not ap.gouge_free:
-                warnings.append(f"area {ap.area}: the finishing path comes {ap.min_clearance_mm:.4f} mm from a cloud "
-                                f"point, closer than R - tolerance: it would gouge")
-            if ap.holder_collisions or ap.fixture_collisions:
-                warnings.append(f"area {ap.area}: at {ap.holder_collisions} finishing CL points the shank or holder "
-                                f"meets the cloud and at {ap.fixture_collisions} the tool meets a fixture or the "
-                                "table (plan.json setups[].path): check the stick-out and the holder")
-    programs, path_summaries = ({}, {})
-    if area_paths:
-        programs, path_summaries = timed("post", lambda: post_areas(
-            area_paths, setups_axes=sel_axes, rotary_deg=angles[selected], profile=profile,
-            placement_mm=gv.placement_mm, gauge_length_mm=tool.gauge_length_mm, config=config))
 
-    names = _ROTARY_NAMES[profile.kinematics]
+def _paths(points: np.ndarray, areas: Areas, sel_axes: np.ndarray, tool, gv: GlobalVisibility,
+           config: PlanConfig, progress) -> list:
+    """Stage 7 (Makki §4; Sood; Popescu; Tchanchane & Bey): roughing and finishing per area, area frames."""
+    return area_toolpaths(
+        points, areas.input_labels, sel_axes, tool=tool, paths_params=config.paths, fixtures=gv.fixtures,
+        forbidden=gv.forbidden_mm, max_slope_deg=min(float(config.visibility.cone_deg[1]), 87.0),
+        progress=progress)
+
+
+def _paths_warnings(area_paths) -> list[str]:
+    warnings = []
+    for ap in area_paths:
+        if ap.finishing is not None and not ap.gouge_free:
+            warnings.append(f"area {ap.area}: the finishing path comes {ap.min_clearance_mm:.4f} mm from a cloud "
+                            f"point, closer than R - tolerance: it would gouge")
+        if ap.holder_collisions or ap.fixture_collisions:
+            warnings.append(f"area {ap.area}: at {ap.holder_collisions} finishing CL points the shank or holder "
+                            f"meets the cloud and at {ap.fixture_collisions} the tool meets a fixture or the "
+                            "table (plan.json setups[].path): check the stick-out and the holder")
+    return warnings
+
+
+def _setup_rows(ori: _Orientations, vis: np.ndarray, selected: np.ndarray, areas: Areas, names,
+                path_summaries: dict) -> list[Setup]:
+    """plan.json ``setups``: each chosen axis with its rotary positions, point counts and path summary."""
+    axes, angles, cand = ori.axes, ori.angles_deg, ori.candidates
     setups = []
     for i, j in enumerate(selected):
         lab = areas.labels == i
         setups.append(Setup(
             id=i, candidate_index=int(j), tool_axis=tuple(float(c) for c in axes[j]),
-            phi_deg=float(cand.phi_deg[feasible][j]), theta_deg=float(cand.theta_deg[feasible][j]),
+            phi_deg=float(cand.phi_deg[ori.feasible][j]), theta_deg=float(cand.theta_deg[ori.feasible][j]),
             rotary_deg={names[0]: float(angles[j, 0]), names[1]: float(angles[j, 1])},
             n_visible=int(vis[:, j].sum()), n_points=int(lab.sum()),
             n_integrated=int((lab & areas.integrated).sum()),
             n_input_points=int((areas.input_labels == i).sum()), path=path_summaries.get(i)))
+    return setups
 
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    result = PlanResult(
-        scanmill_version=scanmill.__version__,
-        status={"infeasible": "infeasible", "unknown": "incomplete"}.get(sel.status, "planned"),
-        message=sel.message,
-        input=InputSummary(name=name, format=cloud.source_format, n_points=int(points.shape[0]),
-                           units=config.input.units, bbox_min_mm=tuple(map(float, lo)),
-                           bbox_max_mm=tuple(map(float, hi)), has_normals=cloud.normals is not None),
-        parameters=config,
-        normals=nsum,
-        orientations=OrientationsSummary(
-            sampling=config.orientations.sampling, n_candidates=int(cand.axes.shape[0]),
-            n_machine_feasible=int(feasible.sum()), n_kept=int(sel.n_axes_kept),
-            machine_profile=profile.name, kinematics=profile.kinematics, rotary_axes=names),
-        visibility=vsum,
-        selection=Selection(status=sel.status, solver=sel.solver, k=int(sel.k), covered=int(sel.covered),
-                            required_covered=int(sel.required_covered), coverage=float(sel.coverage),
-                            overlap=int(sel.overlap), lower_bound=sel.lower_bound, gap=sel.gap,
-                            best_coverage_at_max=sel.best_coverage_at_max, n_classes=int(sel.n_classes),
-                            seconds=float(sel.seconds), message=sel.message),
-        setups=setups, coverage=float(sel.coverage), overlap_points=int(sel.overlap),
-        n_integrated=n_integrated, timings=timings, warnings=warnings)
+
+def _plan_arrays(nrm: _Normals, ori: _Orientations, vis: np.ndarray, selected: np.ndarray, areas: Areas,
+                 area_paths) -> dict[str, np.ndarray]:
+    """The plan.npz arrays (docs/design.md, "plan output contract")."""
     arrays = {
-        "sample_index": sample_index, "normals": normals, "candidate_axes": axes,
-        "candidate_rotary_deg": angles, "visibility": vis, "selected": selected,
+        "sample_index": nrm.sample_index, "normals": nrm.normals, "candidate_axes": ori.axes,
+        "candidate_rotary_deg": ori.angles_deg, "visibility": vis, "selected": selected,
         "labels": areas.labels, "integrated": areas.integrated, "overlap": areas.overlap,
         "input_labels": areas.input_labels,
     }
@@ -315,5 +331,80 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
             # 1 feed, 2 arc cw, 3 arc ccw (arc end points; centres in the neutral JSON)
             arrays[f"cl_{ap.area}"] = ap.frame.to_part(ap.finishing.xyz_mm)
             arrays[f"cl_kind_{ap.area}"] = ap.finishing.kind
-    return PlanOutcome(result=result, arrays=arrays, points=points, input_labels=areas.input_labels,
-                       selected_axes=sel_axes, extra={"programs": programs, "area_paths": area_paths})
+    return arrays
+
+
+def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
+             progress: Progress | None = None, base_dir=None) -> PlanOutcome:
+    """Plan the 3+2 machining of ``cloud`` (points in mm) with ``config`` (Makki 2010 §2-3).
+
+    Returns the ``plan.json`` model and the ``plan.npz`` arrays: ``sample_index`` (n,),
+    ``normals`` (n,3), ``candidate_axes`` (m,3) (machine-feasible axes), ``visibility`` (n,m),
+    ``selected`` (k,), ``labels`` (n,), ``integrated`` (n,), plus ``input_labels`` (N,).
+    ``base_dir``: where relative fixture mesh paths are looked up (the configuration's folder).
+    """
+    run = _Run(progress)
+    points = cloud.points
+    profile = load_profile(config.machine.profile)
+    tool = config.tool.assembly()          # cutter, shank and holder: visibility, paths and posts
+
+    nrm = run.stage("normals", lambda p: _normals(cloud, config, p))
+    run.warnings += _normals_warnings(nrm)
+    ori = run.stage("orientations", lambda p: _orientations(config, profile))
+    cone, gv = run.stage("visibility", lambda p: _visibility(points, nrm, ori, config, tool, profile, base_dir, p))
+    vis = _Visibility(cone, gv, _visibility_summary(config, nrm, ori, cone, gv))
+    run.warnings += _visibility_warnings(vis)
+    zmask, zone_warnings = zone_mask(points, nrm.sample_index, config.setups.functional_zones)
+    run.warnings += zone_warnings
+    sel = run.stage("setups", lambda p: _setups(vis, zmask, config, p))
+    run.warnings += _setups_warnings(sel, vis.summary, config)
+    selected = np.asarray(sel.selected, dtype=np.int64)
+    sel_axes = ori.axes[selected]
+    areas = run.stage("areas", lambda p: assign_areas(points, nrm.sample_index, nrm.normals, gv.visible,
+                                                      selected, sel_axes, config.visibility.cone_deg))
+    run.warnings += _areas_warnings(areas, nrm)
+    area_paths = []
+    pp = config.paths
+    if (pp.finishing.enabled or pp.roughing.enabled) and selected.size:
+        area_paths = run.stage("paths", lambda p: _paths(points, areas, sel_axes, tool, gv, config, p))
+        run.warnings += _paths_warnings(area_paths)
+    programs, path_summaries = ({}, {})
+    if area_paths:
+        programs, path_summaries = run.stage("post", lambda p: post_areas(
+            area_paths, setups_axes=sel_axes, rotary_deg=ori.angles_deg[selected], profile=profile,
+            placement_mm=gv.placement_mm, gauge_length_mm=tool.gauge_length_mm, config=config))
+
+    names = _ROTARY_NAMES[profile.kinematics]
+    result = _plan_result(cloud, config, name, nrm, ori, vis, sel, areas, profile, names,
+                          _setup_rows(ori, gv.visible, selected, areas, names, path_summaries), run)
+    return PlanOutcome(result=result, arrays=_plan_arrays(nrm, ori, gv.visible, selected, areas, area_paths),
+                       points=points, input_labels=areas.input_labels, selected_axes=sel_axes,
+                       extra={"programs": programs, "area_paths": area_paths})
+
+
+def _plan_result(cloud: Cloud, config: PlanConfig, name, nrm: _Normals, ori: _Orientations, vis: _Visibility,
+                 sel: SetupSelection, areas: Areas, profile, names, setups: list[Setup], run: _Run) -> PlanResult:
+    """The plan.json document of a finished run."""
+    points = cloud.points
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    return PlanResult(
+        scanmill_version=scanmill.__version__,
+        status={"infeasible": "infeasible", "unknown": "incomplete"}.get(sel.status, "planned"),
+        message=sel.message,
+        input=InputSummary(name=name, format=cloud.source_format, n_points=int(points.shape[0]),
+                           units=config.input.units, bbox_min_mm=tuple(map(float, lo)),
+                           bbox_max_mm=tuple(map(float, hi)), has_normals=cloud.normals is not None),
+        parameters=config,
+        normals=nrm.summary,
+        orientations=OrientationsSummary(
+            sampling=config.orientations.sampling, n_candidates=int(ori.candidates.axes.shape[0]),
+            n_machine_feasible=int(ori.feasible.sum()), n_kept=int(sel.n_axes_kept),
+            machine_profile=profile.name, kinematics=profile.kinematics, rotary_axes=names),
+        visibility=vis.summary,
+        selection=Selection(status=sel.status, solver=sel.solver, k=int(sel.k), covered=int(sel.covered),
+                            required_covered=int(sel.required_covered), coverage=float(sel.coverage),
+                            overlap=int(sel.overlap), lower_bound=sel.lower_bound, gap=sel.gap,
+                            best_coverage_at_max=sel.best_coverage_at_max, n_classes=int(sel.n_classes),
+                            seconds=float(sel.seconds), message=sel.message),
+        setups=setups, coverage=float(sel.coverage), overlap_points=int(sel.overlap),
+        n_integrated=int(areas.integrated.sum()), timings=run.timings, warnings=run.warnings)

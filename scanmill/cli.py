@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+import scanmill
 from planning.errors import PlanningError
 
 EXIT_OK, EXIT_ERROR, EXIT_INFEASIBLE = 0, 2, 3
@@ -87,9 +88,9 @@ def _paths_table(result) -> str:
 
 
 def cmd_plan(args) -> int:
-    from planning.cloud import read_cloud
+    from planning.inputs.cloud import read_cloud
     from planning.pipeline import run_plan
-    from planning.report import write_plan
+    from planning.report.plan_files import write_plan
     from schemas.params import parse_config
 
     config = parse_config(_load_config(args))
@@ -121,8 +122,8 @@ def cmd_plan(args) -> int:
 
 
 def cmd_sample(args) -> int:
-    from planning.cloud import write_ply
-    from planning.samples import make_sample
+    from planning.inputs.cloud import write_ply
+    from planning.inputs.samples import make_sample
 
     kwargs = {}
     if args.points is not None:
@@ -150,7 +151,7 @@ def cmd_schema(args) -> int:
 
 
 def cmd_profiles(args) -> int:
-    from planning.machine import available_profiles, load_profile
+    from planning.orientations.kinematics import available_profiles, load_profile
     for name in available_profiles():
         p = load_profile(name)
         print(f"{name}: {p.kinematics} - {p.description}")
@@ -175,11 +176,12 @@ def cmd_db(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="scanmill", description=__doc__.splitlines()[0])
+    ap.add_argument("--version", action="version", version=f"scanmill {scanmill.__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("plan", help="plan the 3+2 set-ups of a scan and write plan.json, plan.npz, PLY, PNG")
     p.add_argument("input", help="point cloud: PLY (ascii/binary), PCD, XYZ/CSV/TXT")
-    p.add_argument("--config", help="plan configuration JSON (DESIGN.md parameter names)")
+    p.add_argument("--config", help="plan configuration JSON (docs/design.md parameter names)")
     p.add_argument("--set", action="append", metavar="PATH=VALUE",
                    help="override one parameter, e.g. --set setups.coverage=0.9 (value parsed as JSON)")
     p.add_argument("--out", required=True, help="output directory")
@@ -187,7 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_plan)
 
-    s = sub.add_parser("sample", help="write a reference cloud (DESIGN.md reference cases) as PLY")
+    s = sub.add_parser("sample", help="write a reference cloud (docs/design.md reference cases) as PLY")
     s.add_argument("name", help="half_sphere, femur_like, slot or post_wall")
     s.add_argument("--out", required=True, help="output PLY file")
     s.add_argument("--points", type=int, help="number of points, where the sample takes one")

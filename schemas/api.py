@@ -2,7 +2,7 @@
 
 These pydantic models are the HTTP API of ``scanmill serve`` (``service/``): FastAPI builds the
 OpenAPI document from them, and the generated clients are built from that document. The plan
-configuration of a job is :class:`schemas.params.PlanConfig` (DESIGN.md parameter names) and the
+configuration of a job is :class:`schemas.params.PlanConfig` (docs/design.md parameter names) and the
 finished plan is :class:`schemas.plan.PlanResult` (``plan.json``); this module only adds what a job
 around them needs. Times are RFC 3339 in UTC; durations carry ``_s``, sizes ``_bytes``.
 """
@@ -132,7 +132,7 @@ class JobCreateRequest(_Model):
 
     cloud: InlineCloud
     parameters: PlanConfig = Field(default_factory=PlanConfig,
-                                   description="Plan configuration (DESIGN.md names); omitted groups take defaults.")
+                                   description="Plan configuration (docs/design.md names); omitted groups take defaults.")
     name: str | None = Field(None, max_length=200, description="A name for the cloud, reported in plan.json.")
     time_limit_s: float | None = Field(None, gt=0, description="Wall-clock limit of the job, seconds; at most the "
                                                                "service's limit (the default).")

@@ -1,18 +1,18 @@
 """Machine profiles: the kinematics and travel of a 5-axis machine (used by Makki 2010 §2.2.2).
 
 A profile is one JSON document validated by :class:`MachineProfile`. Bundled profiles live in
-``planning/profiles/<name>.json`` (package data); ``machine.profile`` in the plan configuration is
+``planning/orientations/profiles/<name>.json`` (package data); ``machine.profile`` in the plan configuration is
 either such a name or a path to a JSON file of the same shape.
 
 Angle conventions (degrees, right-hand rule about the positive machine axis; the exact formulas
-are in :mod:`planning.machine`):
+are in :mod:`planning.orientations.kinematics`):
 
 * ``tilt`` is the A axis (rotation about machine X) or the B axis (about machine Y);
 * ``rotary`` is the C axis (about machine Z when the tilt is 0);
 * with every axis at 0 the tool axis is part +Z.
 
 Linear-axis geometry (translational travel, Makki 2010 §2.2.2, Fig. 4c; used by
-:mod:`planning.travel`). All lengths in mm. Every field below is optional, so profiles written
+:mod:`planning.visibility.travel`). All lengths in mm. Every field below is optional, so profiles written
 before they existed stay valid and keep their behaviour:
 
 * **Table frame**: origin at the table-top centre, on the C axis, with every rotary axis at 0;
@@ -69,7 +69,7 @@ class MachineProfile(BaseModel):
 
     Rotary travel is used by machine visibility (Makki §2.2.2, Fig. 4b); the linear travels, their
     limits and the pivot geometry by the translational travel check (Fig. 4c,
-    :mod:`planning.travel`). Frames and defaults: see the module docstring.
+    :mod:`planning.visibility.travel`). Frames and defaults: see the module docstring.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -214,11 +214,11 @@ class MachineProfile(BaseModel):
 
 
 def _profiles_dir():
-    return resources.files("planning").joinpath("profiles")
+    return resources.files("planning.orientations").joinpath("profiles")
 
 
 def available_profiles() -> list[str]:
-    """Names of the bundled machine profiles (``planning/profiles/*.json``), sorted."""
+    """Names of the bundled machine profiles (``planning/orientations/profiles/*.json``), sorted."""
     d = _profiles_dir()
     return sorted(p.name[:-5] for p in d.iterdir() if p.name.endswith(".json"))
 

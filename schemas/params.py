@@ -1,7 +1,7 @@
 """The plan configuration: every parameter's name, unit, default and range, declared once.
 
 The CLI (``--config FILE``, ``--set path=value``), the API (job ``parameters``) and the docs all
-derive from these models. Names follow DESIGN.md ("Parameter names"); units are in the names
+derive from these models. Names follow docs/design.md ("Parameter names"); units are in the names
 (``_mm``, ``_deg``, ``_s``). Unknown keys are rejected, so a typo never silently falls back to a
 default.
 """
@@ -130,8 +130,8 @@ class ToolParams(_Strict):
         return self
 
     def assembly(self):
-        """The :class:`planning.tool.ToolAssembly` these parameters describe."""
-        from planning.tool import ball_tool
+        """The :class:`planning.geometry.tool.ToolAssembly` these parameters describe."""
+        from planning.geometry.tool import ball_tool
         try:
             return ball_tool(
                 self.diameter_mm / 2.0, flute_length_mm=self.flute_length_mm, stickout_mm=self.stickout_mm,
@@ -382,11 +382,11 @@ class PostParams(_Strict):
     decimals: int = Field(4, ge=2, le=6, description="Decimal places of coordinates in the programs.")
     rotary_sign: tuple[Literal[1, -1], Literal[1, -1]] = Field(
         (1, 1), description="Multiply the (tilt, rotary) angles by these signs in the LinuxCNC post, for a control "
-                            "that counts an axis the other way than the planner (planning/machine.py).")
+                            "that counts an axis the other way than the planner (planning/orientations/kinematics.py).")
 
 
 class PlanConfig(_Strict):
-    """One plan configuration document, grouped by pipeline stage (DESIGN.md parameter names)."""
+    """One plan configuration document, grouped by pipeline stage (docs/design.md parameter names)."""
 
     input: InputParams = Field(default_factory=InputParams)
     normals: NormalsParams = Field(default_factory=NormalsParams)

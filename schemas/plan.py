@@ -1,6 +1,6 @@
 """The plan result (``plan.json``): the contract clients read. Its JSON Schema is exported from here.
 
-Large arrays never travel inside this document: they are in ``plan.npz`` (see DESIGN.md,
+Large arrays never travel inside this document: they are in ``plan.npz`` (see docs/design.md,
 "Plan output contract") and the other artifacts named in ``artifacts``.
 """
 

@@ -30,7 +30,7 @@ import httpx
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# DESIGN.md reference cases: the configuration each is planned with. Collisions (global visibility)
+# docs/design.md reference cases: the configuration each is planned with. Collisions (global visibility)
 # are checked, the femur standing on a 150 mm riser (at the default 50 mm the table blocks its
 # underside: 93.9 % at k = 5). X/Y/Z travel is not checked for the femur: the 400 mm part tilted
 # 60 deg on the default compact trunnion puts its ends below what the spindle can reach (85 % at best).
@@ -58,8 +58,8 @@ def _say(t0: float, text: str) -> None:
 def write_sample(name: str, path: Path, n_points: int | None) -> int:
     """Write the sample as binary PLY (the femur without normals, like a raw scan); return its point count."""
     sys.path.insert(0, str(ROOT))
-    from planning.cloud import write_ply
-    from planning.samples import make_sample
+    from planning.inputs.cloud import write_ply
+    from planning.inputs.samples import make_sample
 
     kwargs = {"n_points": n_points} if n_points else {}
     s = make_sample(name, **kwargs)

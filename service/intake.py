@@ -9,7 +9,7 @@ Two request forms:
 
 Uploads are copied into a fresh staging folder under ``DATA_DIR/tmp`` (with their SHA-256), the
 parameters are validated by ``schemas.params.parse_config`` and the cloud is read once by
-``planning.cloud.read_cloud`` in a worker thread, so a truncated file, garbage, NaN, an empty
+``planning.inputs.cloud.read_cloud`` in a worker thread, so a truncated file, garbage, NaN, an empty
 cloud or a header claiming billions of points is answered at once with a 4xx problem naming what
 is wrong. On any error the staging folder is removed: nothing half-written stays behind.
 """
@@ -105,7 +105,7 @@ def _parse_parameters(text: str | None) -> PlanConfig:
 def check_service_parameters(config: PlanConfig) -> PlanConfig:
     """What the service allows beyond the schema: machine profiles by bundled name only and no mesh fixtures
     (a path would let a client make the service read files of its own choosing)."""
-    from planning.machine import available_profiles
+    from planning.orientations.kinematics import available_profiles
     names = list(available_profiles())
     if config.machine.profile not in names:
         raise ParameterError(f"machine.profile = {config.machine.profile[:80]!r}: the service accepts the bundled "
@@ -161,7 +161,7 @@ def _validate_cloud(path: Path, fmt: str | None, config: PlanConfig, settings: S
 
 
 def _validate_fixture(path: Path, settings: Settings, index: int) -> None:
-    from planning.cloud import read_cloud
+    from planning.inputs.cloud import read_cloud
     from planning.errors import PlanningError
     try:
         read_cloud(path, max_points=settings.max_points, min_points=1)
@@ -280,7 +280,7 @@ def _inline_to_ply(body: bytes, settings: Settings, staging: Path) -> tuple[Plan
     Returns the configuration, the submission's ``input`` and the requested time limit (unchecked)."""
     import numpy as np
 
-    from planning.cloud import write_ply
+    from planning.inputs.cloud import write_ply
     try:
         doc = json.loads(body)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

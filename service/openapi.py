@@ -67,7 +67,7 @@ JOB_CREATE_FORM = {
         "cloud": {"type": "string", "format": "binary",
                   "description": "The scan: PLY (ascii/binary), PCD, or XYZ/CSV/TXT text, in input.units."},
         "parameters": {"type": "string",
-                       "description": "The plan configuration (DESIGN.md parameter names) as JSON text; omitted "
+                       "description": "The plan configuration (docs/design.md parameter names) as JSON text; omitted "
                                       "groups take their defaults. See the PlanConfig schema.",
                        "examples": ['{"normals": {"method": "input"}, "setups": {"max_setups": 2}}']},
         "name": {"type": "string", "maxLength": 200, "description": "A name for the cloud (default: its file name)."},

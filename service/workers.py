@@ -14,8 +14,8 @@ exits or is killed (plus a parent-death signal and a parent-pid check), so a kil
 no job running; at the next start the store's
 recovery re-queues or fails what was running (see :meth:`JobRunner.recover`).
 
-The worker function only calls ``planning.cloud.read_cloud``, ``planning.pipeline.run_plan`` and
-``planning.report.write_plan``: the service holds no geometry.
+The worker function only calls ``planning.inputs.cloud.read_cloud``, ``planning.pipeline.run_plan`` and
+``planning.report.plan_files.write_plan``: the service holds no geometry.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ from service.storage import Storage
 from service.store import JobRecord, JobStore
 
 if TYPE_CHECKING:
-    from planning.cloud import Cloud
+    from planning.inputs.cloud import Cloud
     from schemas.params import PlanConfig
 
 log = logging.getLogger("scanmill.service")
@@ -52,7 +52,7 @@ log = logging.getLogger("scanmill.service")
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS",
                "VECLIB_MAXIMUM_THREADS", "BLIS_NUM_THREADS", "NUMBA_NUM_THREADS")
 #: Modules the fork server imports once, so that every worker starts with them loaded.
-PRELOAD = ["numpy", "planning.cloud", "planning.pipeline", "planning.report", "schemas.params"]
+PRELOAD = ["numpy", "planning.inputs.cloud", "planning.pipeline", "planning.report.plan_files", "schemas.params"]
 
 #: Share of the whole job each stage stands for (for ``progress`` 0..1); rough, from the benchmarks.
 STAGE_WEIGHTS = {"read": 0.05, "normals": 0.35, "orientations": 0.05, "visibility": 0.2, "setups": 0.2,
@@ -79,7 +79,7 @@ def read_job_cloud(path: str | os.PathLike, fmt: str | None, config: PlanConfig,
 
     Submission validates the cloud with this very call, so the worker reads it the same way.
     """
-    from planning.cloud import read_cloud
+    from planning.inputs.cloud import read_cloud
     return read_cloud(path, fmt=fmt, units=config.input.units, max_points=min(config.input.max_points, max_points),
                       max_extent_mm=config.input.max_extent_mm, min_points=config.input.min_points)
 
@@ -147,7 +147,7 @@ def plan_attempt(spec: dict[str, Any], report) -> tuple[dict[str, Any], list[str
     (see :func:`error_of`).
     """
     from planning.pipeline import run_plan
-    from planning.report import write_plan
+    from planning.report.plan_files import write_plan
     from schemas.params import parse_config
 
     report("read", 0.0, "reading the cloud")

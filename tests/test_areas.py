@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from planning.areas import assign_areas
+from planning.areas.assign import assign_areas
 
 
 def test_rules_on_a_hand_made_case():

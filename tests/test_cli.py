@@ -6,7 +6,7 @@ import jsonschema
 import numpy as np
 import pytest
 
-from planning.cloud import read_cloud
+from planning.inputs.cloud import read_cloud
 from scanmill.cli import EXIT_ERROR, EXIT_INFEASIBLE, EXIT_OK, main
 from schemas.plan import plan_json_schema
 

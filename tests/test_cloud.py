@@ -1,4 +1,4 @@
-"""Tests of planning.cloud: reading PLY/PCD/XYZ clouds, validation errors, atomic PLY writing."""
+"""Tests of planning.inputs.cloud: reading PLY/PCD/XYZ clouds, validation errors, atomic PLY writing."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from planning.cloud import UNIT_SCALE, Cloud, read_cloud, validate_points, write_ply
+from planning.inputs.cloud import UNIT_SCALE, Cloud, read_cloud, validate_points, write_ply
 from planning.errors import InputError, InputTooLarge, ParameterError
 
 

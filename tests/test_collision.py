@@ -1,13 +1,13 @@
-"""Cloud collisions of a ball-end cutter and holder (planning.collision)."""
+"""Cloud collisions of a ball-end cutter and holder (planning.geometry.collision)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from planning.collision import brute_force_collision_free, centres_collision_free, cloud_collision_free
+from planning.geometry.collision import brute_force_collision_free, centres_collision_free, cloud_collision_free
 from planning.errors import ParameterError
-from planning.tool import Segment, ToolAssembly, ball_tool
+from planning.geometry.tool import Segment, ToolAssembly, ball_tool
 
 
 def _tool(tool_radius_mm, flute_length_mm, holder_radius_mm=None, holder_length_mm=None):

@@ -1,4 +1,4 @@
-"""Tool and holder against fixtures (planning.fixtures, Makki 2010 §2.2.4)."""
+"""Tool and holder against fixtures (planning.geometry.fixtures, Makki 2010 §2.2.4)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import open3d as o3d
 import pytest
 
 from planning.errors import InputError, ParameterError
-from planning.fixtures import (
+from planning.geometry.fixtures import (
     BoxFixture,
     CylinderFixture,
     MeshFixture,
@@ -18,7 +18,7 @@ from planning.fixtures import (
     fixture_collision_free,
     load_mesh,
 )
-from planning.tool import Segment, ToolAssembly, ball_tool
+from planning.geometry.tool import Segment, ToolAssembly, ball_tool
 
 
 def _unit(v):

@@ -1,4 +1,4 @@
-"""Candidate tool axes on the Gaussian sphere (planning/gaussmap.py, Makki 2010 §2.2.1)."""
+"""Candidate tool axes on the Gaussian sphere (planning/orientations/candidates.py, Makki 2010 §2.2.1)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy.spatial import SphericalVoronoi, cKDTree
 
 from planning.errors import ParameterError
-from planning.gaussmap import (
+from planning.orientations.candidates import (
     MAX_AXES,
     CandidateAxes,
     candidate_axes,

@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planning import samples
-from planning.collision import brute_force_collision_free, cloud_collision_free
-from planning.gaussmap import candidate_axes
-from planning.globalvis import global_visibility
-from planning.machine import load_profile, machine_visibility
-from planning.tool import Segment, ToolAssembly, ball_tool
-from planning.visibility import cone_visibility
+from planning.inputs import samples
+from planning.geometry.collision import brute_force_collision_free, cloud_collision_free
+from planning.orientations.candidates import candidate_axes
+from planning.visibility.chain import global_visibility
+from planning.orientations.kinematics import load_profile, machine_visibility
+from planning.geometry.tool import Segment, ToolAssembly, ball_tool
+from planning.visibility.cone import cone_visibility
 from schemas.params import FixturesParams
 
 

@@ -1,4 +1,4 @@
-"""Machine profiles, kinematics and machine visibility (planning/machine.py, Makki 2010 §2.2.2)."""
+"""Machine profiles, kinematics and machine visibility (planning/orientations/kinematics.py, Makki 2010 §2.2.2)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from planning.errors import ParameterError
-from planning.gaussmap import phi_theta_axes, uniform_axes
-from planning.machine import (
+from planning.orientations.candidates import phi_theta_axes, uniform_axes
+from planning.orientations.kinematics import (
     ANGLE_TOL_DEG,
     MachineProfile,
     RotarySolutions,

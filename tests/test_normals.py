@@ -1,4 +1,4 @@
-"""Sphere throwing (planning/normals.py): accuracy on analytic surfaces, exactness against a brute-force
+"""Sphere throwing (planning/normals/throwing.py): accuracy on analytic surfaces, exactness against a brute-force
 drop, result contract, determinism and parameter errors.
 
 Accuracy surfaces (tests/surfaces.py): 45 points/mm^2, Gaussian noise sigma 0.02 mm along the line of
@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 import surfaces as S
 from planning.errors import InputError, ParameterError
-from planning.normals import (DEFAULT_DIRECTIONS, NormalsResult, default_grid_spacing_mm, point_spacing_mm,
+from planning.normals.throwing import (DEFAULT_DIRECTIONS, NormalsResult, default_grid_spacing_mm, point_spacing_mm,
                               sphere_throwing, throw_lines)
 
 Z = [(0.0, 0.0, 1.0)]

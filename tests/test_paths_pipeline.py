@@ -11,11 +11,11 @@ import pytest
 from gcode_reader import Machine, read_program
 from scipy.spatial import cKDTree
 
-from planning.cloud import Cloud
-from planning.machine import load_profile
+from planning.inputs.cloud import Cloud
+from planning.orientations.kinematics import load_profile
 from planning.pipeline import run_plan
-from planning.report import write_plan
-from planning.samples import half_sphere
+from planning.report.plan_files import write_plan
+from planning.inputs.samples import half_sphere
 from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, densify
 from schemas.params import parse_config
 from schemas.plan import PlanResult

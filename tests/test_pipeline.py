@@ -6,9 +6,9 @@ import json
 import numpy as np
 import pytest
 
-from planning.cloud import Cloud
+from planning.inputs.cloud import Cloud
 from planning.pipeline import run_plan
-from planning.samples import femur_like, half_sphere
+from planning.inputs.samples import femur_like, half_sphere
 from schemas.params import parse_config
 
 PAPER_HALF_SPHERE = {
@@ -140,7 +140,7 @@ def test_search_time_out_before_any_answer_is_reported_as_incomplete(monkeypatch
     import dataclasses
 
     import planning.pipeline as pipeline
-    from planning.setups import select_setups
+    from planning.setups.select import select_setups
 
     def timed_out(*args, **kwargs):
         sel = select_setups(*args, **kwargs)

@@ -13,7 +13,7 @@ from gcode_reader import Machine, ReaderError, read_program, rx, ry, rz
 from scipy.spatial.transform import Rotation
 
 from planning.errors import ParameterError
-from planning.machine import available_profiles, load_profile, machine_visibility
+from planning.orientations.kinematics import available_profiles, load_profile, machine_visibility
 from planning.post import Operation, PostOptions, iso_program, linuxcnc_program, neutral_moves
 from planning.toolpath.frames import AreaFrame, area_frame
 from planning.toolpath.moves import (
@@ -28,7 +28,7 @@ from planning.toolpath.moves import (
     USE_RETRACT,
     Toolpath,
 )
-from planning.travel import default_placement
+from planning.orientations.positions import default_placement
 
 PROFILES = available_profiles()
 AXES = [
@@ -926,7 +926,7 @@ def _reference_neutral_operations(operations, frame, *, tool_axis, rotary_deg, p
                                   gauge_length_mm=None, decimals: int = 4, **_header) -> list[dict]:
     """The ``operations`` of neutral_moves as first written, one move at a time (the reference of the
     whole-array one; the document's header around them is not per-move work and is not repeated here)."""
-    from planning.machine import _profile, part_to_machine_rotation
+    from planning.orientations.kinematics import as_profile, part_to_machine_rotation
     from planning.post.common import (
         check_frame,
         check_gauge,
@@ -938,12 +938,12 @@ def _reference_neutral_operations(operations, frame, *, tool_axis, rotary_deg, p
     )
     from planning.post.neutral import _TYPE, _UNIT_DECIMALS, _USE, _r
     from planning.toolpath.moves import path_length_mm
-    from planning.travel import machine_position_affine
+    from planning.orientations.positions import machine_position_affine
 
     d = int(decimals)
     ops = check_operations(operations)
     t = check_frame(frame, tool_axis)
-    p = _profile(profile)
+    p = as_profile(profile)
     rot = check_rotary(rotary_deg, t, p)
     place = check_placement(placement_mm)
     gauge = check_gauge(gauge_length_mm)

@@ -1,4 +1,4 @@
-"""Tests of planning.preview: segmentation colours and the PNG preview."""
+"""Tests of planning.report.preview: segmentation colours and the PNG preview."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from planning.errors import ParameterError
-from planning.preview import UNCOVERED_COLOR, area_colors, point_colors, render_preview
+from planning.report.preview import UNCOVERED_COLOR, area_colors, point_colors, render_preview
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

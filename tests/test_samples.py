@@ -1,13 +1,13 @@
-"""Reference samples (planning/samples.py): the paper's half sphere, the femur-like scan, slot, post-wall."""
+"""Reference samples (planning/inputs/samples.py): the paper's half sphere, the femur-like scan, slot, post-wall."""
 
 import math
 
 import numpy as np
 import pytest
 
-from planning import samples as S
+from planning.inputs import samples as S
 from planning.errors import ParameterError
-from planning.samples import (
+from planning.inputs.samples import (
     FEMUR_DIMENSIONS_MM,
     SAMPLES,
     Sample,

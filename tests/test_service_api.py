@@ -11,8 +11,8 @@ import jsonschema
 import numpy as np
 import pytest
 
-from planning.cloud import read_cloud
-from planning.samples import half_sphere
+from planning.inputs.cloud import read_cloud
+from planning.inputs.samples import half_sphere
 from schemas.plan import plan_json_schema
 from service_fixtures import (HALF_SPHERE_PARAMS, KEY_A, KEY_B, ServerProcess, submit, wait_status,
                               write_half_sphere)
@@ -215,7 +215,7 @@ def test_planning_failure_is_a_failed_job_with_a_reason(a, cloud):
 
 
 def test_machine_profile_must_be_a_bundled_name(a, cloud):
-    for profile in ("no_such_machine", "/etc/passwd", "../planning/profiles/fork_head_ac.json"):
+    for profile in ("no_such_machine", "/etc/passwd", "../planning/orientations/profiles/fork_head_ac.json"):
         r = submit(a, cloud, dict(HALF_SPHERE_PARAMS, machine={"profile": profile}))
         assert r.status_code == 422 and r.json()["code"] == "invalid_parameter"
         assert "machine.profile" in r.json()["detail"] and "compact_trunnion_bc" in r.json()["detail"]

@@ -9,7 +9,7 @@ import struct
 import numpy as np
 import pytest
 
-from planning.samples import half_sphere
+from planning.inputs.samples import half_sphere
 from service_fixtures import HALF_SPHERE_PARAMS, ServerProcess, ascii_ply, stray_files, write_half_sphere
 
 PROBLEM = "application/problem+json"

@@ -1,4 +1,4 @@
-"""Translational travel (planning/travel.py, Makki 2010 §2.2.2, Fig. 4c) and the profile fields it uses."""
+"""Translational travel (planning/visibility/travel.py, positions from planning/orientations/positions.py, Makki 2010 §2.2.2, Fig. 4c) and the profile fields it uses."""
 
 from __future__ import annotations
 
@@ -8,24 +8,23 @@ import math
 import numpy as np
 import pytest
 
-import planning.travel as travel
+import planning.visibility.travel as travel
 from planning.errors import ParameterError
-from planning.gaussmap import phi_theta_axes
-from planning.machine import (
+from planning.orientations.candidates import phi_theta_axes
+from planning.orientations.kinematics import (
     MachineProfile,
     available_profiles,
     load_profile,
     machine_visibility,
     tool_axis_from_angles,
 )
-from planning.travel import (
+from planning.orientations.positions import (
     DEFAULT_FIXTURE_HEIGHT_MM,
-    TRAVEL_TOL_MM,
     default_placement,
     machine_position_affine,
     machine_positions,
-    travel_feasible,
 )
+from planning.visibility.travel import TRAVEL_TOL_MM, travel_feasible
 from schemas.machine import DEFAULT_MIN_GAUGE_HEIGHT_MM
 
 KINEMATICS = ["table_table_ac", "table_table_bc", "head_head_ac", "head_head_bc"]

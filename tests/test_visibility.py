@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from planning.errors import ParameterError
-from planning.visibility import cone_visibility
+from planning.visibility.cone import cone_visibility
 
 
 def _unit(a):

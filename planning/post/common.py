@@ -166,7 +166,7 @@ class PostOptions:
       longer than 90 degrees whose start and end coincide after rounding (a G2/G3 would be a full
       circle); LinuxCNC also gets ``G64 P`` with it.
     * ``rotary_sign``: LinuxCNC only: ``(tilt_sign, rotary_sign)``, each +1 or -1: the printed A/B
-      and C words are these times the planned angles (planning.machine signs); -1 for a control
+      and C words are these times the planned angles (planning.orientations.kinematics signs); -1 for a control
       that counts that axis the other way.
     """
 
@@ -319,8 +319,8 @@ def check_frame(frame: AreaFrame, tool_axis) -> np.ndarray:
 
 def check_rotary(rotary_deg, tool_axis: np.ndarray, profile) -> np.ndarray:
     """(tilt_deg, rotary_deg) as (2,) float, checked against the tool axis by the profile's forward
-    kinematics (:func:`planning.machine.tool_axis_from_angles`)."""
-    from planning.machine import tool_axis_from_angles
+    kinematics (:func:`planning.orientations.kinematics.tool_axis_from_angles`)."""
+    from planning.orientations.kinematics import tool_axis_from_angles
 
     a = np.asarray(rotary_deg, dtype=np.float64).reshape(-1)
     if a.shape != (2,) or not np.all(np.isfinite(a)):
@@ -1044,7 +1044,7 @@ def header_lines(*, post: str, area_id, setup_id, tool_axis: np.ndarray, rotary_
         f"{n}{fmt(v, 6)}" for n, v in zip("XYZ", tool_axis)), upper=upper))
     if rotary_deg is not None:
         names = axis_names or ("tilt", "rotary")
-        lines.append(comment(f"rotary angles of the plan (planning.machine signs, deg) {names[0]}"
+        lines.append(comment(f"rotary angles of the plan (planning.orientations.kinematics signs, deg) {names[0]}"
                              f"{fmt(rotary_deg[0], 6)} {names[1]}{fmt(rotary_deg[1], 6)}", upper=upper))
     lines.extend(comment(e, upper=upper) for e in extra)
     return lines

@@ -9,7 +9,7 @@ What the program means
   Fanuc's convention for G68.2: rotate about Z by I, then about the NEW X by J, then about the NEW
   Z by K (intrinsic, "rotating" Z-X'-Z''). The matrix whose columns are the feature axes in G54 is::
 
-      R = Rz(I) @ Rx(J) @ Rz(K)       (Rz, Rx active right-hand rotations, planning.machine)
+      R = Rz(I) @ Rx(J) @ Rz(K)       (Rz, Rx active right-hand rotations, planning.orientations.kinematics)
 
   and a feature point ``q`` is at ``R q + (X, Y, Z)`` in G54. That is SciPy's
   ``Rotation.from_euler('ZXZ', [I, J, K], degrees=True)`` (upper case = intrinsic); the extrinsic
@@ -19,7 +19,7 @@ What the program means
   matters and I is set to 0.
 * ``G53.1`` turns the rotary axes so that the tool lies along the feature +Z (the set-up's tool
   axis); the control's own kinematics chooses the rotary solution. The plan's rotary angles
-  (planning.machine signs) are printed in the header for the operator to compare.
+  (planning.orientations.kinematics signs) are printed in the header for the operator to compare.
 * ``G43 H<tool>``: tool length compensation to the TIP. All ``X Y Z`` after it are tool-tip
   positions in the tilted plane = the area frame, mm. Arcs: ``G2``/``G3`` in the area-frame plane
   ``G17``/``G18``/``G19`` (CW/CCW seen from the positive end of the plane's normal, ISO 6983),
@@ -139,9 +139,9 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
     axis_names = None
     rot = None
     if profile is not None:
-        from planning.machine import _profile
+        from planning.orientations.kinematics import as_profile
 
-        p = _profile(profile)
+        p = as_profile(profile)
         axis_names = p.axis_names
         if rotary_deg is not None:
             rot = check_rotary(rotary_deg, t, p)

@@ -1,12 +1,12 @@
 """LinuxCNC-style 3+2 post with explicit rotary positioning (DESIGN step 8).
 
 The program turns the rotary axes to the set-up's angles, then runs plain 3-axis ``X Y Z`` moves in
-the MACHINE frame of :mod:`planning.travel`. It needs no tilted-plane or TCP function in the control
+the MACHINE frame of :mod:`planning.visibility.travel`. It needs no tilted-plane or TCP function in the control
 (trivial kinematics).
 
 Frames and what X Y Z are (mm)
 ------------------------------
-* Work offset ``G54`` = the machine frame of :mod:`planning.travel`: origin at the table-top centre
+* Work offset ``G54`` = the machine frame of :mod:`planning.visibility.travel`: origin at the table-top centre
   on the C axis with every rotary axis at 0, axes along the machine's X, Y, Z (Z up, along the
   spindle at zero head angles). The part sits on the table at ``placement_mm`` (part point ``p`` is
   at ``p + placement_mm`` in the table frame).
@@ -20,7 +20,7 @@ Frames and what X Y Z are (mm)
 
 * **Head-head** (``head_head_ac`` / ``head_head_bc``): the part stays put; the head tilts, so a Z
   length offset would be wrong. ``X Y Z`` = the HEAD ROTATION CENTRE (the point where C and A/B
-  meet, the controlled point of :func:`planning.travel.machine_position_affine`), with ``G49`` (no
+  meet, the controlled point of :func:`planning.orientations.positions.machine_position_affine`), with ``G49`` (no
   length compensation)::
 
       X = p + placement + (G + L) t
@@ -34,7 +34,7 @@ Frames and what X Y Z are (mm)
 Rotary axes and signs
 ---------------------
 ``G0 A.. C..`` (A/C kinematics) or ``G0 B.. C..`` (B/C) with the angles of the plan in the signs of
-:mod:`planning.machine`: right-hand rule about the positive machine axis, turning the TABLE (the
+:mod:`planning.orientations.kinematics`: right-hand rule about the positive machine axis, turning the TABLE (the
 part) for table-table, the HEAD (the tool) for head-head; the tilt (A about X, B about Y) and C
 about Z. ``PostOptions.rotary_sign = (tilt_sign, rotary_sign)`` (each +1 or -1) multiplies the
 printed words, for a control that counts an axis the other way (ISO 841 counts rotations of the table reversed). The rotary
@@ -97,7 +97,7 @@ SUPPORTED_KINEMATICS = ("table_table_ac", "table_table_bc", "head_head_ac", "hea
 
 
 def printed_rotary_deg(rotary_deg, options: PostOptions | None = None) -> tuple[float, float]:
-    """The ``(tilt, rotary)`` angles in planning.machine signs that the printed words command
+    """The ``(tilt, rotary)`` angles in planning.orientations.kinematics signs that the printed words command
     (rounded to the post's angle decimals; ``rotary_sign`` undone), degrees."""
     o = check_options(options)
     ad = int(o.decimals) + 4 if o.angle_decimals is None else int(o.angle_decimals)
@@ -115,18 +115,18 @@ def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_
     frame of their toolpaths; ``tool_axis`` (3,): the set-up's tool axis (part frame), which must be
     the frame's +Z; ``rotary_deg``: ``(tilt_deg, rotary_deg)`` presenting it on ``profile`` (checked
     by the forward kinematics); ``profile``: MachineProfile, bundled name or JSON path;
-    ``placement_mm`` (3,): part origin in the table frame (:func:`planning.travel.default_placement`).
+    ``placement_mm`` (3,): part origin in the table frame (:func:`planning.orientations.positions.default_placement`).
     Head-head machines need the tool's gauge length (tip to spindle gauge line, mm): an operation's
     own ``gauge_length_mm``, else the ``gauge_length_mm`` argument (unused for table-table). X Y Z in the machine frame, mm;
     feeds mm/min; angles degrees.
     """
-    from planning.machine import _profile, tool_axis_from_angles
-    from planning.travel import machine_position_affine
+    from planning.orientations.kinematics import as_profile, tool_axis_from_angles
+    from planning.orientations.positions import machine_position_affine
 
     o = check_options(options)
     ops = check_operations(operations)
     t = check_frame(frame, tool_axis)
-    p = _profile(profile)
+    p = as_profile(profile)
     if p.kinematics not in SUPPORTED_KINEMATICS:          # pragma: no cover - schema allows no other
         raise ParameterError(f"the LinuxCNC post supports {', '.join(SUPPORTED_KINEMATICS)}, not {p.kinematics!r}",
                              parameter="machine.profile")
@@ -145,7 +145,7 @@ def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_
     ad = d + 4 if o.angle_decimals is None else int(o.angle_decimals)
     st, sr = (float(v) for v in o.rotary_sign)
     words_angle = (rounded(st * rot[0], ad), rounded(sr * rot[1], ad))
-    printed = np.array(printed_rotary_deg(rot, o))                        # planning.machine signs
+    printed = np.array(printed_rotary_deg(rot, o))                        # planning.orientations.kinematics signs
     t_printed = tool_axis_from_angles(printed, p)[0]
     tilt_name, rot_name = p.axis_names
 
@@ -166,7 +166,7 @@ def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_
                    what,
                    (f"rotary words {tilt_name}{fmt(words_angle[0], ad)} {rot_name}{fmt(words_angle[1], ad)}"
                     f", signs: {tilt_name} {'flipped' if st < 0 else 'as planned'}, "
-                    f"{rot_name} {'flipped' if sr < 0 else 'as planned'}, planned = planning.machine: "
+                    f"{rot_name} {'flipped' if sr < 0 else 'as planned'}, planned = planning.orientations.kinematics: "
                     f"right-hand rule, the {'table' if table else 'head'} turns")]):
         w.raw(line)
     w.block("G21", "G90", "G94", "G17", "G40", "G49", "G80")

@@ -4,11 +4,11 @@
 rotary angles with the machine's axis names), the area frame, and per operation its tool, feeds and
 moves, with every tool-tip end point and arc centre in the PART frame and in the MACHINE frame.
 
-Frames (mm; angles in degrees, signs of :mod:`planning.machine`)
+Frames (mm; angles in degrees, signs of :mod:`planning.orientations.kinematics`)
 ----------------------------------------------------------------
 * Part frame: the point cloud's frame. A toolpath point ``a`` (area frame) has the tip
   ``a - (0, 0, tip_offset_mm)`` and the part-frame tip ``frame.to_part(tip)``.
-* Machine frame (:mod:`planning.travel`): origin at the table-top centre on the C axis with every
+* Machine frame (:mod:`planning.visibility.travel`): origin at the table-top centre on the C axis with every
   rotary axis at 0, Z up. The part sits at ``placement_mm`` on the table.
 
   - table-table: the tip once the rotary axes are positioned,
@@ -36,7 +36,7 @@ normal along the area z, y or x), ``normal_part`` / ``normal_machine`` (that nor
 ``centre_part_mm`` / ``centre_machine_mm`` (tip-path centre, in the plane of the start point).
 
 With a gauge length (the operation's or the ``gauge_length_mm`` argument), ``controlled_machine_mm`` gives per move the machine's
-controlled point (:func:`planning.travel.machine_position_affine`: spindle gauge point for
+controlled point (:func:`planning.orientations.positions.machine_position_affine`: spindle gauge point for
 table-table, head rotation centre for head-head). Lengths are rounded to ``10^-decimals`` mm
 (default 1e-4), unit vectors and the frame rotation to 1e-10.
 
@@ -246,15 +246,15 @@ def _json_float_rows(a, decimals: int, groups: np.ndarray | None = None) -> str:
 def _document(operations, frame, *, tool_axis, rotary_deg, profile, placement_mm, setup_id, area_id,
               gauge_length_mm, decimals, lists) -> dict:
     """The neutral document, its long lists made by ``lists`` (:class:`_Lists` or :class:`_JsonLists`)."""
-    from planning.machine import _profile, part_to_machine_rotation
-    from planning.travel import machine_position_affine
+    from planning.orientations.kinematics import as_profile, part_to_machine_rotation
+    from planning.orientations.positions import machine_position_affine
 
     if isinstance(decimals, bool) or not isinstance(decimals, (int, np.integer)) or not 0 <= decimals <= 6:
         raise ParameterError(f"decimals = {decimals!r}: must be an integer in [0, 6]", parameter="decimals")
     d = int(decimals)
     ops = check_operations(operations)
     t = check_frame(frame, tool_axis)
-    p = _profile(profile)
+    p = as_profile(profile)
     rot = check_rotary(rotary_deg, t, p)
     place = check_placement(placement_mm)
     gauge = check_gauge(gauge_length_mm)
@@ -330,7 +330,7 @@ def _document(operations, frame, *, tool_axis, rotary_deg, profile, placement_mm
             "tool_axis_machine": _r(M @ t, _UNIT_DECIMALS),
             "rotary_deg": {tilt_name: float(rot[0]) + 0.0, rot_name: float(rot[1]) + 0.0},
             "axis_names": [tilt_name, rot_name],
-            "angle_signs": "planning.machine: right-hand rule about the positive machine axis; "
+            "angle_signs": "planning.orientations.kinematics: right-hand rule about the positive machine axis; "
                            + ("the table (part) turns" if p.is_table_table else "the head (tool) turns"),
         },
         "machine": {

@@ -16,8 +16,8 @@ For area ``i`` with tool axis ``t_i``:
 5. verification (:mod:`planning.toolpath.verify`): the minimal clearance between the final
    finishing moves (lines and arcs) and every cloud point, which must be >= R - tolerance; the
    cutter, shank and holder above the ball at every finishing CL point against the cloud
-   (:func:`planning.collision.cloud_collision_free`) and the fixtures and table
-   (:func:`planning.fixtures.fixture_collision_free`): positions that collide are counted and
+   (:func:`planning.geometry.collision.cloud_collision_free`) and the fixtures and table
+   (:func:`planning.geometry.fixtures.fixture_collision_free`): positions that collide are counted and
    reported (the paths are not changed: an area the holder cannot reach shows up as a warning).
 """
 
@@ -30,15 +30,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planning.collision import centres_collision_free
-from planning.fixtures import (
+from planning.geometry.collision import centres_collision_free
+from planning.geometry.fixtures import (
     BoxFixture,
     CylinderFixture,
     MeshFixture,
     TableFixture,
     fixture_collision_free,
 )
-from planning.tool import ToolAssembly
+from planning.geometry.tool import ToolAssembly
 from planning.toolpath.finishing import FinishingPath, finishing_passes
 from planning.toolpath.frames import AreaFrame, area_frame
 from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath
@@ -236,7 +236,7 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
 
 def _holder_collisions(obstacles: np.ndarray, centres: np.ndarray, axis: np.ndarray, tool: ToolAssembly) -> int:
     """Ball centres (part frame) at which the cutter, shank or holder above the ball's centre meets
-    an obstacle point (:func:`planning.collision.centres_collision_free`, exact)."""
+    an obstacle point (:func:`planning.geometry.collision.centres_collision_free`, exact)."""
     if centres.shape[0] == 0:
         return 0
     t = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)

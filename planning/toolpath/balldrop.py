@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit, prange
 
 from planning.errors import ParameterError
-from planning.raster import bin_cells, rows_in_order
+from planning.geometry.raster import bin_cells, rows_in_order
 
 _BLOCK = 4      # raster cells per side of the blocks pruned as a whole
 

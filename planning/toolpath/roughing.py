@@ -352,7 +352,7 @@ def _cell_max(pts, x0, y0, h, nx, ny):
 @njit(cache=True, nogil=True)
 def _bin_highest_first(pts, x0, y0, c, nx, ny, B):
     """Counting sort of the points (N,3) into square cells of side c (cell ``ix * ny + iy``), each
-    cell's run by decreasing z (equal z: input order), as :func:`planning.raster.bin_cells` after a
+    cell's run by decreasing z (equal z: input order), as :func:`planning.geometry.raster.bin_cells` after a
     stable sort by decreasing z. Returns (points in that order (N,3), their input indices, run
     starts (ncell + 1), highest z per cell (-inf when empty), highest z per block of B x B cells)."""
     n = pts.shape[0]

@@ -28,7 +28,7 @@ Cut-off: only what can gouge matters, so a move's value is ``min(true distance, 
 (default ``cutoff_mm = R``: a move reported at R has no point closer than R). ``cutoff_mm = inf``
 gives the exact distance to the nearest point of the whole cloud (slow: every point is a candidate).
 
-Candidates come from a square xy raster of the points (:func:`planning.raster.bin_cells`, cells
+Candidates come from a square xy raster of the points (:func:`planning.geometry.raster.bin_cells`, cells
 of ``cell_mm``, default R/4, with each cell's lowest and highest z): for each move, the cells its
 xy bounding box grown by the cut-off touches; a cell is skipped when the distance between its box
 (cell square x [z_min, z_max]) and the move's bounding box, or the distance from the box's centre
@@ -45,7 +45,7 @@ import numpy as np
 from numba import njit, prange
 
 from planning.errors import ParameterError
-from planning.raster import bin_cells, rows_in_order
+from planning.geometry.raster import bin_cells, rows_in_order
 from planning.toolpath.moves import (
     ARC_CCW,
     ARC_CW,

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from planning.cloud import atomic_path, write_ply
+from planning.inputs.cloud import atomic_path, write_ply
 from planning.pipeline import PlanOutcome
-from planning.preview import point_colors, render_preview
+from planning.report.preview import point_colors, render_preview
 
 
 def _atomic_bytes(path: Path, data: bytes) -> None:
@@ -30,7 +30,7 @@ def plan_json_text(outcome: PlanOutcome) -> str:
 
 
 def npz_arrays(outcome: PlanOutcome) -> dict[str, np.ndarray]:
-    """The plan.npz arrays (DESIGN.md contract names), with per-area ``cl_i`` once paths exist."""
+    """The plan.npz arrays (docs/design.md contract names), with per-area ``cl_i`` once paths exist."""
     return dict(outcome.arrays)
 
 

@@ -5,11 +5,11 @@ axes and removes, in this order (cheapest first; each filter only sees the pairs
 kept):
 
 1. ``travel`` - the machine X/Y/Z position needed lies outside the profile's linear limits
-   (:func:`planning.travel.travel_feasible`, Makki Fig. 4c);
+   (:func:`planning.visibility.travel.travel_feasible`, Makki Fig. 4c);
 2. ``fixture_collision`` - the ball, cutter, shank or holder touches a fixture or the table
-   (:func:`planning.fixtures.fixture_collision_free`, python-fcl as the exact narrow phase);
+   (:func:`planning.geometry.fixtures.fixture_collision_free`, python-fcl as the exact narrow phase);
 3. ``cloud_collision`` - another point of the cloud (or a forbidden point) lies inside the cutter,
-   shank or holder (:func:`planning.collision.cloud_collision_free`, exact).
+   shank or holder (:func:`planning.geometry.collision.cloud_collision_free`, exact).
 
 It reports, per axis, how many sampled points each filter removed.
 """
@@ -23,12 +23,13 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from planning.collision import cloud_collision_free
+from planning.geometry.collision import cloud_collision_free
 from planning.errors import ParameterError
-from planning.fixtures import BoxFixture, CylinderFixture, TableFixture, load_mesh
-from planning.fixtures import fixture_collision_free
-from planning.tool import ToolAssembly
-from planning.travel import default_placement, travel_feasible
+from planning.geometry.fixtures import BoxFixture, CylinderFixture, TableFixture, load_mesh
+from planning.geometry.fixtures import fixture_collision_free
+from planning.geometry.tool import ToolAssembly
+from planning.orientations.positions import default_placement
+from planning.visibility.travel import travel_feasible
 
 _UNITS_MM = {"mm": 1.0, "m": 1000.0, "in": 25.4}
 

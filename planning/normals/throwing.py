@@ -37,7 +37,7 @@ averaging per point the effect is small where the cloud is dense: on the analyti
 ``tests/surfaces.py`` at the default grid the error against the exact surface normals is within
 0.11 deg (median) and 0.2 deg (95th percentile) of the exact method's (e.g. tilted plane 1.59 / 3.90
 deg against 1.59 / 3.82), but about 40 % fewer points receive a normal (7.5 % against 12 %). On
-steep walls seen from the side (the shaft of ``planning.samples.femur_like``, 19 points/mm^2, sigma
+steep walls seen from the side (the shaft of ``planning.inputs.samples.femur_like``, 19 points/mm^2, sigma
 0.03 mm) the top point of a cell is a poor stand-in for the touched one and the tail grows: per-point
 median 2.58 deg against 2.44, 95th percentile 13.1 deg against 7.4 (whole femur: 2.41 / 7.8 deg).
 ``tests/test_normals.py`` checks the search against a brute-force drop on the candidate subset
@@ -59,7 +59,7 @@ Default grid spacing (:func:`default_grid_spacing_mm`)
 estimated on a fixed pseudo-random subsample of at most 20,000 points: the median distance to the
 8th nearest neighbour in the subsample gives its density (``(k - 1/3) / (pi d^2)``, the median of a
 planar Poisson process), scaled by the subsampling fraction. At 45 points/mm^2 (the paper's femur)
-``s`` is 0.149 mm and ``g`` 0.22 mm (candidate cells 0.45 mm); on ``planning.samples.femur_like``
+``s`` is 0.149 mm and ``g`` 0.22 mm (candidate cells 0.45 mm); on ``planning.inputs.samples.femur_like``
 (19 points/mm^2) ``g`` is about 0.34 mm.
 """
 

@@ -1,6 +1,6 @@
 """Translational travel: can the linear axes put the tool there? (Makki 2010 §2.2.2, Fig. 4c).
 
-Machine visibility (:mod:`planning.machine`, Fig. 4b) only asks whether the rotary axes can present
+Machine visibility (:mod:`planning.orientations.kinematics`, Fig. 4b) only asks whether the rotary axes can present
 the part to the spindle along a tool axis. Once the part is placed on the table and the tool length
 is known, a (point, orientation) pair is feasible only if the machine's X/Y/Z axes can also bring
 the tool to it: the position of the machine's **controlled point** needed to put the ball centre at
@@ -8,8 +8,11 @@ the tool to it: the position of the machine's **controlled point** needed to put
 :class:`~schemas.machine.MachineProfile` (Makki Fig. 4c, where a long tool or a large part makes
 otherwise visible orientations unreachable).
 
+The frames and the affine position map are in :mod:`planning.orientations.positions`; this module
+only applies the X/Y/Z limits to them.
+
 Frames and conventions (all lengths in mm, angles in degrees; rotations as in
-:mod:`planning.machine`)
+:mod:`planning.orientations.kinematics`)
 --------------------------------------------------------------------------------------------------
 * **Part frame**: the frame of the point cloud; ball centres ``c`` and tool axes ``t`` (unit, from
   the part towards the spindle) are given in it.
@@ -20,7 +23,7 @@ Frames and conventions (all lengths in mm, angles in degrees; rotations as in
   rotary axis is at 0. The profile's ``x/y/z_limits_mm`` (:attr:`MachineProfile.linear_limits_mm`)
   bound the controlled point in this frame.
 * Tool: ball radius ``R = tool_radius_mm``; ``G = gauge_length_mm`` is the distance from the tool
-  tip to the spindle gauge line (:class:`planning.tool.ToolAssembly`). The tip is ``c - R t``.
+  tip to the spindle gauge line (:class:`planning.geometry.tool.ToolAssembly`). The tip is ``c - R t``.
 
 Table-table (``table_table_ac`` / ``table_table_bc``): the C table turns the part about the table
 frame's Z axis, then the trunnion tilts it about the tilt axis through ``P = profile.pivot_mm``
@@ -58,23 +61,14 @@ from __future__ import annotations
 import numpy as np
 
 from planning.errors import ParameterError
-from planning.machine import _profile, part_to_machine_rotation, tool_axis_from_angles
+from planning.orientations.kinematics import as_profile, tool_axis_from_angles
+from planning.orientations.positions import as_angles_deg, as_points_mm, machine_position_affine
 from schemas.machine import MachineProfile
 
-__all__ = [
-    "DEFAULT_FIXTURE_HEIGHT_MM",
-    "TRAVEL_TOL_MM",
-    "default_placement",
-    "machine_position_affine",
-    "machine_positions",
-    "travel_feasible",
-]
+__all__ = ["TRAVEL_TOL_MM", "travel_feasible"]
 
 #: Tolerance of the travel limits, mm: positions up to this far outside a limit count as inside.
 TRAVEL_TOL_MM = 1e-6
-
-#: Default height of the part's lowest point above the table top (fixture / vice), mm.
-DEFAULT_FIXTURE_HEIGHT_MM = 50.0
 
 # Supplied tool axes must match the forward kinematics of the supplied angles within this.
 _AXIS_MATCH_TOL = 1e-6
@@ -87,49 +81,9 @@ _CHUNK_ELEMS = 1 << 22
 # input checks
 
 
-def _points(a, name: str) -> np.ndarray:
-    x = np.asarray(a, dtype=np.float64)
-    if x.ndim == 1 and x.shape[0] == 3:
-        x = x[None, :]
-    if x.ndim != 2 or x.shape[1] != 3:
-        raise ParameterError(f"{name} must be an (n, 3) array, got shape {np.shape(a)}", parameter=name)
-    if not np.all(np.isfinite(x)):
-        raise ParameterError(f"{name} contain NaN or infinite values", parameter=name)
-    return x
-
-
-def _angles(a) -> np.ndarray:
-    x = np.asarray(a, dtype=np.float64)
-    if x.ndim == 1 and x.shape[0] == 2:
-        x = x[None, :]
-    if x.ndim != 2 or x.shape[1] != 2:
-        raise ParameterError(f"rotary angles must be an (m, 2) array of (tilt_deg, rotary_deg), got shape "
-                             f"{np.shape(a)}", parameter="angles_deg")
-    if np.any(np.isinf(x)):
-        raise ParameterError("rotary angles contain infinite values", parameter="angles_deg")
-    return x
-
-
-def _vec3(a, name: str) -> np.ndarray:
-    x = np.asarray(a, dtype=np.float64)
-    if x.shape != (3,) or not np.all(np.isfinite(x)):
-        raise ParameterError(f"{name} must be 3 finite numbers (mm), got {a!r}", parameter=name)
-    return x
-
-
-def _tool(tool_radius_mm, gauge_length_mm) -> tuple[float, float]:
-    R, G = float(tool_radius_mm), float(gauge_length_mm)
-    if not (np.isfinite(R) and R >= 0):
-        raise ParameterError(f"tool radius {tool_radius_mm!r} mm: must be >= 0", parameter="tool_radius_mm")
-    if not (np.isfinite(G) and G >= R):
-        raise ParameterError(f"gauge length {gauge_length_mm!r} mm: must be finite and at least the tool radius "
-                             f"{R:g} mm", parameter="gauge_length_mm")
-    return R, G
-
-
 def _check_axes(axes, angles: np.ndarray, profile: MachineProfile) -> None:
     """Supplied (m,3) axes must be the forward kinematics of the finite (m,2) angles."""
-    t = _points(axes, "axes")
+    t = as_points_mm(axes, "axes")
     if t.shape[0] != angles.shape[0]:
         raise ParameterError(f"{t.shape[0]} tool axes but {angles.shape[0]} rotary positions", parameter="axes")
     fin = np.all(np.isfinite(angles), axis=1)
@@ -143,82 +97,6 @@ def _check_axes(axes, angles: np.ndarray, profile: MachineProfile) -> None:
                              f"(deviation {err.max():.3g}); pass the angles machine_visibility chose for these axes",
                              parameter="angles_deg")
 
-
-# ----------------------------------------------------------------------------------------------
-# machine positions
-
-
-def default_placement(points, *, fixture_height_mm: float = DEFAULT_FIXTURE_HEIGHT_MM) -> np.ndarray:
-    """Default part placement on the table (Makki 2010 §2.2.2, Fig. 4c set-up): (3,) mm.
-
-    The part is centred over the table centre in X and Y (the centre of its axis-aligned bounding
-    box lies on the C axis) and its lowest point sits ``fixture_height_mm`` (default
-    :data:`DEFAULT_FIXTURE_HEIGHT_MM` = 50 mm, a fixture or vice) above the table top. Returns
-    ``placement_mm``: part point ``p`` is at ``p + placement_mm`` in the table frame.
-    """
-    p = _points(points, "points")
-    if p.shape[0] == 0:
-        raise ParameterError("cannot place an empty point set", parameter="points")
-    h = float(fixture_height_mm)
-    if not (np.isfinite(h) and h >= 0):
-        raise ParameterError(f"fixture height {fixture_height_mm!r} mm: must be >= 0", parameter="fixture_height_mm")
-    lo, hi = p.min(axis=0), p.max(axis=0)
-    return np.array([-0.5 * (lo[0] + hi[0]), -0.5 * (lo[1] + hi[1]), h - lo[2]])
-
-
-def machine_position_affine(angles_deg, profile, *, placement_mm, tool_radius_mm: float,
-                            gauge_length_mm: float) -> tuple[np.ndarray, np.ndarray]:
-    """Affine maps from ball centre to controlled-point position (Makki 2010 §2.2.2, Fig. 4c).
-
-    ``angles_deg`` (m,2) or (2,): rotary positions ``(tilt_deg, rotary_deg)`` as
-    ``machine_visibility(...).angles_deg`` gives them (rows with NaN, for infeasible axes, give NaN
-    maps). Returns ``(A (m,3,3), b (m,3))`` such that the machine-frame X/Y/Z (mm) of the controlled
-    point that puts the ball centre at part point ``c`` with the tool axis of rotary position ``j``
-    is ``A[j] @ c + b[j]``. Table-table: ``A = M``, ``b = M placement + (I - R_tilt) P + (G - R) Z``
-    (gauge point); head-head: ``A = I``, ``b = placement + (G + L - R) t`` (head rotation centre).
-    See the module docstring for the frames.
-    """
-    p = _profile(profile)
-    ang = _angles(angles_deg)
-    place = _vec3(placement_mm, "placement_mm")
-    R, G = _tool(tool_radius_mm, gauge_length_mm)
-    m = ang.shape[0]
-    A = np.full((m, 3, 3), np.nan)
-    b = np.full((m, 3), np.nan)
-    fin = np.all(np.isfinite(ang), axis=1)
-    if not fin.any():
-        return A, b
-    a = ang[fin]
-    if p.is_table_table:
-        M = part_to_machine_rotation(a, p)                                   # R_tilt R_z
-        tilt_only = np.c_[a[:, 0], np.zeros(len(a))]
-        R_tilt = part_to_machine_rotation(tilt_only, p)
-        P = np.asarray(p.pivot_mm, dtype=np.float64)
-        A[fin] = M
-        b[fin] = M @ place + (P - R_tilt @ P)
-        b[fin, 2] += G - R
-    else:
-        t = tool_axis_from_angles(a, p)
-        A[fin] = np.eye(3)
-        b[fin] = place + (G + p.pivot_length_mm - R) * t
-    return A, b
-
-
-def machine_positions(centres, angles_deg, profile, *, placement_mm, tool_radius_mm: float,
-                      gauge_length_mm: float) -> np.ndarray:
-    """Machine X/Y/Z of the controlled point for every ball centre and rotary position (Makki §2.2.2, Fig. 4c).
-
-    ``centres`` (n,3): ball centres in the part frame, mm. ``angles_deg`` (m,2): ``(tilt_deg,
-    rotary_deg)`` (NaN rows give NaN). ``placement_mm`` (3,): part origin in the table frame.
-    ``tool_radius_mm``: ball radius R; ``gauge_length_mm``: tool tip to spindle gauge line G.
-    Returns (n, m, 3) float64, mm, in the machine frame: the spindle gauge point (table-table) or
-    the head rotation centre (head-head). Holds n*m*3 floats: for large inputs use
-    :func:`travel_feasible` (chunked) or :func:`machine_position_affine`.
-    """
-    c = _points(centres, "centres")
-    A, b = machine_position_affine(angles_deg, profile, placement_mm=placement_mm,
-                                   tool_radius_mm=tool_radius_mm, gauge_length_mm=gauge_length_mm)
-    return np.einsum("mij,nj->nmi", A, c) + b[None, :, :]
 
 
 def travel_feasible(centres, axes, angles_deg, profile, *, placement_mm, tool_radius_mm: float,
@@ -237,9 +115,9 @@ def travel_feasible(centres, axes, angles_deg, profile, *, placement_mm, tool_ra
     Memory is bounded (chunks of about 4M values per coordinate); a column whose bounding-box image
     lies wholly inside (or outside) a limit is decided without evaluating its points.
     """
-    p = _profile(profile)
-    c = _points(centres, "centres")
-    ang = _angles(angles_deg)
+    p = as_profile(profile)
+    c = as_points_mm(centres, "centres")
+    ang = as_angles_deg(angles_deg)
     _check_axes(axes, ang, p)
     n, m = c.shape[0], ang.shape[0]
     tol = float(tol_mm)

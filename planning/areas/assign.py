@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from planning.visibility import axis_normal_angles_deg
+from planning.visibility.cone import axis_normal_angles_deg
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 vises and machine table that hold the part.
 
 Makki et al. 2010 (§2.2.4) call a tool axis globally visible at a point when the cutter and its
-holder, placed along that axis, hit neither the part nor the fixtures. :mod:`planning.collision`
+holder, placed along that axis, hit neither the part nor the fixtures. :mod:`planning.geometry.collision`
 handles the part (the point cloud); this module handles the fixtures, given as solids in the
 **part frame**, all lengths in mm:
 
@@ -11,7 +11,7 @@ handles the part (the point cloud); this module handles the fixtures, given as s
 * :class:`MeshFixture` - a triangle mesh (any holder from CAD, :func:`load_mesh`);
 * :class:`TableFixture` - the machine table, the half-space ``z < z_mm`` below its top.
 
-The tool is a :class:`planning.tool.ToolAssembly`: for ball centre ``c`` and unit axis ``t`` it
+The tool is a :class:`planning.geometry.tool.ToolAssembly`: for ball centre ``c`` and unit axis ``t`` it
 is the **whole solid ball** (radius ``R`` about ``c``: the cutter must never touch a fixture, so
 unlike the cloud test its lower half counts too) and every segment, the solid cylinder
 ``{c + a t + w : lo <= a <= hi, w . t = 0, |w| <= r}``. Shapes are taken closed, as FCL does:
@@ -77,8 +77,8 @@ import fcl
 import numpy as np
 
 from planning.errors import InputError, ParameterError
-from planning.geometry import complete_basis
-from planning.tool import ToolAssembly
+from planning.geometry.basis import complete_basis
+from planning.geometry.tool import ToolAssembly
 
 #: Numpy decides "free"/"hit" only with at least this clearance/penetration, mm; closer pairs go to FCL.
 MARGIN_MM = 1e-3
@@ -594,7 +594,7 @@ class _Context:
             self.candidates = cand.astype(bool)
 
         if not isinstance(tool, ToolAssembly):
-            raise ParameterError("tool must be a planning.tool.ToolAssembly")
+            raise ParameterError("tool must be a planning.geometry.tool.ToolAssembly")
         self.R = _positive(tool.radius_mm, "tool radius_mm")
         segs = []
         for s in tool.segments:
@@ -762,7 +762,7 @@ def fixture_collision_free(centres, axes, tool: ToolAssembly, fixtures: Sequence
     ``centres`` (n,3) mm, part frame: ball centres (``c = p + R n`` for surface point ``p`` with
     unit normal ``n``). ``axes`` (m,3): unit tool axes, part frame, from the part towards the
     spindle. ``tool``: the ball (the whole solid ball counts) and the cutter, shank and holder
-    cylinders of :class:`planning.tool.ToolAssembly`. ``fixtures``: :class:`BoxFixture`,
+    cylinders of :class:`planning.geometry.tool.ToolAssembly`. ``fixtures``: :class:`BoxFixture`,
     :class:`CylinderFixture`, :class:`MeshFixture`, :class:`TableFixture` in the part frame.
     Touching counts as a collision. ``candidates`` (n,m) bool, optional: only these pairs are
     evaluated (the others are False). ``progress(done_axes, m)`` is called after each axis.

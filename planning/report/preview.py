@@ -20,7 +20,7 @@ from matplotlib.lines import Line2D
 
 import mpl_toolkits.mplot3d  # noqa: F401  (registers the "3d" projection)
 
-from planning.cloud import atomic_path
+from planning.inputs.cloud import atomic_path
 from planning.errors import ParameterError
 
 __all__ = ["UNCOVERED_COLOR", "area_colors", "point_colors", "render_preview"]

@@ -1,4 +1,4 @@
-"""Reference clouds generated in code (DESIGN.md "Reference cases"): nothing large is committed.
+"""Reference clouds generated in code (docs/design.md "Reference cases"): nothing large is committed.
 
 Every sample is a :class:`Sample` with points in millimetres, the exact outward unit normal of the
 underlying surface at each point (before any noise), a one-line description and a ``meta`` dict

@@ -1,7 +1,7 @@
 """Candidate tool axes on the discretized Gaussian sphere (Makki 2010 §2.2.1).
 
 Every candidate is a unit vector in the PART frame pointing from the part towards the spindle
-(DESIGN.md conventions), given with its spherical coordinates:
+(docs/design.md conventions), given with its spherical coordinates:
 
 * ``phi_deg``   polar angle from part +Z, in [0, 180] degrees;
 * ``theta_deg`` azimuth from part +X towards +Y, in [0, 360) degrees (0 at the poles),

@@ -48,7 +48,7 @@ travel nearest 0. Angles within :data:`ANGLE_TOL_DEG` of a travel limit (inside 
 as within travel and are set exactly onto the limit.
 
 Only rotary travel is checked here (Makki Fig. 4b). The translational travel (Fig. 4c) needs the
-part placement and the tool length: :mod:`planning.travel` checks it per (point, axis) pair.
+part placement and the tool length: :mod:`planning.visibility.travel` checks it per (point, axis) pair.
 """
 
 from __future__ import annotations
@@ -62,6 +62,7 @@ from schemas.machine import MachineProfile, available_profiles, load_profile
 
 __all__ = [
     "ANGLE_TOL_DEG",
+    "as_profile",
     "MachineProfile",
     "MachineVisibility",
     "RotarySolutions",
@@ -132,7 +133,7 @@ class MachineVisibility:
 # helpers
 
 
-def _profile(profile) -> MachineProfile:
+def as_profile(profile) -> MachineProfile:
     if profile is None:
         raise ParameterError("a machine profile is required", parameter="machine.profile")
     return load_profile(profile)
@@ -208,7 +209,7 @@ def part_to_machine_rotation(angles_deg, profile) -> np.ndarray:
     ``R_tilt(tilt) @ R_z(rotary)`` (the part turns with the C table on the A/B trunnion); head-head:
     the identity (the part is fixed). Travel limits are not checked.
     """
-    p = _profile(profile)
+    p = as_profile(profile)
     a = _as_angles(angles_deg)
     if not p.is_table_table:
         return np.broadcast_to(np.eye(3), (a.shape[0], 3, 3)).copy()
@@ -224,7 +225,7 @@ def part_to_tool_rotation(angles_deg, profile) -> np.ndarray:
     :func:`tool_axis_from_angles` maps to +Z, as the 3-axis paths of a set-up need (DESIGN step 7;
     Makki §2.2.2). Travel limits are not checked.
     """
-    p = _profile(profile)
+    p = as_profile(profile)
     if p.is_table_table:
         return part_to_machine_rotation(angles_deg, p)
     a = _as_angles(angles_deg)
@@ -240,7 +241,7 @@ def tool_axis_from_angles(angles_deg, profile) -> np.ndarray:
     ``t = R_z(-rotary) @ R_tilt(-tilt) @ +Z`` (so that ``R @ t = +Z``); head-head:
     ``t = R_z(rotary) @ R_tilt(tilt) @ +Z``. Travel limits are not checked.
     """
-    p = _profile(profile)
+    p = as_profile(profile)
     a = _as_angles(angles_deg)
     tilt_rad, rotary_rad = np.radians(a[:, 0]), np.radians(a[:, 1])
     if p.is_table_table:
@@ -266,7 +267,7 @@ def solve_rotary(axes, profile) -> RotarySolutions:
     invalid. ``valid`` is True where the solution lies within tilt and rotary travel (tolerance
     :data:`ANGLE_TOL_DEG`, snapped onto the limit). Vectorised over m.
     """
-    p = _profile(profile)
+    p = as_profile(profile)
     t = _as_axes(axes)
     m = t.shape[0]
     tx, ty, tz = t[:, 0], t[:, 1], t[:, 2]
@@ -331,7 +332,7 @@ def choose_rotary(solutions: RotarySolutions, profile=None) -> tuple[np.ndarray,
     no solution is valid. ``profile`` is accepted for symmetry and validated when given.
     """
     if profile is not None:
-        _profile(profile)
+        as_profile(profile)
     ang = np.asarray(solutions.angles_deg, dtype=np.float64)
     valid = np.asarray(solutions.valid, dtype=bool)
     t0, t1 = np.abs(ang[:, 0, 0]), np.abs(ang[:, 1, 0])
@@ -356,7 +357,7 @@ def machine_visibility(axes, profile) -> MachineVisibility:
     chosen ``angles_deg`` (m,2) ``(tilt_deg, rotary_deg)`` in degrees (NaN where infeasible, rule of
     :func:`choose_rotary`), ``n_solutions`` (m,). Translational travel (Fig. 4c) is not checked here.
     """
-    p = _profile(profile)
+    p = as_profile(profile)
     sols = solve_rotary(axes, p)
     chosen, feasible = choose_rotary(sols, p)
     return MachineVisibility(feasible=feasible, angles_deg=chosen, n_solutions=sols.n_solutions,

@@ -1,6 +1,6 @@
 """Set-up selection: the fewest fixed tool axes (3+2 set-ups) covering the cloud, with the least overlap.
 
-Pipeline step 5 of ``DESIGN.md``; the method is Makki et al. 2010, §3 ("Point cloud segmentation",
+Pipeline step 5 of ``docs/design.md``; the method is Makki et al. 2010, §3 ("Point cloud segmentation",
 §3.1 "Global segmentation method"), made exact:
 
 1. axes that see fewer than ``min_points`` points are dropped (the "reduced visibility matrix");
@@ -53,7 +53,7 @@ key) and identical columns are collapsed to their lowest index; then either
   bone-like normals x 145-206 axes, max 5 set-ups, in 0.2-0.9 s on the shared 2-core machine.
 * ``"cpsat"``: OR-Tools CP-SAT over the same weighted classes (a coverage and an overlap boolean per
   class; one worker, seed 0).  Exact too, but its LP relaxation gives an overlap bound of 0 on this
-  problem (``DESIGN.md``, Performance, "Set-ups"): on the 100k case it still reports a lower bound
+  problem (``docs/design.md``, Performance, "Set-ups"): on the 100k case it still reports a lower bound
   of 0 after 60 s.  It is kept as an independent cross-check and as the model for side
   constraints.  It does not apply the index tie rule (``selected`` may differ on exact ties).
 """

@@ -3,7 +3,7 @@
 For a sampled point ``p = points[sample_index[i]]`` with unit normal ``n = normals[i]`` and a
 candidate tool axis ``t = axes[j]`` (unit, part frame, pointing from the part to the spindle) a
 ball-end cutter of radius ``R`` touches ``p`` with its ball centre at ``c = p + R n``. The tool
-assembly above the ball centre is a stack of coaxial cylinders (:class:`planning.tool.Segment`,
+assembly above the ball centre is a stack of coaxial cylinders (:class:`planning.geometry.tool.Segment`,
 ``lo < a <= hi``, radius ``r``). For every obstacle point ``q`` (the cloud, plus optional extra
 obstacle points such as forbidden regions given as point clouds) let ``d = q - c``,
 ``a = d . t`` (height above the ball centre along the axis) and ``rho = |d - a t|`` (distance
@@ -20,9 +20,9 @@ contact point and its surface neighbours lie at or below the centre for any admi
 
 ``cloud_collision_free`` is the fast method and gives the same answer pair for pair. Per axis
 the obstacles are projected onto the plane normal to the axis and binned into square cells of
-``cell_fraction`` times the smallest segment radius (:mod:`planning.raster`; radii more than 4x
+``cell_fraction`` times the smallest segment radius (:mod:`planning.geometry.raster`; radii more than 4x
 that get a raster of their own), keeping
-each cell's highest and lowest height along the axis. Two disk max filters over the cells (DESIGN.md
+each cell's highest and lowest height along the axis. Two disk max filters over the cells (docs/design.md
 "Global visibility"), read at each centre's cell, settle most pairs: "free" when no cell that may
 come within ``r`` of a centre anywhere in that cell rises above ``lo``, "hit" (unbounded segments)
 when a cell wholly within ``r`` does. The pairs left are scanned by a numba kernel: for the exact
@@ -43,9 +43,9 @@ from scipy import ndimage
 from numba import njit
 
 from planning.errors import ParameterError
-from planning.geometry import complete_basis
-from planning.raster import bin_cells, rows_in_order
-from planning.tool import ToolAssembly
+from planning.geometry.basis import complete_basis
+from planning.geometry.raster import bin_cells, rows_in_order
+from planning.geometry.tool import ToolAssembly
 
 EPS_MM = 1e-6
 _MAX_GRID_CELLS = 8_000_000
@@ -72,7 +72,7 @@ def _inside(d: np.ndarray, t: np.ndarray, lo: float, hi: Optional[float], r: flo
 
 def _segments(tool) -> list[tuple[float, Optional[float], float]]:
     if not isinstance(tool, ToolAssembly):
-        raise ParameterError("tool must be a planning.tool.ToolAssembly")
+        raise ParameterError("tool must be a planning.geometry.tool.ToolAssembly")
     out = []
     for s in tool.segments:
         lo = float(s.lo_mm)

@@ -122,8 +122,8 @@ def cmd_plan(args) -> int:
 
 
 def cmd_sample(args) -> int:
-    from planning.inputs.cloud import write_ply
     from planning.inputs.samples import make_sample
+    from planning.report.files import write_ply
 
     kwargs = {}
     if args.points is not None:

@@ -58,8 +58,8 @@ def _say(t0: float, text: str) -> None:
 def write_sample(name: str, path: Path, n_points: int | None) -> int:
     """Write the sample as binary PLY (the femur without normals, like a raw scan); return its point count."""
     sys.path.insert(0, str(ROOT))
-    from planning.inputs.cloud import write_ply
     from planning.inputs.samples import make_sample
+    from planning.report.files import write_ply
 
     kwargs = {"n_points": n_points} if n_points else {}
     s = make_sample(name, **kwargs)

@@ -280,7 +280,7 @@ def _inline_to_ply(body: bytes, settings: Settings, staging: Path) -> tuple[Plan
     Returns the configuration, the submission's ``input`` and the requested time limit (unchecked)."""
     import numpy as np
 
-    from planning.inputs.cloud import write_ply
+    from planning.report.files import write_ply
     try:
         doc = json.loads(body)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

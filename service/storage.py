@@ -43,7 +43,7 @@ import uuid
 from pathlib import Path
 from typing import BinaryIO, Iterable
 
-from planning.inputs.cloud import atomic_path
+from planning.report.files import atomic_path
 
 JOB_ID_RE = re.compile(r"^[0-9a-f]{32}$")
 ARTIFACT_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")

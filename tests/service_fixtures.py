@@ -20,8 +20,8 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-from planning.inputs.cloud import write_ply
 from planning.inputs.samples import half_sphere
+from planning.report.files import write_ply
 
 ROOT = Path(__file__).resolve().parents[1]
 KEY_A = "key-alpha-0123456789"

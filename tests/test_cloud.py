@@ -1,4 +1,4 @@
-"""Tests of planning.inputs.cloud: reading PLY/PCD/XYZ clouds, validation errors, atomic PLY writing."""
+"""Tests of planning.inputs.cloud: reading PLY/PCD/XYZ clouds, validation errors, and the atomic PLY writing of planning.report.files."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from planning.inputs.cloud import UNIT_SCALE, Cloud, read_cloud, validate_points, write_ply
 from planning.errors import InputError, InputTooLarge, ParameterError
-
+from planning.inputs.cloud import UNIT_SCALE, Cloud, read_cloud, validate_points
+from planning.report.files import write_ply
 
 # ------------------------------------------------------------------------------------ helpers
 

@@ -1,11 +1,10 @@
-"""Reference samples (planning/inputs/samples.py): the paper's half sphere, the femur-like scan, slot, post-wall."""
+"""Reference samples (planning/inputs/samples/): the paper's half sphere, the femur-like scan, slot, post-wall."""
 
 import math
 
 import numpy as np
 import pytest
 
-from planning.inputs import samples as S
 from planning.errors import ParameterError
 from planning.inputs.samples import (
     FEMUR_DIMENSIONS_MM,
@@ -19,6 +18,7 @@ from planning.inputs.samples import (
     slot,
     slot_floor_max_tilt_deg,
 )
+from planning.inputs.samples import femur as S
 
 
 def _unit(n):

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from planning.inputs.cloud import atomic_path, write_ply
 from planning.pipeline import PlanOutcome
+from planning.report.files import atomic_path, write_ply
 from planning.report.preview import point_colors, render_preview
 
 

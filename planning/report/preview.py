@@ -20,8 +20,8 @@ from matplotlib.lines import Line2D
 
 import mpl_toolkits.mplot3d  # noqa: F401  (registers the "3d" projection)
 
-from planning.inputs.cloud import atomic_path
 from planning.errors import ParameterError
+from planning.report.files import atomic_path
 
 __all__ = ["UNCOVERED_COLOR", "area_colors", "point_colors", "render_preview"]
 

@@ -5,15 +5,9 @@ placement on the table and the affine map from a ball centre to the machine X/Y/
 controlled point. Travel (:mod:`planning.visibility.travel`) and the posts call these; they call
 neither.
 
-What the travel check asks:
-
-Machine visibility (:mod:`planning.orientations.kinematics`, Fig. 4b) only asks whether the rotary axes can present
-the part to the spindle along a tool axis. Once the part is placed on the table and the tool length
-is known, a (point, orientation) pair is feasible only if the machine's X/Y/Z axes can also bring
-the tool to it: the position of the machine's **controlled point** needed to put the ball centre at
-``c`` with the tool axis ``t`` must lie within the X/Y/Z limits of the
-:class:`~schemas.machine.MachineProfile` (Makki Fig. 4c, where a long tool or a large part makes
-otherwise visible orientations unreachable).
+Why it matters (Makki Fig. 4c): once the part is placed on the table and the tool length is
+known, a (point, orientation) pair is feasible only if the X/Y/Z axes can bring the tool to it; a
+long tool or a large part makes otherwise visible orientations unreachable.
 
 Frames and conventions (all lengths in mm, angles in degrees; rotations as in
 :mod:`planning.orientations.kinematics`)
@@ -53,11 +47,7 @@ the controlled point is the head's rotation centre, ``L = profile.pivot_length_m
     pivot = c + placement + (G + L - R) t
 
 Both are affine in ``c``: ``position = A_j c + b_j`` for rotary position ``j``
-(:func:`machine_position_affine`), which keeps the check vectorised and memory-bounded.
-
-A position is within travel when ``min - tol <= x <= max + tol`` on all three axes with
-``tol = TRAVEL_TOL_MM`` (1e-6 mm, for floating-point rounding only; it is not a machining margin).
-Only the cutting position itself is checked, not the approach / retract moves or the tool change.
+(:func:`machine_position_affine`), which keeps the travel check vectorised and memory-bounded.
 """
 
 from __future__ import annotations

@@ -8,48 +8,11 @@ the tool to it: the position of the machine's **controlled point** needed to put
 :class:`~schemas.machine.MachineProfile` (Makki Fig. 4c, where a long tool or a large part makes
 otherwise visible orientations unreachable).
 
-The frames and the affine position map are in :mod:`planning.orientations.positions`; this module
-only applies the X/Y/Z limits to them.
-
-Frames and conventions (all lengths in mm, angles in degrees; rotations as in
-:mod:`planning.orientations.kinematics`)
---------------------------------------------------------------------------------------------------
-* **Part frame**: the frame of the point cloud; ball centres ``c`` and tool axes ``t`` (unit, from
-  the part towards the spindle) are given in it.
-* **Table frame**: origin at the table-top centre, on the C axis, with every rotary axis at 0; Z
-  up. The part is fixed to the table without rotation: part point ``p`` is at
-  ``p + placement_mm`` (see :func:`default_placement`).
-* **Machine frame**: fixed to the machine's rotary pivot, equal to the table frame when every
-  rotary axis is at 0. The profile's ``x/y/z_limits_mm`` (:attr:`MachineProfile.linear_limits_mm`)
-  bound the controlled point in this frame.
-* Tool: ball radius ``R = tool_radius_mm``; ``G = gauge_length_mm`` is the distance from the tool
-  tip to the spindle gauge line (:class:`planning.geometry.tool.ToolAssembly`). The tip is ``c - R t``.
-
-Table-table (``table_table_ac`` / ``table_table_bc``): the C table turns the part about the table
-frame's Z axis, then the trunnion tilts it about the tilt axis through ``P = profile.pivot_mm``
-(``table_pivot_mm``); the spindle stays along machine +Z. A table point ``q`` is at::
-
-    q_m = R_tilt (R_z q - P) + P          R_tilt R_z = part_to_machine_rotation(angles)
-
-and the controlled point is the spindle gauge point, ``G`` above the tip along machine +Z. The
-tool axis of these angles maps to +Z (``M t = Z``), so the tip ``c - R t`` lands ``R`` below the
-ball centre and, with ``M = part_to_machine_rotation(angles)`` and
-``R_tilt = part_to_machine_rotation((tilt, 0))``::
-
-    gauge = M (c + placement) + (I - R_tilt) P + (G - R) Z
-
-When the tilt axis meets the C axis (``P`` on it, e.g. ``[0, 0, z]``), ``R_z P = P`` and this is
-``M (c + placement - P) + P + (G - R) Z``.
-
-Head-head (``head_head_ac`` / ``head_head_bc``): the part stays put (machine frame = table frame);
-the controlled point is the head's rotation centre, ``L = profile.pivot_length_mm``
-(``head_pivot_length_mm``) beyond the gauge line along the tool axis
-``t = tool_axis_from_angles(angles)``::
-
-    pivot = c + placement + (G + L - R) t
-
-Both are affine in ``c``: ``position = A_j c + b_j`` for rotary position ``j``
-(:func:`machine_position_affine`), which keeps the check vectorised and memory-bounded.
+The frames (part, table, machine), the controlled point of each kind of machine and the affine map
+``position = A_j c + b_j`` from a ball centre ``c`` to it are described and computed in
+:mod:`planning.orientations.positions` (:func:`~planning.orientations.positions.machine_position_affine`);
+this module only holds those positions against the profile's X/Y/Z limits, vectorised and
+memory-bounded.
 
 A position is within travel when ``min - tol <= x <= max + tol`` on all three axes with
 ``tol = TRAVEL_TOL_MM`` (1e-6 mm, for floating-point rounding only; it is not a machining margin).

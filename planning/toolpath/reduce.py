@@ -4,7 +4,7 @@ every transformation, no CL point and no interpolated segment comes closer than 
 cloud point").
 
 Sood §4.4 drops CL points whose height stays within epsilon of a reference point and does not
-check gouging (papers/NOTES.md: a straight move can then pass up to ~2 eps off a dropped point).
+check gouging (docs/design.md "Papers": a straight move can then pass up to ~2 eps off a dropped point).
 Here, within each run of consecutive FEED moves (module :mod:`planning.toolpath.moves`; a run is
 the moves of one ``use``, by default the cutting moves, and of one pass where ``pass_index`` is
 given), greedily from the run's start (anchor i), the next kept point j is the farthest one found

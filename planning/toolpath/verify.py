@@ -2,7 +2,7 @@
 the ball-centre curve of each move (issue 5: "after every transformation, no CL point and no
 interpolated segment comes closer than R - tol to any cloud point; a verification step measures
 the minimal clearance of the final paths"). Sood 2015 §4.4 reduces CL points without checking
-gouging (papers/NOTES.md); this is the check every reduction here is held to.
+gouging (docs/design.md "Papers"); this is the check every reduction here is held to.
 
 Everything in the area frame (tool axis +Z, mm). The path's points are taken as ball centres
 (ball-end finishing records ball centres, ``Toolpath.tip_offset_mm = R``); a path recorded at

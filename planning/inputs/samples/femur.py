@@ -1,4 +1,4 @@
-"""Stage 1, reference samples: the femur-like part, the paper's second case (Makki et al. 2010 §3.2).
+"""Stage 1, reference samples: the femur-like part, the paper's second case (Makki et al. 2010 §4).
 
 The paper machines a real femur digitised as 1,033,760 points from 8 sensor orientations; this is
 a synthetic stand-in generated in code. The surface (bone frame: x from the distal end to the
@@ -235,7 +235,7 @@ def femur_like(n_points: int = 1_000_000, seed: int = 0, noise_mm: float = 0.03,
                n_scanner_directions: int = 8) -> Sample:
     """The paper's second case: a bone-like closed surface "scanned" from several directions.
 
-    Makki et al. 2010 §3.2 machine a real femur digitised as 1,033,760 points (45 points/mm^2)
+    Makki et al. 2010 §4 machine a real femur digitised as 1,033,760 points (45 points/mm^2)
     from 8 sensor orientations (sphere 7 mm, 5 throwing directions, tool 6 mm, cone [10, 60] deg,
     n_pmax 5 -> 4 areas). This is a synthetic stand-in, generated in code.
 

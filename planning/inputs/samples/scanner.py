@@ -1,7 +1,7 @@
 """Stage 1, reference samples: simulated scanner views of a sampled surface (part frame, mm).
 
 Used by :func:`planning.inputs.samples.femur.femur_like` (the stand-in for the 8 sensor
-orientations of Makki et al. 2010 §3.2). :func:`_scanner_directions` gives the unit vectors from
+orientations of Makki et al. 2010 §4.1). :func:`_scanner_directions` gives the unit vectors from
 the part towards each scanner. :func:`_assign_views` gives each surface draw to at most one of the
 views that face it (n . v > :data:`_MIN_FACING`, incidence under 78 deg), each with probability
 1 / m, so every view samples what faces it uniformly. :func:`_recorded_by_views` keeps the draws

@@ -38,9 +38,8 @@ import os
 from typing import Callable, Optional
 
 import numpy as np
-from scipy import ndimage
-
 from numba import njit
+from scipy import ndimage
 
 from planning.errors import ParameterError
 from planning.geometry.basis import complete_basis
@@ -366,6 +365,8 @@ def centres_collision_free(obstacles, centres, axes, tool: ToolAssembly, *, cand
 
 
 def _collision_free(obst, centres, axes, segs, candidates, progress, cell_fraction):
+    """Bool (n, m) of :func:`cloud_collision_free` and :func:`centres_collision_free` from validated
+    inputs: the rounding margins of the whole problem, then :func:`_axis_hits` per axis."""
     n, m = centres.shape[0], axes.shape[0]
     out = np.zeros((n, m), dtype=bool)
     if n == 0 or m == 0:
@@ -376,6 +377,22 @@ def _collision_free(obst, centres, axes, segs, candidates, progress, cell_fracti
     tol = 1e-9 * scale       # height margin of the cell skips, mm
     ext = float(max(np.ptp(obst, axis=0).max(), np.ptp(centres, axis=0).max())) + 1.0
     segs = _as_queries(segs)
+    groups = _radius_groups(segs)
+    cand_t = None if candidates is None else np.ascontiguousarray(candidates.T)
+
+    def one_axis(j):
+        rows = np.arange(n) if cand_t is None else np.flatnonzero(cand_t[j])
+        if rows.size and segs:
+            return rows, _axis_hits(obst, centres[rows], axes[j], segs, groups, cell_fraction, slack, tol, ext)
+        return rows, np.zeros(rows.size, dtype=np.bool_)
+
+    _each_axis(one_axis, out, progress)
+    return out
+
+
+def _radius_groups(segs) -> list[list[float]]:
+    """The segments' distinct radii, ascending, in groups that share a raster: at most
+    ``_RADII_PER_RASTER`` times the group's smallest."""
     radii = sorted({r for _, _, r in segs})
     groups: list[list[float]] = []          # radii sharing a raster: at most 4x the smallest
     for r in radii:
@@ -383,60 +400,73 @@ def _collision_free(obst, centres, axes, segs, candidates, progress, cell_fracti
             groups[-1].append(r)
         else:
             groups.append([r])
-    cand_t = None if candidates is None else np.ascontiguousarray(candidates.T)
+    return groups
 
-    def one_axis(j):
-        t_ref = np.ascontiguousarray(axes[j])     # the exact test uses the axis as given
-        rows = np.arange(n) if cand_t is None else np.flatnonzero(cand_t[j])
-        if rows.size and segs:
-            t = t_ref / np.linalg.norm(t_ref)
-            u, v = complete_basis(t)
-            proj = _project(obst, u, v, t_ref)
-            cs = centres[rows]
-            cproj = _project(cs, u, v, t_ref)
-            cx, cy, cz = cproj[:, 3], cproj[:, 4], cproj[:, 5]
-            bx0, by0, bx1, by1 = _bounds(proj, cproj)
-            hit = np.zeros(rows.size, dtype=np.bool_)
-            for group in groups:
-                # one raster per group of radii, its cell set by the group's smallest radius
-                # (sorting the obstacles is the dominant cost on a large cloud)
-                h = max(cell_fraction * group[0], ext / math.sqrt(_MAX_GRID_CELLS))
-                k_pad = int(math.ceil((group[-1] + slack) / h)) + 3
-                x0 = bx0 - k_pad * h
-                y0 = by0 - k_pad * h
-                nx = int((bx1 - x0) / h) + k_pad + 2
-                ny = int((by1 - y0) / h) + k_pad + 2
-                _, rank, start, cmax, cmin = bin_cells(proj[:, 3], proj[:, 4], proj[:, 5], x0, y0, h, nx, ny)
-                spts = rows_in_order(proj, rank)
-                mz = cmax.reshape(nx, ny)
-                ccell = np.floor((cx - x0) / h).astype(np.int64) * ny + np.floor((cy - y0) / h).astype(np.int64)
-                for r in group:
-                    # per centre cell: the highest point of every cell that may come within r of a
-                    # centre anywhere in the cell (over-reports) and of the cells wholly within r of
-                    # every such centre (under-reports)
-                    _, _, _, over, under = _offsets(r - EPS_MM, h, slack)
-                    m_over = _disk_max(mz, over).ravel()[ccell]
-                    m_under = _disk_max(mz, under).ravel()[ccell] if under.any() else None
-                    for lo, hi, rs in segs:
-                        if rs != r:
-                            continue
-                        thr = cz + lo
-                        todo = ~hit & (m_over > thr - tol)          # the others are surely free
-                        if hi is None and m_under is not None:
-                            sure = todo & (m_under > thr + tol)     # a point surely inside
-                            hit |= sure
-                            todo &= ~sure
-                        sel = np.flatnonzero(todo)
-                        if sel.size == 0:
-                            continue
-                        sub = np.zeros(sel.size, dtype=np.bool_)
-                        _query(spts, cs, sel, t_ref, cx[sel], cy[sel], cz[sel], lo,
-                               0.0 if hi is None else hi, hi is not None, r, start, cmax, cmin,
-                               x0, y0, h, nx, ny, slack, tol, sub)
-                        hit[sel] |= sub
-            return rows, hit
-        return rows, np.zeros(rows.size, dtype=np.bool_)
 
+def _axis_hits(obst, cs, axis, segs, groups, cell_fraction, slack, tol, ext) -> np.ndarray:
+    """Bool per centre of ``cs`` (k,3): an obstacle point lies in a segment of the tool along
+    ``axis`` (the two disk filters, then the :func:`_query` kernel for the pairs they leave)."""
+    t_ref = np.ascontiguousarray(axis)     # the exact test uses the axis as given
+    t = t_ref / np.linalg.norm(t_ref)
+    u, v = complete_basis(t)
+    proj = _project(obst, u, v, t_ref)
+    cproj = _project(cs, u, v, t_ref)
+    cx, cy, cz = cproj[:, 3], cproj[:, 4], cproj[:, 5]
+    bounds = _bounds(proj, cproj)
+    hit = np.zeros(cs.shape[0], dtype=np.bool_)
+    for group in groups:
+        # one raster per group of radii, its cell set by the group's smallest radius
+        # (sorting the obstacles is the dominant cost on a large cloud)
+        x0, y0, h, nx, ny, spts, start, cmax, cmin = _raster(proj, bounds, group, cell_fraction, slack, ext)
+        mz = cmax.reshape(nx, ny)
+        ccell = np.floor((cx - x0) / h).astype(np.int64) * ny + np.floor((cy - y0) / h).astype(np.int64)
+        for r in group:
+            # per centre cell: the highest point of every cell that may come within r of a
+            # centre anywhere in the cell (over-reports) and of the cells wholly within r of
+            # every such centre (under-reports)
+            _, _, _, over, under = _offsets(r - EPS_MM, h, slack)
+            m_over = _disk_max(mz, over).ravel()[ccell]
+            m_under = _disk_max(mz, under).ravel()[ccell] if under.any() else None
+            for lo, hi, rs in segs:
+                if rs != r:
+                    continue
+                thr = cz + lo
+                todo = ~hit & (m_over > thr - tol)          # the others are surely free
+                if hi is None and m_under is not None:
+                    sure = todo & (m_under > thr + tol)     # a point surely inside
+                    hit |= sure
+                    todo &= ~sure
+                sel = np.flatnonzero(todo)
+                if sel.size == 0:
+                    continue
+                sub = np.zeros(sel.size, dtype=np.bool_)
+                _query(spts, cs, sel, t_ref, cx[sel], cy[sel], cz[sel], lo,
+                       0.0 if hi is None else hi, hi is not None, r, start, cmax, cmin,
+                       x0, y0, h, nx, ny, slack, tol, sub)
+                hit[sel] |= sub
+    return hit
+
+
+def _raster(proj, bounds, group, cell_fraction, slack, ext):
+    """The raster of one group of radii over the projected obstacles ``proj`` (rows of
+    :func:`_project`): cell side ``h`` (mm) from the group's smallest radius, origin ``x0, y0``,
+    ``nx`` x ``ny`` cells padded by the largest radius, and the obstacles sorted by cell
+    (:func:`planning.geometry.raster.bin_cells`): ``spts``, ``start``, per-cell ``cmax``, ``cmin``."""
+    bx0, by0, bx1, by1 = bounds
+    h = max(cell_fraction * group[0], ext / math.sqrt(_MAX_GRID_CELLS))
+    k_pad = int(math.ceil((group[-1] + slack) / h)) + 3
+    x0 = bx0 - k_pad * h
+    y0 = by0 - k_pad * h
+    nx = int((bx1 - x0) / h) + k_pad + 2
+    ny = int((by1 - y0) / h) + k_pad + 2
+    _, rank, start, cmax, cmin = bin_cells(proj[:, 3], proj[:, 4], proj[:, 5], x0, y0, h, nx, ny)
+    spts = rows_in_order(proj, rank)
+    return x0, y0, h, nx, ny, spts, start, cmax, cmin
+
+
+def _each_axis(one_axis, out: np.ndarray, progress) -> None:
+    """``out[rows, j] = ~hit`` for ``rows, hit = one_axis(j)``, every axis j of ``out``, in order."""
+    m = out.shape[1]
     # axes are independent and the kernels release the GIL: two threads (the cores here)
     workers = min(_THREADS, m)
     if workers > 1:
@@ -452,5 +482,3 @@ def _collision_free(obst, centres, axes, segs, candidates, progress, cell_fracti
             out[rows, j] = ~hit
             if progress is not None:
                 progress(j + 1, m)
-    return out
-

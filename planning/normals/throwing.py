@@ -61,6 +61,10 @@ estimated on a fixed pseudo-random subsample of at most 20,000 points: the media
 planar Poisson process), scaled by the subsampling fraction. At 45 points/mm^2 (the paper's femur)
 ``s`` is 0.149 mm and ``g`` 0.22 mm (candidate cells 0.45 mm); on ``planning.inputs.samples.femur_like``
 (19 points/mm^2) ``g`` is about 0.34 mm.
+
+Layout: one module of a little over 600 lines, a tenth of it this docstring: the checks, the default
+spacing and the per-direction search (:func:`_throw_direction` and its four steps) serve one method
+and share its constants; :func:`sphere_throwing` and :func:`throw_lines` are the entries.
 """
 
 from __future__ import annotations
@@ -70,7 +74,7 @@ import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -360,9 +364,58 @@ def _offsets(r: float, g: float, pad: int):
     return [(A, B, subs) for _, A, B, subs in rows]
 
 
+class _Grid(NamedTuple):
+    """The flat raster of candidate cells of one direction (cells ``2 g`` wide, ``CELL_LINES``
+    lines per cell along each axis): cell ``(I, J)`` is at flat index
+    ``margin + (I - i0 + 2 pad) ny + (J - j0 + 2 pad)``, with ``2 pad`` empty cells around the
+    occupied ones and ``margin`` guard cells before and after. ``swap``: the raster's rows run
+    along ``e_v`` (the longer side is put along the contiguous axis)."""
+
+    swap: bool
+    i0: int
+    j0: int
+    nx: int
+    ny: int
+    pad: int
+    margin: int
+
+    @property
+    def base(self) -> int:
+        """Flat index of the first line's cell (raster row ``pad``)."""
+        return self.margin + self.pad * self.ny
+
+    @property
+    def length(self) -> int:
+        """Number of lines: raster rows ``pad .. nx - pad - 1``, every column."""
+        return (self.nx - 2 * self.pad) * self.ny
+
+
 def _throw_direction(cols32, p64, origin, direction, r: float, g: float):
-    """All line contacts for one direction: (line_i, line_j, contact index) int64 arrays + frame."""
+    """All line contacts for one direction: (line_i, line_j, contact index) int64 arrays + frame.
+
+    In four steps: the candidate cells and their top points (:func:`_candidate_cells`), the ball's
+    stop on every line over the top points within ``r`` (:func:`_drop_heights`), the top point
+    that stopped it (:func:`_line_contacts`), and each contact's normal and ball centre in float64
+    (:func:`_contact_normals`)."""
     d, eu, ev = direction_frame(direction)
+    grid, cm, top, tdx, tdy, tp = _candidate_cells(cols32, d, eu, ev, r, g)
+    best, arg, shifts = _drop_heights(grid, cm, tdx, tdy, r, g)
+    del cm, tdx, tdy
+    li, lj, lp = _line_contacts(grid, best, arg, shifts, top)
+    if grid.swap:   # report (i, j) along the frame's (e_u, e_v) as returned by direction_frame
+        li, lj = lj, li
+    order = np.lexsort((lj, li))
+    li, lj, lp = li[order], lj[order], lp[order]
+    centres, nrm = _contact_normals(p64, origin, d, eu, ev, li, lj, lp, r, g)
+    return d, eu, ev, li, lj, lp, centres, nrm, np.sort(tp).astype(np.int64)
+
+
+def _candidate_cells(cols32, d, eu, ev, r: float, g: float):
+    """Bin the points (float32 columns ``cols32``) into the candidate cells of direction ``d``
+    (frame ``d, eu, ev``). Returns the raster (:class:`_Grid`); per flat cell the highest height
+    ``cm`` (float32, -inf where empty), the top point ``top`` (the point count where empty) and
+    the top point's position ``tdx, tdy`` from the cell's lower-left corner (float32, in
+    ``[0, 2 g)``); and ``tp``, the top points of the occupied cells."""
     n_pts = cols32[0].shape[0]
     m = CELL_LINES
     G = m * g
@@ -412,11 +465,18 @@ def _throw_direction(cols32, p64, origin, direction, r: float, g: float):
     # position of the top point inside its cell (from the cell's lower-left corner), in [0, G)
     tdx[occ] = (u[tp].astype(np.float64) - (m * row - 0.5) * g).astype(np.float32)
     tdy[occ] = (v[tp].astype(np.float64) - (m * col - 0.5) * g).astype(np.float32)
-    del u, v, h
+    return _Grid(swap, i0, j0, nx, ny, pad, margin), cm, top, tdx, tdy, tp
 
-    base = margin + pad * ny             # first line row
-    length = (nx - 2 * pad) * ny         # lines: rows pad .. nx-pad-1, every column
-    offsets = _offsets(r, g, pad)
+
+def _drop_heights(grid: _Grid, cm, tdx, tdy, r: float, g: float):
+    """The ball's stop on every line of each of the ``CELL_LINES^2`` sub-lattices: ``best[q]``
+    (float32 per line, -inf where nothing is within ``r``), the max over the top points within
+    ``r`` of ``h + sqrt(r^2 - rho^2)``; ``arg[q]``, the offset that gave it; ``shifts``, the flat
+    index shift of each offset (:func:`_offsets`). One loop over the offsets, each step a few
+    whole-array float32 operations over all lines."""
+    m = CELL_LINES
+    base, length, ny = grid.base, grid.length, grid.ny
+    offsets = _offsets(r, g, grid.pad)
     nsub = m * m
     best = [np.full(length, -np.inf, dtype=np.float32) for _ in range(nsub)]
     arg = [np.zeros(length, dtype=np.int32) for _ in range(nsub)]
@@ -446,27 +506,32 @@ def _throw_direction(cols32, p64, origin, direction, r: float, g: float):
                 np.greater(b1, best[q], out=mask)
                 np.copyto(best[q], b1, where=mask)
                 np.copyto(arg[q], k, where=mask)
-    del b1, b2, mask, cm, tdx, tdy
+    return best, arg, shifts
 
+
+def _line_contacts(grid: _Grid, best, arg, shifts, top):
+    """The lines that touched a point: raster line indices ``li, lj`` (along the raster's rows
+    and columns) and the touched point ``lp`` (int64), sub-lattice by sub-lattice."""
+    m = CELL_LINES
+    base, pad, ny = grid.base, grid.pad, grid.ny
     li, lj, lp = [], [], []
-    for q in range(nsub):
+    for q in range(m * m):
         a, b = divmod(q, m)
         k = np.flatnonzero(best[q] > -np.inf)
-        pos = k + base - margin
+        pos = k + base - grid.margin
         rr, cc = np.divmod(pos, ny)
         ok = (cc >= pad) & (cc < ny - pad)   # columns whose offsets never wrap into another row
         k, rr, cc = k[ok], rr[ok], cc[ok]
         src = k + base + shifts[arg[q][k]]
-        li.append(m * (rr - 2 * pad + i0) + a)
-        lj.append(m * (cc - 2 * pad + j0) + b)
+        li.append(m * (rr - 2 * pad + grid.i0) + a)
+        lj.append(m * (cc - 2 * pad + grid.j0) + b)
         lp.append(top[src].astype(np.int64))
-    li = np.concatenate(li)
-    lj = np.concatenate(lj)
-    lp = np.concatenate(lp)
-    if swap:   # report (i, j) along the frame's (e_u, e_v) as returned by direction_frame
-        eu, ev, li, lj = ev, eu, lj, li
-    order = np.lexsort((lj, li))
-    li, lj, lp = li[order], lj[order], lp[order]
+    return np.concatenate(li), np.concatenate(lj), np.concatenate(lp)
+
+
+def _contact_normals(p64, origin, d, eu, ev, li, lj, lp, r: float, g: float):
+    """Ball centres ``C_l`` (input frame) and unit normals ``(C_l - C_c) / r`` of the contacts of
+    lines ``(li, lj)`` with points ``lp``, in float64 from the original coordinates ``p64``."""
     # float64 geometry of each contact: n = ((X - p_u) e_u + (Y - p_v) e_v + s d) / r
     q = p64[lp] - origin
     du = li * g - q @ eu
@@ -475,7 +540,7 @@ def _throw_direction(cols32, p64, origin, direction, r: float, g: float):
     nrm = (du[:, None] * eu + dv[:, None] * ev + s[:, None] * d) / r
     centres = p64[lp] + r * nrm
     nrm /= np.linalg.norm(nrm, axis=1)[:, None]
-    return d, eu, ev, li, lj, lp, centres, nrm, np.sort(tp).astype(np.int64)
+    return centres, nrm
 
 
 def _prepare(points):

@@ -222,7 +222,7 @@ def part_to_tool_rotation(angles_deg, profile) -> np.ndarray:
 
     ``angles_deg`` (m,2) or (2,), degrees. Table-table: the part-to-machine rotation (the spindle is
     machine +Z). Head-head: ``(R_z(rotary) @ R_tilt(tilt))^T``. In both, the tool axis
-    :func:`tool_axis_from_angles` maps to +Z, as the 3-axis paths of a set-up need (DESIGN step 7;
+    :func:`tool_axis_from_angles` maps to +Z, as the 3-axis paths of a set-up need (docs/design.md stage 7;
     Makki §2.2.2). Travel limits are not checked.
     """
     p = as_profile(profile)

@@ -1,4 +1,4 @@
-"""Per-area tool paths: the stage between the areas and the posts (DESIGN step 7; Makki 2010 §4:
+"""Per-area tool paths: the stage between the areas and the posts (docs/design.md stage 7; Makki 2010 §4:
 each area is machined by 3-axis paths at its set-up's fixed orientation).
 
 For area ``i`` with tool axis ``t_i``:
@@ -154,7 +154,6 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     bounds how short the adaptive side step gets.
     """
     fp = paths_params.finishing
-    rp = paths_params.roughing
     R = float(tool.radius_mm)
     tol = float(fp.tolerance_mm)
     forbidden = np.zeros((0, 3)) if forbidden is None else np.asarray(forbidden, dtype=np.float64).reshape(-1, 3)
@@ -168,70 +167,96 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
         mine = input_labels == i
         if not mine.any():
             continue
-        frame = area_frame(axes[i], points, points[mine])
-        if fp.direction_deg is not None:
-            frame = rotate_frame(frame, fp.direction_deg)
-        cloud_f = frame.to_frame(obstacles)
-        area_f = cloud_f[:points.shape[0]][mine]
-        lo = area_f[:, :2].min(axis=0) - fp.margin_mm - R
-        hi = area_f[:, :2].max(axis=0) + fp.margin_mm + R
-        fix_top = obstacle_top_mm(frame, fixtures, lo, hi, reach)
-        top = max(0.0, float(cloud_f[:, 2].max()), fix_top)
+        frame, cloud_f, area_f, top = _frame_and_top(points, mine, axes[i], obstacles, fixtures, fp, R, reach)
         safe = top + paths_params.safe_clearance_mm + R
         sec["frame"] = time.perf_counter() - t0
         ap = AreaPaths(area=i, frame=frame, safe_z_mm=safe, finishing=None, finishing_info=None, radius_mm=R,
                        tolerance_mm=tol)
-
-        floor = float(area_f[:, 2].min()) + rp.stock_allowance_mm
-        if rp.enabled and floor < float(cloud_f[:, 2].max()) + rp.stock_margin_mm:
-            t0 = time.perf_counter()
-            rr = roughing_paths(cloud_f, tool_radius_mm=rp.diameter_mm / 2.0,
-                                corner_radius_mm=rp.corner_radius_mm, step_down_mm=rp.step_down_mm,
-                                stock_allowance_mm=rp.stock_allowance_mm, stock_margin_mm=rp.stock_margin_mm,
-                                stepover_mm=rp.stepover_mm, pattern=rp.pattern, floor_z_mm=floor,
-                                safe_z_mm=top + rp.stock_margin_mm + paths_params.safe_clearance_mm)
-            ap.roughing, ap.roughing_info = rr.toolpath, rr
-            sec["roughing"] = time.perf_counter() - t0
-
+        _add_roughing(ap, cloud_f, area_f, top, paths_params, sec)
         if fp.enabled:
-            t0 = time.perf_counter()
-            binned = BinnedCloud(cloud_f, R / 4.0)
             area_mask = np.zeros(cloud_f.shape[0], dtype=bool)
             area_mask[:points.shape[0]] = mine
-            fin = finishing_passes(cloud_f, area_mask, radius_mm=R, scallop_mm=fp.scallop_mm, step_mm=fp.step_mm,
-                                   margin_mm=fp.margin_mm, zigzag=fp.pattern == "zigzag", tol_mm=tol,
-                                   safe_z_mm=safe, lead_mm=fp.lead_mm, max_slope_deg=max_slope_deg, binned=binned)
-            sec["finishing"] = time.perf_counter() - t0
-            tp = fin.toolpath
-            t0 = time.perf_counter()
-            # arc fitting also reduces the straight stretches it leaves, against the ORIGINAL CL
-            # points (reducing first would let the arcs drift 2 tol from them)
-            if fp.arcs:
-                tp = fit_arcs(tp, binned, R, tol_mm=tol, reduce_lines=fp.reduce, pass_index=fin.pass_index)
-            elif fp.reduce:
-                tp = reduce_cl(tp, binned, R, tol_mm=tol, pass_index=fin.pass_index)
-            sec["reduce_arcs"] = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            clear = move_clearance(tp, binned, R)
-            ap.min_clearance_mm = float(np.nanmin(clear)) if np.isfinite(clear).any() else float(R)
-            ap.min_clearance_mm = min(ap.min_clearance_mm, float(R))
-            sec["verify"] = time.perf_counter() - t0
-            ap.finishing, ap.finishing_info = tp, fin
-            ap.n_arcs = _count_arcs(tp)
+            _add_finishing(ap, cloud_f, area_mask, fp, max_slope_deg, sec)
             # cutter, shank and holder above the ball at every CL point of the cut
             t0 = time.perf_counter()
-            cut = np.flatnonzero(np.isin(tp.kind, [FEED, ARC_CW, ARC_CCW]))
-            centres = frame.to_part(tp.xyz_mm[cut])
-            ap.holder_collisions = _holder_collisions(obstacles, centres, axes[i], tool)
-            if fixtures:
-                ok = fixture_collision_free(centres, axes[i][None, :], tool, list(fixtures))
-                ap.fixture_collisions = int((~ok[:, 0]).sum())
+            _count_collisions(ap, obstacles, axes[i], tool, fixtures)
             sec["collisions"] = time.perf_counter() - t0
         ap.seconds = {k2: round(v, 4) for k2, v in sec.items()}
         out.append(ap)
         if progress is not None:
             progress((i + 1) / k, f"area {i}: paths done")
     return out
+
+
+def _frame_and_top(points, mine, axis, obstacles, fixtures, fp, R: float, reach: float):
+    """Step 1 and the height of step 2 for the area of the points ``mine``: its frame, the
+    obstacles (cloud, then forbidden points) and the area's points in that frame, and the highest
+    frame z (mm) of the cloud (at least 0) and of the fixtures near the path window."""
+    frame = area_frame(axis, points, points[mine])
+    if fp.direction_deg is not None:
+        frame = rotate_frame(frame, fp.direction_deg)
+    cloud_f = frame.to_frame(obstacles)
+    area_f = cloud_f[:points.shape[0]][mine]
+    lo = area_f[:, :2].min(axis=0) - fp.margin_mm - R
+    hi = area_f[:, :2].max(axis=0) + fp.margin_mm + R
+    fix_top = obstacle_top_mm(frame, fixtures, lo, hi, reach)
+    top = max(0.0, float(cloud_f[:, 2].max()), fix_top)
+    return frame, cloud_f, area_f, top
+
+
+def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec: dict) -> None:
+    """Step 3: roughing (when enabled and there is stock above the area's floor) into ``ap``."""
+    rp = paths_params.roughing
+    floor = float(area_f[:, 2].min()) + rp.stock_allowance_mm
+    if rp.enabled and floor < float(cloud_f[:, 2].max()) + rp.stock_margin_mm:
+        t0 = time.perf_counter()
+        rr = roughing_paths(cloud_f, tool_radius_mm=rp.diameter_mm / 2.0,
+                            corner_radius_mm=rp.corner_radius_mm, step_down_mm=rp.step_down_mm,
+                            stock_allowance_mm=rp.stock_allowance_mm, stock_margin_mm=rp.stock_margin_mm,
+                            stepover_mm=rp.stepover_mm, pattern=rp.pattern, floor_z_mm=floor,
+                            safe_z_mm=top + rp.stock_margin_mm + paths_params.safe_clearance_mm)
+        ap.roughing, ap.roughing_info = rr.toolpath, rr
+        sec["roughing"] = time.perf_counter() - t0
+
+
+def _add_finishing(ap: AreaPaths, cloud_f, area_mask, fp, max_slope_deg: float, sec: dict) -> None:
+    """Step 4 and the gouge check of step 5 into ``ap``: finishing passes, arc fitting or CL
+    reduction, and the minimal clearance of the final moves (capped at R)."""
+    R, tol, safe = ap.radius_mm, ap.tolerance_mm, ap.safe_z_mm
+    t0 = time.perf_counter()
+    binned = BinnedCloud(cloud_f, R / 4.0)
+    fin = finishing_passes(cloud_f, area_mask, radius_mm=R, scallop_mm=fp.scallop_mm, step_mm=fp.step_mm,
+                           margin_mm=fp.margin_mm, zigzag=fp.pattern == "zigzag", tol_mm=tol,
+                           safe_z_mm=safe, lead_mm=fp.lead_mm, max_slope_deg=max_slope_deg, binned=binned)
+    sec["finishing"] = time.perf_counter() - t0
+    tp = fin.toolpath
+    t0 = time.perf_counter()
+    # arc fitting also reduces the straight stretches it leaves, against the ORIGINAL CL
+    # points (reducing first would let the arcs drift 2 tol from them)
+    if fp.arcs:
+        tp = fit_arcs(tp, binned, R, tol_mm=tol, reduce_lines=fp.reduce, pass_index=fin.pass_index)
+    elif fp.reduce:
+        tp = reduce_cl(tp, binned, R, tol_mm=tol, pass_index=fin.pass_index)
+    sec["reduce_arcs"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    clear = move_clearance(tp, binned, R)
+    ap.min_clearance_mm = float(np.nanmin(clear)) if np.isfinite(clear).any() else float(R)
+    ap.min_clearance_mm = min(ap.min_clearance_mm, float(R))
+    sec["verify"] = time.perf_counter() - t0
+    ap.finishing, ap.finishing_info = tp, fin
+    ap.n_arcs = _count_arcs(tp)
+
+
+def _count_collisions(ap: AreaPaths, obstacles, axis, tool: ToolAssembly, fixtures: Sequence) -> None:
+    """The rest of step 5 into ``ap``: the finishing CL points (feed and arc moves) at which the
+    cutter, shank or holder meets an obstacle point, and at which the tool meets a fixture."""
+    tp = ap.finishing
+    cut = np.flatnonzero(np.isin(tp.kind, [FEED, ARC_CW, ARC_CCW]))
+    centres = ap.frame.to_part(tp.xyz_mm[cut])
+    ap.holder_collisions = _holder_collisions(obstacles, centres, axis, tool)
+    if fixtures:
+        ok = fixture_collision_free(centres, axis[None, :], tool, list(fixtures))
+        ap.fixture_collisions = int((~ok[:, 0]).sum())
 
 
 def _holder_collisions(obstacles: np.ndarray, centres: np.ndarray, axis: np.ndarray, tool: ToolAssembly) -> int:

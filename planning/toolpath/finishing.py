@@ -134,6 +134,47 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
         raise ParameterError("the area has no points")
     safe = (R + 5.0) if safe_z_mm is None else float(safe_z_mm)
     link_max = 2.5 * s if link_max_mm is None else float(link_max_mm)
+    band, lo, hi = _band(pts, mask, area, s, margin_mm)
+    # ball centres touching the band lie within R of it in (x, y)
+    y0, y1 = area[:, 1].min() - margin_mm - R, area[:, 1].max() + margin_mm + R
+    xs = np.arange(lo[0] - R, hi[0] + R + step, step)
+    surface = DropSurface(pts, R)
+    # the clearance queries' raster (verify.move_clearance); the caller may share one
+    tree = BinnedCloud(pts, R / 4.0) if binned is None else binned
+
+    def drop_pass(y):
+        """Which samples of the pass at y rest on the band, and their ball-drop heights (NaN elsewhere)."""
+        res = surface.drop(np.stack([xs, np.full(xs.size, y)], 1))
+        inside = res.contact >= 0
+        inside[inside] = band[res.contact[inside]]
+        return inside, np.where(inside, res.z_mm, np.nan)
+
+    if not 0.0 <= max_slope_deg < 90.0:
+        raise ParameterError(f"max_slope_deg = {max_slope_deg}: must be in [0, 90)")
+    dy_min = s * math.cos(math.radians(max_slope_deg))
+    passes = _adaptive_passes(drop_pass, y0, y1, s, dy_min) if adaptive else _even_passes(drop_pass, y0, y1, s)
+    stretches, n_done = _stretches(passes, xs, zigzag)
+    if not stretches:
+        raise ParameterError("no finishing pass lies on the area")
+    cl, u, clear, pass_index, n_retracts = _join_stretches(
+        surface, tree, stretches, R, step, tol_mm, max_splits, lead_mm, safe, link_max if zigzag else -1.0)
+    tp = lines(cl, u, tip_offset_mm=R)
+    # moves not measured while being made safe (leads, plunges, retracts): measure them now
+    feed = tp.kind == FEED
+    todo = feed & np.isnan(clear)
+    todo[0] = False
+    if todo.any():
+        clear[todo] = _clr(cl, todo, tree, R)[todo]
+    seg = np.linalg.norm(np.diff(cl, axis=0), axis=1)
+    worst = float(np.nanmin(clear)) if np.isfinite(clear).any() else float("inf")
+    return FinishingPath(toolpath=tp, n_passes=n_done, step_over_mm=s, min_clearance_mm=worst,
+                         length_mm=float(seg[feed[1:]].sum()), n_retracts=n_retracts, pass_index=pass_index)
+
+
+def _band(pts: np.ndarray, mask: np.ndarray, area: np.ndarray, s: float, margin_mm: float):
+    """The points a pass may rest on: the area's footprint on a square raster of ``s / 2`` cells
+    (closed once), grown by ``margin_mm`` into the neighbours. Returns ``band`` (N,) bool over
+    ``pts`` and the raster's lower and upper (x, y) corners ``lo``, ``hi`` (mm)."""
     # footprint raster (cells of s/2), grown by the margin: the band of points the ball may touch
     c = s / 2.0
     lo = area[:, :2].min(axis=0) - margin_mm - c
@@ -152,46 +193,45 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
     inr = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
     band = mask.copy()
     band[inr] |= occ[ij[inr, 0], ij[inr, 1]]
-    # ball centres touching the band lie within R of it in (x, y)
-    y0, y1 = area[:, 1].min() - margin_mm - R, area[:, 1].max() + margin_mm + R
-    xs = np.arange(lo[0] - R, hi[0] + R + step, step)
-    surface = DropSurface(pts, R)
-    # the clearance queries' raster (verify.move_clearance); the caller may share one
-    tree = BinnedCloud(pts, R / 4.0) if binned is None else binned
+    return band, lo, hi
 
-    def drop_pass(y):
-        """Which samples of the pass at y rest on the band, and their ball-drop heights (NaN elsewhere)."""
-        res = surface.drop(np.stack([xs, np.full(xs.size, y)], 1))
-        inside = res.contact >= 0
-        inside[inside] = band[res.contact[inside]]
-        return inside, np.where(inside, res.z_mm, np.nan)
 
+def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float) -> list:
+    """Passes ``(y, inside, z)`` from ``y0`` to ``y1``, each side step the largest (<= ``s``, >=
+    ``dy_min``) that keeps neighbouring ball centres at most ``s`` apart in the cross-section."""
     passes = []                                 # (y, inside, z)
-    if not 0.0 <= max_slope_deg < 90.0:
-        raise ParameterError(f"max_slope_deg = {max_slope_deg}: must be in [0, 90)")
-    dy_min = s * math.cos(math.radians(max_slope_deg))
-    if adaptive:
-        y, cur = y0, drop_pass(y0)
-        while True:
-            passes.append((y, *cur))
-            if y >= y1 - 1e-9:
+    y, cur = y0, drop_pass(y0)
+    while True:
+        passes.append((y, *cur))
+        if y >= y1 - 1e-9:
+            break
+        # the largest side step (<= s) whose neighbouring ball centres, at every x, are at most s
+        # apart in the cross-section: the scallop between them is then <= h (Sood ch. 5 adapts the side step per line)
+        dy = min(s, y1 - y)
+        for _ in range(_ADAPT_ROUNDS):
+            nxt = drop_pass(y + dy)
+            dz = _max_dz(cur[1], nxt[1])
+            if dy * dy + dz * dz <= s * s * (1 + 1e-9) or dy <= dy_min:
                 break
-            # the largest side step (<= s) whose neighbouring ball centres, at every x, are at most s
-            # apart in the cross-section: the scallop between them is then <= h (Sood ch. 5 adapts the side step per line)
-            dy = min(s, y1 - y)
-            for _ in range(_ADAPT_ROUNDS):
-                nxt = drop_pass(y + dy)
-                dz = _max_dz(cur[1], nxt[1])
-                if dy * dy + dz * dz <= s * s * (1 + 1e-9) or dy <= dy_min:
-                    break
-                # fixed point of dy = sqrt(s^2 - dz(dy)^2): dz ~ dy tan(slope) converges in a few rounds
-                dy = max(min(math.sqrt(max(s * s - dz * dz, 0.0)), 0.999 * dy), dy_min)
-            y, cur = y + dy, nxt
-    else:
-        n_pass = max(1, int(np.ceil((y1 - y0) / s)) + 1)
-        for y in 0.5 * (y0 + y1) + (np.arange(n_pass) - (n_pass - 1) / 2.0) * s:   # centred on the area
-            passes.append((y, *drop_pass(y)))
-    stretches = []                      # (pass number, (L,3) safe CL line, clearances)
+            # fixed point of dy = sqrt(s^2 - dz(dy)^2): dz ~ dy tan(slope) converges in a few rounds
+            dy = max(min(math.sqrt(max(s * s - dz * dz, 0.0)), 0.999 * dy), dy_min)
+        y, cur = y + dy, nxt
+    return passes
+
+
+def _even_passes(drop_pass, y0: float, y1: float, s: float) -> list:
+    """Passes ``(y, inside, z)`` a constant ``s`` apart, centred on ``[y0, y1]``."""
+    passes = []                                 # (y, inside, z)
+    n_pass = max(1, int(np.ceil((y1 - y0) / s)) + 1)
+    for y in 0.5 * (y0 + y1) + (np.arange(n_pass) - (n_pass - 1) / 2.0) * s:   # centred on the area
+        passes.append((y, *drop_pass(y)))
+    return passes
+
+
+def _stretches(passes: list, xs: np.ndarray, zigzag: bool):
+    """The runs of consecutive samples on the band, as CL lines in cutting order (every other pass
+    reversed in zig-zag): ``([(pass number, (L,3) CL line)], number of passes with a run)``."""
+    stretches = []                      # (pass number, (L,3) CL line)
     n_done = 0
     for y, inside, z_all in passes:
         if not inside.any():
@@ -208,8 +248,15 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
                 continue
             stretches.append((n_done, np.column_stack([xr[ok], np.full(int(ok.sum()), y), z[ok]])))
         n_done += 1
-    if not stretches:
-        raise ParameterError("no finishing pass lies on the area")
+    return stretches, n_done
+
+
+def _join_stretches(surface, tree, stretches, R, step, tol_mm, max_splits, lead_mm, safe, link_max):
+    """Make the stretches gouge safe (:func:`_make_safe_many`) and join them in order: a surface
+    link where :func:`_links` finds one (``link_max`` < 0: never), else lead-out, retract, rapid
+    and lead-in. Returns the CL points (P,3), the use of the move reaching each (P,), its
+    clearance (NaN where not measured), the pass of each point (-1 off the passes) and the
+    number of retracts."""
     safe_lines = _make_safe_many(surface, tree, [ln for _, ln in stretches], R, tol_mm, max_splits)
     stretches = [(p, ln, cl) for (p, _), (ln, cl) in zip(stretches, safe_lines)]
     ramp_in, ramp_out = _ramps(surface, tree, [ln for _, ln, _ in stretches], R, tol_mm, lead_mm, safe)
@@ -223,8 +270,7 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
         clr.append(np.broadcast_to(np.asarray(cl, dtype=np.float64), (n,)).copy())
         pid.append(np.full(n, pass_no, dtype=np.int32))
 
-    links = _links(surface, tree, [ln for _, ln, _ in stretches], R, step, tol_mm, max_splits,
-                   link_max if zigzag else -1.0)
+    links = _links(surface, tree, [ln for _, ln, _ in stretches], R, step, tol_mm, max_splits, link_max)
     prev = None
     for k, (pass_no, line, clear) in enumerate(stretches):
         if prev is not None:
@@ -241,21 +287,7 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
         add(line[1:], USE_CUT, clear[1:], pass_no)
         prev = line
     _lead_out(add, prev, ramp_out[len(stretches) - 1], lead_mm, safe)
-    cl = np.concatenate(xyz)
-    u = np.concatenate(use)
-    clear = np.concatenate(clr)
-    pass_index = np.concatenate(pid)
-    tp = lines(cl, u, tip_offset_mm=R)
-    # moves not measured while being made safe (leads, plunges, retracts): measure them now
-    feed = tp.kind == FEED
-    todo = feed & np.isnan(clear)
-    todo[0] = False
-    if todo.any():
-        clear[todo] = _clr(cl, todo, tree, R)[todo]
-    seg = np.linalg.norm(np.diff(cl, axis=0), axis=1)
-    worst = float(np.nanmin(clear)) if np.isfinite(clear).any() else float("inf")
-    return FinishingPath(toolpath=tp, n_passes=n_done, step_over_mm=s, min_clearance_mm=worst,
-                         length_mm=float(seg[feed[1:]].sum()), n_retracts=n_retracts, pass_index=pass_index)
+    return np.concatenate(xyz), np.concatenate(use), np.concatenate(clr), np.concatenate(pid), n_retracts
 
 
 def _clr(cl: np.ndarray, mask: np.ndarray, binned: BinnedCloud, R: float) -> np.ndarray:

@@ -28,7 +28,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from planning.setups.select import brute_force_setups, select_setups  # noqa: E402
+from planning.setups import brute_force_setups, select_setups  # noqa: E402
 
 
 def candidate_axes(phi_max_deg: int = 120, phi_step_deg: int = 10, theta_step_deg: int = 30) -> np.ndarray:

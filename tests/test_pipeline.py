@@ -140,7 +140,7 @@ def test_search_time_out_before_any_answer_is_reported_as_incomplete(monkeypatch
     import dataclasses
 
     import planning.pipeline as pipeline
-    from planning.setups.select import select_setups
+    from planning.setups import select_setups
 
     def timed_out(*args, **kwargs):
         sel = select_setups(*args, **kwargs)

@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from planning.errors import ParameterError
-from planning.setups.select import SetupSelection, brute_force_setups, select_setups
+from planning.setups import SetupSelection, brute_force_setups, select_setups
 
 COVERAGES = (0.5, 0.8, 0.9, 0.95, 1.0)
 

@@ -1,3 +1,23 @@
 """Stage 5, set-ups (Makki 2010 §3.1): the fewest orientations that cover the part with the least overlap,
 solved exactly.
+
+Entry: :func:`select_setups` (a boolean visibility matrix, points x candidate axes -> the chosen axes,
+covered and overlap point counts and the proof, :class:`SetupSelection`) in
+:mod:`planning.setups.select`; :func:`brute_force_setups` is the exhaustive reference, and
+:data:`SOLVERS` names the solvers.  The modules, in reading order:
+
+* :mod:`~planning.setups.select`: the entry, the rules and tie order of the answer;
+* :mod:`~planning.setups.problem`: validated inputs and the reduced problem (weighted classes of
+  identical rows, distinct kept axes);
+* :mod:`~planning.setups.result`: :class:`SetupSelection` and its message;
+* :mod:`~planning.setups.heuristics`: greedy max coverage and local exchanges (incumbents, hints);
+* :mod:`~planning.setups.search` and :mod:`~planning.setups.bounds`: the branch and bound (default);
+* :mod:`~planning.setups.cpsat`: the OR-Tools CP-SAT model (a cross-check);
+* :mod:`~planning.setups.bruteforce`: every combination, the reference for tests.
 """
+
+from planning.setups.bruteforce import brute_force_setups
+from planning.setups.result import SetupSelection
+from planning.setups.select import SOLVERS, select_setups
+
+__all__ = ["SOLVERS", "SetupSelection", "brute_force_setups", "select_setups"]

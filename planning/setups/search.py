@@ -1,0 +1,385 @@
+"""Set-up selection by branch and bound (``solver="branch_and_bound"``, also ``"auto"``).
+
+Stage 5 (set-ups) of the pipeline, Makki et al. 2010 §3.1 made exact.  The paper enumerates every
+combination with the binomial coefficient; here an exact depth-first search runs over axis
+combinations on the weighted classes of :class:`~planning.setups.problem._Problem` (axes ordered by
+size; a subset is visited once, in that order).  Every node keeps, for its remaining candidate axes,
+the weight (points) each would newly cover (``g``), the weight it would turn into overlap (``h``) and
+the weighted Gram matrices of the candidates over the still uncovered classes (``P``) and over the
+classes covered exactly once (``Q``); a child's ``g`` and ``h`` are read off the parent's ``P`` and
+``Q`` rows, so only a child that survives the bounds (:mod:`planning.setups.bounds`) pays for its two
+small Gram products.  Pruning compares (lower bound, upper bound, smallest reachable index tuple) with
+the incumbent's key, so ties resolve exactly as in the brute force.
+
+The drivers (:func:`_solve_bnb`) find the smallest ``k`` that reaches the coverage, then the least
+overlap at that ``k``; where no ``k <= max_setups`` reaches it, the best coverage
+(:func:`_bnb_best_cover`).  The incumbent comes from greedy max coverage improved by one- and two-axis
+exchanges (:mod:`planning.setups.heuristics`; the exchange of two axes is evaluated for all incoming
+pairs at once from Gram matrices).  The matrix products are small, so BLAS runs single-threaded during
+the call (see :func:`planning.setups.select._single_threaded_blas`).  Measured
+(``bench/bench_setups.py``): the proven optimum for 100k bone-like normals x 145-206 axes, max 5
+set-ups, in 0.2-0.9 s on the shared 2-core machine.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+
+import numpy as np
+
+from planning.setups.bounds import (
+    _TENSOR_MAX,
+    _branch_bounds,
+    _completable,
+    _pairs_exist,
+    _top_sums,
+)
+from planning.setups.heuristics import _heuristics, _local_search, _timeout_fallback
+from planning.setups.problem import _key_cover, _key_overlap, _Outcome, _Problem, _wgram
+
+
+class _Timeout(Exception):
+    pass
+
+
+class _Found(Exception):
+    pass
+
+
+class _Search:
+    """Exact DFS over k-subsets of reduced axes (one run = one k, one mode).
+
+    mode "overlap": minimise (overlap, -covered, tuple) subject to covered >= floor.
+    mode "cover":   minimise (-covered, overlap, tuple) subject to covered >= floor.
+    ``stop_at_first``: stop as soon as any subset with covered >= floor is found (existence).
+
+    The state every method shares: the incumbent (``best_key``, ``best_sel``), the open frames of
+    the DFS (each with its children's lower bounds, read for the bound reported at a time-out) and
+    the node count.  The bound arithmetic lives in :mod:`planning.setups.bounds`; a node is a dict
+    (``S`` chosen axes, ``cov``/``ov`` point counts, ``cand`` candidate axes, ``g``, ``h``, ``P``,
+    ``Q`` and ``deg`` the classes' coverage degree capped at 2).
+    """
+
+    def __init__(self, prob: _Problem, k: int, mode: str, floor: float, deadline: float,
+                 incumbent=None, stop_at_first=False, progress=None):
+        self.p = prob
+        self.k = k
+        self.mode = mode
+        self.floor = float(floor)
+        self.deadline = deadline
+        self.stop_at_first = stop_at_first
+        self.keyf = _key_overlap if mode == "overlap" else _key_cover
+        self.best_key = None
+        self.best_sel = None
+        if incumbent is not None:
+            sel, key = incumbent
+            if key is not None:
+                self.best_key, self.best_sel = key, list(sel)
+        self.frames: list = []
+        self.nodes = 0
+        self.progress = progress
+        self.timeout_bound = None
+
+    # incumbent handling -------------------------------------------------------------------
+    def _offer(self, sel, cov, ov):
+        key = self.keyf(int(round(ov)), int(round(cov)), self.p.tuple_of(sel))
+        if self.best_key is None or key < self.best_key:
+            self.best_key, self.best_sel = key, list(sel)
+        if self.stop_at_first:
+            raise _Found
+
+    def _floor(self) -> float:
+        """Coverage a subtree must still be able to reach: the constraint, and in "cover" mode
+        also the incumbent's coverage (ties may still win on overlap or indices)."""
+        if self.mode == "cover" and self.best_key is not None:
+            return max(self.floor, float(-self.best_key[0]))
+        return self.floor
+
+    def _dominated(self, lo1, lo2, S, cand_after, r):
+        """True when the subtree's lower key (lo1, lo2, min tuple) >= incumbent key."""
+        if self.best_key is None:
+            return False
+        a, b, tup = self.best_key
+        if lo1 != a:
+            return lo1 > a
+        if lo2 != b:
+            return lo2 > b
+        # equal on the numbers: the lexicographically smallest tuple reachable decides
+        orig = self.p.axes
+        extra = np.sort(orig[cand_after])[:r]
+        if extra.size < r:
+            return True
+        mt = tuple(sorted([int(orig[s]) for s in S] + [int(x) for x in extra]))
+        return mt >= tup
+
+    # the search -------------------------------------------------------------------------------
+    def run(self):
+        p = self.p
+        k = self.k
+        if p.m < k:
+            return
+        # axis order: larger coverage first (ties by index)
+        order = np.lexsort((np.arange(p.m), -p.sizes))
+        cand = order.astype(np.int64)
+        node = dict(
+            S=[], deg=np.zeros(p.C, np.uint8), cov=0.0, ov=0.0, cand=cand,
+            g=p.sizes[cand].copy(), h=np.zeros(cand.size),
+            P=p.gram[np.ix_(cand, cand)] if k >= 2 else None,
+            Q=np.zeros((cand.size, cand.size)) if k >= 2 else None,
+        )
+        with contextlib.suppress(_Found):
+            self._node(node, k)
+
+    def _check_time(self):
+        if time.perf_counter() > self.deadline:
+            bound = None
+            for lbs, idx in self.frames:
+                if idx < len(lbs):
+                    v = float(np.min(lbs[idx:]))
+                    bound = v if bound is None else min(bound, v)
+            self.timeout_bound = bound
+            raise _Timeout
+
+    def _node(self, node, r):
+        self.nodes += 1
+        if r == 1:
+            self._leaves1(node)
+        elif r == 2:
+            self._leaves2(node)
+        else:
+            self._branch(node, r)
+
+    def _allowed(self, cand):
+        M = cand.size
+        allowed = np.triu(np.ones((M, M), bool), 1)
+        if self.p.has_conflicts:
+            allowed &= ~self.p.conflict[np.ix_(cand, cand)]
+        return allowed
+
+    def _leaves1(self, node):
+        floor = self._floor()
+        cov, ov, g, h, cand, S = node["cov"], node["ov"], node["g"], node["h"], node["cand"], node["S"]
+        if cand.size == 0:
+            return
+        covs = cov + g
+        ovs = ov + h
+        ok = covs >= floor
+        if not ok.any():
+            return
+        idx = np.flatnonzero(ok)
+        self._pick(S, [(int(i),) for i in idx], covs[idx], ovs[idx], cand)
+
+    def _leaves2(self, node):
+        floor = self._floor()
+        cov, ov, g, h, cand, S = node["cov"], node["ov"], node["g"], node["h"], node["cand"], node["S"]
+        M = cand.size
+        if M < 2:
+            return
+        allowed = self._allowed(cand)
+        covm = cov + g[:, None] + g[None, :] - node["P"]
+        ok = allowed & (covm >= floor)
+        if not ok.any():
+            return
+        ia, ib = np.nonzero(ok)
+        covs = covm[ia, ib]
+        Q, P = node["Q"], node["P"]
+        ovs = ov + h[ia] + h[ib] - Q[ia, ib] + P[ia, ib]
+        self._pick(S, list(zip(ia.tolist(), ib.tolist(), strict=True)), covs, ovs, cand)
+
+    def _pick(self, S, pos_tuples, covs, ovs, cand):
+        """Best of the evaluated leaves (positions into cand) offered to the incumbent."""
+        if self.mode == "overlap":
+            k1, k2 = ovs, -covs
+        else:
+            k1, k2 = -covs, ovs
+        m1 = k1.min()
+        sel1 = k1 == m1
+        m2 = k2[sel1].min()
+        best = np.flatnonzero(sel1 & (k2 == m2))
+        if self.best_key is not None and (m1, m2) > (self.best_key[0], self.best_key[1]):
+            return
+        bi = best[0]
+        if best.size > 1:  # exact tie on the numbers: smallest tuple of original indices
+            tups = [self.p.tuple_of(S + [int(cand[q]) for q in pos_tuples[b]]) for b in best]
+            bi = best[min(range(len(best)), key=lambda t: tups[t])]
+        sel = S + [int(cand[q]) for q in pos_tuples[bi]]
+        self._offer(sel, float(covs[bi]), float(ovs[bi]))
+
+    def _overlap_incumbent(self):
+        """The incumbent key where the overlap bounds apply (mode "overlap"), else None."""
+        return self.best_key if self.mode == "overlap" else None
+
+    def _branch(self, node, r):
+        """Children of a node with r >= 3 axes to add, best lower key first, bounded and pruned."""
+        floor = self._floor()
+        cov, ov, g, h, P, Q, cand, S = (node[x] for x in ("cov", "ov", "g", "h", "P", "Q", "cand", "S"))
+        M = cand.size
+        if M < r:
+            return
+        allowed = self._allowed(cand)
+        viable, k1, k2, lb = _branch_bounds(cov, ov, g, h, P, Q, allowed, r, floor, self.mode)
+        if r == 3 and M <= _TENSOR_MAX and viable.any():
+            viable &= _pairs_exist(node, allowed, floor, self._overlap_incumbent())
+        idx = np.flatnonzero(viable)
+        if idx.size == 0:
+            return
+        order = idx[np.lexsort((idx, k2[idx], k1[idx]))]
+        if self.mode == "overlap":
+            frame_lbs = lb[order]
+        else:
+            frame_lbs = np.zeros(order.size)
+        frame = [frame_lbs, 0]
+        self.frames.append(frame)
+        depth = len(S)
+        try:
+            for t, j in enumerate(order):
+                frame[1] = t
+                self._check_time()
+                if depth == 0 and self.progress is not None:
+                    self.progress(t / order.size)
+                j = int(j)
+                after = np.flatnonzero(allowed[j])
+                if self._dominated(k1[j], k2[j], S + [int(cand[j])], cand[after], r - 1):
+                    if k1[j] > self.best_key[0]:
+                        break  # children are sorted by k1: all following ones are dominated too
+                    continue
+                child = self._child(node, j, after, r - 1)
+                if child is not None:
+                    self._node(child, r - 1)
+        finally:
+            self.frames.pop()
+
+    def _child(self, node, j, after, rc):
+        """State after adding candidate position j; rc = axes still to add (>= 1); None when the
+        bounds rule the child out before its Gram products are paid for."""
+        floor = self._floor()
+        if after.size < rc:
+            return None
+        cand = node["cand"]
+        axis = int(cand[j])
+        cov = node["cov"] + node["g"][j]
+        ov = node["ov"] + node["h"][j]
+        # the parent's Gram rows of j are the weights j shares with each candidate among the
+        # uncovered (P) and once-covered (Q) classes: the child's g and h without touching classes
+        s1 = node["P"][j, after]
+        s2 = node["Q"][j, after]
+        g = node["g"][after] - s1
+        h = node["h"][after] + s1 - s2
+        inc = self._overlap_incumbent()
+        # single-axis filters: an axis whose own added overlap, or whose best coverage together
+        # with the best other gains, already rules it out cannot appear in this subtree
+        keep = cov + np.minimum(*_top_sums(g, rc)) >= floor
+        if inc is not None:
+            keep &= ov + h <= inc[0]
+        if np.count_nonzero(keep) < rc:
+            return None
+        if rc >= 2 and not _completable(self.p, node, after, keep, s1, g, h, cov, ov, rc, floor, inc):
+            return None
+        if not keep.all():
+            sub = np.flatnonzero(keep)
+            after, g, h = after[sub], g[sub], h[sub]
+        return self._build_child(node, axis, after, cov, ov, g, h, rc)
+
+    def _build_child(self, node, axis, after, cov, ov, g, h, rc):
+        """The child's state: its candidates ``after`` (positions into the parent's) with gains g, h;
+        with rc >= 2 axes still to add also P, Q and the class degrees, updated by two small weighted
+        Gram products over the classes the new axis covers first and turns into overlap."""
+        p = self.p
+        cand2 = node["cand"][after]
+        child = dict(S=node["S"] + [axis], cov=cov, ov=ov, cand=cand2, g=g, h=h,
+                     P=None, Q=None, deg=None)
+        if rc >= 2:
+            col = p.AT[axis]
+            deg = node["deg"]
+            R1 = np.flatnonzero((deg == 0) & col)  # classes j covers first
+            R2 = np.flatnonzero((deg == 1) & col)  # classes j turns into overlap
+            X1 = np.take(np.take(p.Af, R1, axis=0), cand2, axis=1)
+            X2 = np.take(np.take(p.Af, R2, axis=0), cand2, axis=1)
+            G1 = _wgram(X1, p.wf[R1])
+            G2 = _wgram(X2, p.wf[R2])
+            ix = np.ix_(after, after)
+            child["P"] = node["P"][ix] - G1
+            child["Q"] = node["Q"][ix] + G1 - G2
+            d = deg + col  # 0, 1 or 2 (= two or more): all the search needs
+            np.minimum(d, 2, out=d)
+            child["deg"] = d
+        return child
+
+
+# --------------------------------------------------------------------------------------------
+# drivers
+# --------------------------------------------------------------------------------------------
+
+
+def _progress_fn(progress, lo, hi, text):
+    """progress(fraction) of one search mapped onto [lo, hi] of the whole call, with ``text``."""
+    if progress is None:
+        return None
+    return lambda f: progress(lo + (hi - lo) * float(f), text)
+
+
+def _bnb_best_cover(prob, K, deadline, heur, progress):
+    """Infeasible case: best subset of size <= K (max covered, min k, min overlap, min tuple)."""
+    best = None  # (cov, k, key, sel)
+    timed_out = False
+    for k in range(1, min(K, prob.m) + 1):
+        floor = 1 if best is None else best[0] + 1  # a larger k must cover strictly more
+        inc = None
+        if k in heur and heur[k][1] >= floor:
+            inc = _local_search(prob, heur[k][0], "cover", floor)
+        s = _Search(prob, k, "cover", floor, deadline, incumbent=inc,
+                    progress=_progress_fn(progress, 0.5 + 0.5 * (k - 1) / K, 0.5 + 0.5 * k / K,
+                                          f"best coverage with {k} set-ups"))
+        try:
+            s.run()
+        except _Timeout:
+            timed_out = True
+        if s.best_sel is not None:
+            c, _ = prob.evaluate(s.best_sel)
+            if best is None or c > best[0]:
+                best = (c, k, s.best_key, s.best_sel)
+        if timed_out:
+            break
+    return (best[3] if best else []), timed_out
+
+
+def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
+    """Branch and bound for at most K set-ups: stage 1, the smallest k reaching ``prob.required``
+    (the greedy answer where it reaches it, else an existence search); stage 2, the least overlap at
+    that k from the locally improved incumbent."""
+    req = prob.required
+    heur = _heuristics(prob, K)
+    kmax = min(K, prob.m)
+    kstar, found = None, None
+    for k in range(1, kmax + 1):
+        if progress:
+            progress(0.3 * (k - 1) / kmax, f"is {k} set-up(s) enough?")
+        if k in heur and heur[k][1] >= req:
+            kstar, found = k, heur[k][0]
+            break
+        s = _Search(prob, k, "cover", req, deadline, stop_at_first=True)
+        try:
+            s.run()
+        except _Timeout:
+            return _timeout_fallback(prob, heur, k, kmax)
+        if s.best_sel is not None:
+            kstar, found = k, s.best_sel
+            break
+    if kstar is None:
+        sel, timed_out = _bnb_best_cover(prob, K, deadline, heur, progress)
+        note = "time limit reached: the best coverage shown may not be the maximum" if timed_out else ""
+        return _Outcome("infeasible", sel, None, note)
+    # stage 2: least overlap at k*
+    inc = _local_search(prob, found, "overlap", req)
+    s = _Search(prob, kstar, "overlap", req, deadline, incumbent=inc,
+                progress=_progress_fn(progress, 0.3, 1.0, f"least overlap with {kstar} set-ups"))
+    try:
+        s.run()
+    except _Timeout:
+        ov = s.best_key[0]
+        lb = ov if s.timeout_bound is None else min(ov, int(math.ceil(s.timeout_bound - 1e-9)))
+        return _Outcome("feasible", s.best_sel, lb, "time limit reached")
+    return _Outcome("optimal", s.best_sel, s.best_key[0])
+

@@ -16,18 +16,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import scanmill
-from planning.areas.assign import Areas, assign_areas
+from planning.areas import Areas, assign_areas
 from planning.errors import InputError, ParameterError
-from planning.inputs.cloud import Cloud
-from planning.normals.throwing import sphere_throwing
-from planning.orientations.candidates import CandidateAxes, candidate_axes
-from planning.orientations.kinematics import load_profile, machine_visibility
+from planning.inputs import Cloud
+from planning.normals import sphere_throwing
+from planning.orientations import CandidateAxes, candidate_axes, load_profile, machine_visibility
 from planning.post.programs import post_areas
-from planning.setups.select import SetupSelection, select_setups
+from planning.setups import SetupSelection, select_setups, zone_mask
 from planning.toolpath.area_paths import area_toolpaths
-from planning.visibility.chain import GlobalVisibility, global_visibility
-from planning.visibility.cone import cone_visibility
-from schemas.params import BoxZone, IndexZone, PlanConfig, SphereZone
+from planning.visibility import GlobalVisibility, cone_visibility, global_visibility
+from schemas.params import PlanConfig
 from schemas.plan import (
     AxisFilters,
     InputSummary,
@@ -68,35 +66,6 @@ def _stage_progress(progress: Progress | None, stage: str):
         return None
     return lambda fraction, message="": progress(stage, float(fraction), str(message))
 
-
-def zone_mask(points: np.ndarray, sample_index: np.ndarray, zones) -> tuple[np.ndarray, list[str]]:
-    """Bool mask (n,) of sampled points inside any functional zone, and warnings for empty zones.
-
-    Index zones refer to the submitted cloud (0-based); boxes and spheres are in part coordinates, mm.
-    """
-    n_input = points.shape[0]
-    sp = points[sample_index]
-    mask = np.zeros(sample_index.shape[0], dtype=bool)
-    warnings: list[str] = []
-    for i, z in enumerate(zones):
-        if isinstance(z, IndexZone):
-            idx = np.asarray(z.indices, dtype=np.int64)
-            if idx.max(initial=-1) >= n_input:
-                raise ParameterError(
-                    f"setups.functional_zones[{i}]: index {int(idx.max())} is out of range for a cloud of "
-                    f"{n_input} points (indices are 0-based)")
-            inside = np.isin(sample_index, idx)
-        elif isinstance(z, BoxZone):
-            lo, hi = np.asarray(z.min_mm), np.asarray(z.max_mm)
-            inside = np.all((sp >= lo) & (sp <= hi), axis=1)
-        elif isinstance(z, SphereZone):
-            inside = np.sum((sp - np.asarray(z.center_mm)) ** 2, axis=1) <= z.radius_mm ** 2
-        else:  # pragma: no cover - the schema admits no other kind
-            raise ParameterError(f"setups.functional_zones[{i}]: unknown zone type")
-        if not inside.any():
-            warnings.append(f"functional zone {i} ({z.type}) contains no sampled point and constrains nothing")
-        mask |= inside
-    return mask, warnings
 
 
 class _Run:

@@ -13,11 +13,13 @@ covered and overlap point counts and the proof, :class:`SetupSelection`) in
 * :mod:`~planning.setups.heuristics`: greedy max coverage and local exchanges (incumbents, hints);
 * :mod:`~planning.setups.search` and :mod:`~planning.setups.bounds`: the branch and bound (default);
 * :mod:`~planning.setups.cpsat`: the OR-Tools CP-SAT model (a cross-check);
-* :mod:`~planning.setups.bruteforce`: every combination, the reference for tests.
+* :mod:`~planning.setups.bruteforce`: every combination, the reference for tests;
+* :mod:`~planning.setups.zones`: the functional zones of the configuration as a per-point mask.
 """
 
 from planning.setups.bruteforce import brute_force_setups
 from planning.setups.result import SetupSelection
 from planning.setups.select import SOLVERS, select_setups
+from planning.setups.zones import zone_mask
 
-__all__ = ["SOLVERS", "SetupSelection", "brute_force_setups", "select_setups"]
+__all__ = ["SOLVERS", "SetupSelection", "brute_force_setups", "select_setups", "zone_mask"]

@@ -1,4 +1,4 @@
-"""Post-processor benchmark (DESIGN step 8): moves per second of the ISO (G68.2), LinuxCNC and
+"""Post-processor benchmark (docs/design.md stage 8): moves per second of the ISO (G68.2), LinuxCNC and
 neutral posts on a synthetic finishing-like tool path.
 
 The path (area frame, ball centres, tip offset = ball radius 3 mm): zig-zag passes along X in

@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from planning.errors import ParameterError
 from planning.orientations.kinematics import available_profiles, load_profile, machine_visibility
+from planning.orientations.positions import default_placement
 from planning.post import Operation, PostOptions, iso_program, linuxcnc_program, neutral_moves
 from planning.toolpath.frames import AreaFrame, area_frame
 from planning.toolpath.moves import (
@@ -28,7 +29,6 @@ from planning.toolpath.moves import (
     USE_RETRACT,
     Toolpath,
 )
-from planning.orientations.positions import default_placement
 
 PROFILES = available_profiles()
 AXES = [
@@ -797,13 +797,13 @@ def random_ops(seed: int, n: int = 200, **kw) -> list[Operation]:
 
 def reference_text(post, *args, **kw) -> str:
     """The post's text with every operation printed by the per-move MotionEmitter."""
-    from planning.post import common
+    from planning.post import motion
 
-    common._REFERENCE_MOTION = True
+    motion._REFERENCE_MOTION = True
     try:
         return post(*args, **kw)
     finally:
-        common._REFERENCE_MOTION = False
+        motion._REFERENCE_MOTION = False
 
 
 BULK_OPTIONS = [
@@ -876,7 +876,8 @@ def test_bulk_number_formatting_matches_fmt():
     """The whole-array formatter prints what fmt prints: random magnitudes from 1e-9 to near its
     2^51 limit, both signs, values that round to zero (never '-0.'), and exact rounding ties (binary
     fractions), at every number of decimals."""
-    from planning.post.common import _Q_MAX, _quantise, _Rows, fmt
+    from planning.post.blocks import fmt
+    from planning.post.bulk_text import _Q_MAX, _quantise, _Rows
 
     rng = np.random.default_rng(0)
     for d in range(7):
@@ -898,7 +899,7 @@ def test_bulk_number_formatting_matches_fmt():
 
 
 def test_line_numbers_in_bulk_follow_block_by_block_numbering():
-    from planning.post.common import BlockWriter
+    from planning.post.blocks import BlockWriter
 
     for step, before, count in ((10, 0, 25), (997, 95, 400), (1, 99990, 30), (1000, 99, 1)):
         one, bulk = BlockWriter(PostOptions(line_numbers=True, line_number_step=step)), \
@@ -913,7 +914,7 @@ def test_line_numbers_in_bulk_follow_block_by_block_numbering():
 
 
 def test_safe_height_matches_the_per_arc_reference():
-    from planning.post.common import _reference_safe_height_mm, safe_height_mm
+    from planning.post.arcs import _reference_safe_height_mm, safe_height_mm
 
     for seed in range(4):
         for op in random_ops(60 + seed, 300):
@@ -927,7 +928,9 @@ def _reference_neutral_operations(operations, frame, *, tool_axis, rotary_deg, p
     """The ``operations`` of neutral_moves as first written, one move at a time (the reference of the
     whole-array one; the document's header around them is not per-move work and is not repeated here)."""
     from planning.orientations.kinematics import as_profile, part_to_machine_rotation
-    from planning.post.common import (
+    from planning.orientations.positions import machine_position_affine
+    from planning.post.neutral import _TYPE, _UNIT_DECIMALS, _USE, _r
+    from planning.post.options import (
         check_frame,
         check_gauge,
         check_operations,
@@ -936,9 +939,7 @@ def _reference_neutral_operations(operations, frame, *, tool_axis, rotary_deg, p
         feed_for,
         gauge_of,
     )
-    from planning.post.neutral import _TYPE, _UNIT_DECIMALS, _USE, _r
     from planning.toolpath.moves import path_length_mm
-    from planning.orientations.positions import machine_position_affine
 
     d = int(decimals)
     ops = check_operations(operations)

@@ -1,4 +1,4 @@
-"""ISO / Fanuc-style 3+2 post with a tilted work plane (``G68.2`` + ``G53.1``), DESIGN step 8.
+"""ISO / Fanuc-style 3+2 post with a tilted work plane (``G68.2`` + ``G53.1``), docs/design.md stage 8.
 
 What the program means
 ----------------------
@@ -49,8 +49,10 @@ import numpy as np
 from planning.errors import ParameterError
 from planning.toolpath.frames import AreaFrame
 
-from .common import (
-    BlockWriter,
+from .arcs import safe_height_mm
+from .blocks import BlockWriter, comment, fmt, header_lines, operation_comment, rounded, spindle_word
+from .motion import emit_motion
+from .options import (
     Operation,
     PostOptions,
     check_frame,
@@ -59,14 +61,6 @@ from .common import (
     check_options,
     check_placement,
     check_rotary,
-    comment,
-    emit_motion,
-    fmt,
-    header_lines,
-    operation_comment,
-    rounded,
-    safe_height_mm,
-    spindle_word,
 )
 
 __all__ = ["euler_zxz_deg", "euler_zxz_matrix", "iso_program"]
@@ -117,7 +111,7 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
                 options: PostOptions | None = None) -> str:
     """ISO / Fanuc G-code (str) machining one area in its tilted work plane (see the module docstring).
 
-    ``operations``: :class:`~planning.post.common.Operation` list, run in order (one tool change
+    ``operations``: :class:`~planning.post.options.Operation` list, run in order (one tool change
     each). ``frame``: the area frame of their toolpaths; ``tool_axis`` (3,): the set-up's tool axis
     in the part frame, which must be the frame's +Z. ``setup_id`` / ``area_id``: for the header.
     ``rotary_deg`` ``(tilt_deg, rotary_deg)`` and ``profile`` (name, path or MachineProfile),
@@ -125,8 +119,9 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
     checked against the tool axis when both are given (the control's G53.1 picks its own).
     ``placement_mm`` and ``gauge_length_mm`` are accepted so that every post takes the same
     arguments, and are not used: G54 is the part frame and G43 takes the tool length from the
-    control's tool table. ``options``: :class:`~planning.post.common.PostOptions` (``chord_tol_mm`` and ``rotary_sign`` do
-    not apply). X Y Z are tool-tip positions in the area frame, mm; feeds mm/min.
+    control's tool table. ``options``: :class:`~planning.post.options.PostOptions`
+    (``chord_tol_mm`` and ``rotary_sign`` do not apply). X Y Z are tool-tip positions in the area
+    frame, mm; feeds mm/min.
     """
     o = check_options(options)
     ops = check_operations(operations)
@@ -136,6 +131,22 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
     check_gauge(gauge_length_mm)
     d = int(o.decimals)
     ad = d if o.angle_decimals is None else int(o.angle_decimals)
+    axis_names, rot = _plan_angles(rotary_deg, profile, t)
+    g682, A, b = _tilted_plane(frame, d, ad)
+
+    w = BlockWriter(o)
+    _program_start(w, o, t, rot, axis_names, setup_id=setup_id, area_id=area_id)
+    for k, op in enumerate(ops):
+        _operation_blocks(w, o, k, op, g682, A, b)
+    w.block("M30")
+    w.raw("%")
+    return w.text()
+
+
+def _plan_angles(rotary_deg, profile, t: np.ndarray) -> tuple[tuple[str, str] | None, np.ndarray | None]:
+    """``(axis_names, rot)`` for the header: the profile's rotary axis names (None without a profile)
+    and the plan's ``(tilt_deg, rotary_deg)`` (None without them), checked against the tool axis
+    ``t`` when the profile is given."""
     axis_names = None
     rot = None
     if profile is not None:
@@ -149,7 +160,13 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
         rot = np.asarray(rotary_deg, dtype=np.float64).reshape(-1)
         if rot.shape != (2,) or not np.all(np.isfinite(rot)):
             raise ParameterError(f"rotary_deg = {rotary_deg!r}: must be (tilt_deg, rotary_deg)", parameter="rotary_deg")
+    return axis_names, rot
 
+
+def _tilted_plane(frame: AreaFrame, d: int, ad: int) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """``(g682, A, b)``: the words of the area's ``G68.2`` block (origin with ``d`` places, Euler
+    angles with ``ad``) and the program frame ``X = A a + b`` of a tip ``a`` (area frame) in the
+    feature frame those PRINTED words build (module docstring, Rounding)."""
     R = np.asarray(frame.rotation, dtype=np.float64).T            # columns: frame axes in the part frame
     origin = np.asarray(frame.origin_mm, dtype=np.float64)
     ijk = [rounded(v, ad) for v in euler_zxz_deg(R)]
@@ -159,8 +176,13 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
     # tip in the area frame a -> part R a + origin -> printed feature frame R_r^T (part - origin_r)
     A = R_r.T @ R
     b = R_r.T @ (origin - origin_r)
+    g682 = ["G68.2"] + [f"{n}{fmt(v, d)}" for n, v in zip("XYZ", origin_r)] + \
+           [f"{n}{fmt(v, ad)}" for n, v in zip("IJK", ijk)]
+    return g682, A, b
 
-    w = BlockWriter(o)
+
+def _program_start(w: BlockWriter, o: PostOptions, t: np.ndarray, rot, axis_names, *, setup_id, area_id) -> None:
+    """``%``, the ``O`` line, the header comments and the blocks before the first operation."""
     w.raw("%")
     w.raw(f"O{int(o.program_number):04d} " + comment(f"scanmill area {area_id if area_id is not None else '-'}",
                                                       upper=True))
@@ -177,24 +199,24 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
     w.block("G91", "G28", "Z0.")
     w.block("G90")
     w.block("G54")
-    g682 = ["G68.2"] + [f"{n}{fmt(v, d)}" for n, v in zip("XYZ", origin_r)] + \
-           [f"{n}{fmt(v, ad)}" for n, v in zip("IJK", ijk)]
-    for k, op in enumerate(ops):
-        w.raw(operation_comment(k, op, upper=True))
-        tool = int(op.tool_number)
-        w.block(f"T{tool}", "M6")
-        w.block(spindle_word(op.spindle_rpm), "M3")
-        if o.coolant:
-            w.block("M8")
-        w.block(*g682)
-        w.block("G53.1")
-        emit_motion(w, o, A, b, "frame", op, safe_height_mm(op, o), approach_prefix=("G43", f"H{tool}"))
-        if o.coolant:
-            w.block("M9")
-        w.block("G69")
-        w.block("G91", "G28", "Z0.")
-        w.block("G90", "G49")
-        w.block("M5")
-    w.block("M30")
-    w.raw("%")
-    return w.text()
+
+
+def _operation_blocks(w: BlockWriter, o: PostOptions, k: int, op: Operation, g682: list[str], A: np.ndarray,
+                      b: np.ndarray) -> None:
+    """Operation ``k``: tool change, spindle, coolant, tilted plane, the motion (program frame
+    ``X = A a + b``), and back to Z home with the plane and the length offset cancelled."""
+    w.raw(operation_comment(k, op, upper=True))
+    tool = int(op.tool_number)
+    w.block(f"T{tool}", "M6")
+    w.block(spindle_word(op.spindle_rpm), "M3")
+    if o.coolant:
+        w.block("M8")
+    w.block(*g682)
+    w.block("G53.1")
+    emit_motion(w, o, A, b, "frame", op, safe_height_mm(op, o), approach_prefix=("G43", f"H{tool}"))
+    if o.coolant:
+        w.block("M9")
+    w.block("G69")
+    w.block("G91", "G28", "Z0.")
+    w.block("G90", "G49")
+    w.block("M5")

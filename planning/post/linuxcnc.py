@@ -1,4 +1,4 @@
-"""LinuxCNC-style 3+2 post with explicit rotary positioning (DESIGN step 8).
+"""LinuxCNC-style 3+2 post with explicit rotary positioning (docs/design.md stage 8).
 
 The program turns the rotary axes to the set-up's angles, then runs plain 3-axis ``X Y Z`` moves in
 the MACHINE frame of :mod:`planning.visibility.travel`. It needs no tilted-plane or TCP function in the control
@@ -47,11 +47,11 @@ Arcs
 ----
 The rotary positioning maps an area-frame arc plane into the machine frame. An arc is printed as
 ``G2``/``G3`` when its plane's normal maps onto a machine principal axis within
-:data:`~planning.post.common.ARC_PLANE_TOL` (1e-9): ``G17``/``G18``/``G19`` for +-Z/+-Y/+-X, the
+:data:`~planning.post.arcs.ARC_PLANE_TOL` (1e-9): ``G17``/``G18``/``G19`` for +-Z/+-Y/+-X, the
 direction reversed when it maps onto the negative axis. For table-table, area ``G17`` arcs always
 stay ``G17`` arcs (the tool axis maps onto +Z). Every other arc is linearised: ``G1`` chords at
 equal angle steps with every point on the arc and no chord farther than
-``PostOptions.chord_tol_mm`` from it (:func:`~planning.post.common.arc_chord_points`). ``G64 P``
+``PostOptions.chord_tol_mm`` from it (:func:`~planning.post.arcs.arc_chord_points`). ``G64 P``
 with that tolerance keeps LinuxCNC's path blending within it too.
 
 Program layout: header comments (program number, scanmill version, area, set-up, tool axis,
@@ -64,14 +64,17 @@ the safe height along the tool axis, ``M9``, ``G53 G0 Z0``, ``G49``, ``M5``; the
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
 from planning.errors import ParameterError
 from planning.toolpath.frames import AreaFrame
 
-from .common import (
-    BlockWriter,
+from .arcs import safe_height_mm
+from .blocks import BlockWriter, comment, fmt, header_lines, operation_comment, rounded, spindle_word
+from .motion import emit_motion
+from .options import (
     Operation,
     PostOptions,
     check_frame,
@@ -80,15 +83,7 @@ from .common import (
     check_options,
     check_placement,
     check_rotary,
-    comment,
-    emit_motion,
-    fmt,
     gauge_of,
-    header_lines,
-    operation_comment,
-    rounded,
-    safe_height_mm,
-    spindle_word,
 )
 
 __all__ = ["SUPPORTED_KINEMATICS", "linuxcnc_program", "printed_rotary_deg"]
@@ -111,7 +106,7 @@ def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_
                      options: PostOptions | None = None) -> str:
     """LinuxCNC G-code (str) machining one area with the rotary axes positioned once (module docstring).
 
-    ``operations``: :class:`~planning.post.common.Operation` list, run in order. ``frame``: the area
+    ``operations``: :class:`~planning.post.options.Operation` list, run in order. ``frame``: the area
     frame of their toolpaths; ``tool_axis`` (3,): the set-up's tool axis (part frame), which must be
     the frame's +Z; ``rotary_deg``: ``(tilt_deg, rotary_deg)`` presenting it on ``profile`` (checked
     by the forward kinematics); ``profile``: MachineProfile, bundled name or JSON path;
@@ -120,8 +115,7 @@ def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_
     own ``gauge_length_mm``, else the ``gauge_length_mm`` argument (unused for table-table). X Y Z in the machine frame, mm;
     feeds mm/min; angles degrees.
     """
-    from planning.orientations.kinematics import as_profile, tool_axis_from_angles
-    from planning.orientations.positions import machine_position_affine
+    from planning.orientations.kinematics import as_profile
 
     o = check_options(options)
     ops = check_operations(operations)
@@ -132,27 +126,59 @@ def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_
                              parameter="machine.profile")
     rot = check_rotary(rotary_deg, t, p)
     place = check_placement(placement_mm)
-    table = p.is_table_table
     gauge = check_gauge(gauge_length_mm)
-    if not table:
-        for k, op in enumerate(ops):
-            if gauge_of(op, gauge) is None:
-                raise ParameterError(
-                    f"operation {k} ({op.name!r}): the LinuxCNC post outputs the head rotation centre on a head-head "
-                    f"machine ({p.kinematics}) and needs the tool's gauge_length_mm (tip to spindle gauge line)",
-                    parameter="gauge_length_mm")
+    if not p.is_table_table:
+        _require_gauges(ops, gauge, p.kinematics)
+    ang = _rotary_words(rot, o, p)
+
+    w = BlockWriter(o)
+    _program_start(w, o, p, t, rot, place, ang, setup_id=setup_id, area_id=area_id)
+    for k, op in enumerate(ops):
+        _operation_blocks(w, o, k, op, frame, p, place, gauge, ang)
+    w.block("M30")
+    return w.text()
+
+
+def _require_gauges(ops: Sequence[Operation], gauge: float | None, kinematics: str) -> None:
+    """ParameterError naming the first operation without a gauge length (its own or ``gauge``): a
+    head-head program outputs the head rotation centre."""
+    for k, op in enumerate(ops):
+        if gauge_of(op, gauge) is None:
+            raise ParameterError(
+                f"operation {k} ({op.name!r}): the LinuxCNC post outputs the head rotation centre on a head-head "
+                f"machine ({kinematics}) and needs the tool's gauge_length_mm (tip to spindle gauge line)",
+                parameter="gauge_length_mm")
+
+
+class _RotaryWords(NamedTuple):
+    """The rotary positioning of the program (module docstring, Rotary axes and signs)."""
+
+    words: tuple[float, float]  #: the printed tilt and C values (rotary_sign applied, rounded), deg
+    decimals: int               #: their places (``angle_decimals``)
+    printed: np.ndarray         #: (2,) the (tilt, rotary) they command, planning.orientations.kinematics signs, deg
+    tool_axis: np.ndarray       #: (3,) the tool axis of the printed angles, part frame
+
+
+def _rotary_words(rot: np.ndarray, o: PostOptions, p) -> _RotaryWords:
+    """The rotary words of the planned angles ``rot`` on profile ``p``."""
+    from planning.orientations.kinematics import tool_axis_from_angles
+
     d = int(o.decimals)
     ad = d + 4 if o.angle_decimals is None else int(o.angle_decimals)
     st, sr = (float(v) for v in o.rotary_sign)
     words_angle = (rounded(st * rot[0], ad), rounded(sr * rot[1], ad))
     printed = np.array(printed_rotary_deg(rot, o))                        # planning.orientations.kinematics signs
     t_printed = tool_axis_from_angles(printed, p)[0]
+    return _RotaryWords(words_angle, ad, printed, t_printed)
+
+
+def _program_start(w: BlockWriter, o: PostOptions, p, t: np.ndarray, rot: np.ndarray, place: np.ndarray,
+                   ang: _RotaryWords, *, setup_id, area_id) -> None:
+    """The header comments and the blocks before the first operation."""
+    d, ad = int(o.decimals), ang.decimals
+    st, sr = (float(v) for v in o.rotary_sign)
+    table = p.is_table_table
     tilt_name, rot_name = p.axis_names
-
-    Rf = np.asarray(frame.rotation, dtype=np.float64).T                  # area -> part: R a + origin
-    origin = np.asarray(frame.origin_mm, dtype=np.float64)
-
-    w = BlockWriter(o)
     w.raw(comment(f"program {int(o.program_number)}"))
     if table:
         what = "X Y Z = tool tip in the machine frame, G43 tool length to the tip"
@@ -164,7 +190,7 @@ def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_
             extra=["units mm, mm/min, deg, G54 = machine frame: table-top centre on the C axis, rotary axes at 0",
                    f"part placement on the table X{fmt(place[0], d)} Y{fmt(place[1], d)} Z{fmt(place[2], d)}",
                    what,
-                   (f"rotary words {tilt_name}{fmt(words_angle[0], ad)} {rot_name}{fmt(words_angle[1], ad)}"
+                   (f"rotary words {tilt_name}{fmt(ang.words[0], ad)} {rot_name}{fmt(ang.words[1], ad)}"
                     f", signs: {tilt_name} {'flipped' if st < 0 else 'as planned'}, "
                     f"{rot_name} {'flipped' if sr < 0 else 'as planned'}, planned = planning.orientations.kinematics: "
                     f"right-hand rule, the {'table' if table else 'head'} turns")]):
@@ -172,30 +198,40 @@ def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_
     w.block("G21", "G90", "G94", "G17", "G40", "G49", "G80")
     w.block("G64", "P" + fmt(o.chord_tol_mm, max(d, 3)))
     w.block("G54")
-    for k, op in enumerate(ops):
-        w.raw(operation_comment(k, op, upper=False))
-        tool = int(op.tool_number)
-        G = 0.0 if table else gauge_of(op, gauge)
-        A_m, b_m = machine_position_affine(printed, p, placement_mm=place, tool_radius_mm=0.0, gauge_length_mm=G)
-        A = A_m[0] @ Rf
-        b = A_m[0] @ origin + b_m[0]
-        w.block("G53", "G0", "Z0")
-        w.block(f"T{tool}", "M6")
-        w.block("G0", f"{tilt_name}{fmt(words_angle[0], ad)}", f"{rot_name}{fmt(words_angle[1], ad)}")
-        w.block(spindle_word(op.spindle_rpm), "M3")
-        if o.coolant:
-            w.block("M8")
-        if table:
-            w.block("G43", f"H{tool}")
-        else:
-            w.block("G49")
-            w.raw(comment(f"head rotation centre = tip + {fmt(G + p.pivot_length_mm, d)} mm along the tool axis "
-                          + " ".join(f"{n}{fmt(v, 6)}" for n, v in zip("XYZ", t_printed))))
-        emit_motion(w, o, A, b, "principal", op, safe_height_mm(op, o))
-        if o.coolant:
-            w.block("M9")
-        w.block("G53", "G0", "Z0")
+
+
+def _operation_blocks(w: BlockWriter, o: PostOptions, k: int, op: Operation, frame: AreaFrame, p,
+                      place: np.ndarray, gauge: float | None, ang: _RotaryWords) -> None:
+    """Operation ``k``: Z home, tool change, the rotary axes, spindle, coolant, length offset, the
+    motion in the machine frame, and back to Z home."""
+    from planning.orientations.positions import machine_position_affine
+
+    d = int(o.decimals)
+    table = p.is_table_table
+    tilt_name, rot_name = p.axis_names
+    Rf = np.asarray(frame.rotation, dtype=np.float64).T                  # area -> part: R a + origin
+    origin = np.asarray(frame.origin_mm, dtype=np.float64)
+    w.raw(operation_comment(k, op, upper=False))
+    tool = int(op.tool_number)
+    G = 0.0 if table else gauge_of(op, gauge)
+    A_m, b_m = machine_position_affine(ang.printed, p, placement_mm=place, tool_radius_mm=0.0, gauge_length_mm=G)
+    A = A_m[0] @ Rf
+    b = A_m[0] @ origin + b_m[0]
+    w.block("G53", "G0", "Z0")
+    w.block(f"T{tool}", "M6")
+    w.block("G0", f"{tilt_name}{fmt(ang.words[0], ang.decimals)}", f"{rot_name}{fmt(ang.words[1], ang.decimals)}")
+    w.block(spindle_word(op.spindle_rpm), "M3")
+    if o.coolant:
+        w.block("M8")
+    if table:
+        w.block("G43", f"H{tool}")
+    else:
         w.block("G49")
-        w.block("M5")
-    w.block("M30")
-    return w.text()
+        w.raw(comment(f"head rotation centre = tip + {fmt(G + p.pivot_length_mm, d)} mm along the tool axis "
+                      + " ".join(f"{n}{fmt(v, 6)}" for n, v in zip("XYZ", ang.tool_axis))))
+    emit_motion(w, o, A, b, "principal", op, safe_height_mm(op, o))
+    if o.coolant:
+        w.block("M9")
+    w.block("G53", "G0", "Z0")
+    w.block("G49")
+    w.block("M5")

@@ -1,4 +1,4 @@
-"""Neutral, controller-independent move list of one area, JSON-ready (DESIGN step 8).
+"""Neutral, controller-independent move list of one area, JSON-ready (docs/design.md stage 8).
 
 :func:`neutral_moves` returns a dict that ``json.dumps`` accepts as is: the set-up (tool axis,
 rotary angles with the machine's axis names), the area frame, and per operation its tool, feeds and
@@ -53,6 +53,7 @@ import re
 import secrets
 from collections.abc import Sequence
 from contextlib import contextmanager
+from typing import NamedTuple
 
 import numpy as np
 
@@ -72,16 +73,16 @@ from planning.toolpath.moves import (
     path_length_mm,
 )
 
-from .common import (
+from .blocks import scanmill_version
+from .bulk_text import _Rows
+from .options import (
     Operation,
-    _Rows,
     check_frame,
     check_gauge,
     check_operations,
     check_placement,
     check_rotary,
     gauge_of,
-    scanmill_version,
 )
 
 __all__ = ["NEUTRAL_FORMAT", "NEUTRAL_FORMAT_VERSION", "neutral_json", "neutral_moves"]
@@ -119,7 +120,7 @@ def neutral_moves(operations: Sequence[Operation], frame: AreaFrame, *, tool_axi
                   placement_mm, setup_id=None, area_id=None, gauge_length_mm=None, decimals: int = 4) -> dict:
     """The neutral move list of one area (dict, JSON-ready; layout in the module docstring).
 
-    ``operations``: :class:`~planning.post.common.Operation` list; ``frame``: their area frame;
+    ``operations``: :class:`~planning.post.options.Operation` list; ``frame``: their area frame;
     ``tool_axis`` (3,): the set-up's tool axis in the part frame (must be the frame's +Z);
     ``rotary_deg``: ``(tilt_deg, rotary_deg)`` presenting it on ``profile`` (MachineProfile, name or
     path; checked by the forward kinematics); ``placement_mm`` (3,): the part origin in the table
@@ -246,8 +247,7 @@ def _json_float_rows(a, decimals: int, groups: np.ndarray | None = None) -> str:
 def _document(operations, frame, *, tool_axis, rotary_deg, profile, placement_mm, setup_id, area_id,
               gauge_length_mm, decimals, lists) -> dict:
     """The neutral document, its long lists made by ``lists`` (:class:`_Lists` or :class:`_JsonLists`)."""
-    from planning.orientations.kinematics import as_profile, part_to_machine_rotation
-    from planning.orientations.positions import machine_position_affine
+    from planning.orientations.kinematics import as_profile
 
     if isinstance(decimals, bool) or not isinstance(decimals, (int, np.integer)) or not 0 <= decimals <= 6:
         raise ParameterError(f"decimals = {decimals!r}: must be an integer in [0, 6]", parameter="decimals")
@@ -258,65 +258,9 @@ def _document(operations, frame, *, tool_axis, rotary_deg, profile, placement_mm
     rot = check_rotary(rotary_deg, t, p)
     place = check_placement(placement_mm)
     gauge = check_gauge(gauge_length_mm)
-    Rrows = np.asarray(frame.rotation, dtype=np.float64)
-    origin = np.asarray(frame.origin_mm, dtype=np.float64)
-    M = part_to_machine_rotation(rot, p)[0]                 # identity for head-head
-    if p.is_table_table:
-        # the controlled point with a zero gauge length is the tip itself
-        A_tip, b_tip = machine_position_affine(rot, p, placement_mm=place, tool_radius_mm=0.0, gauge_length_mm=0.0)
-        A_tip, b_tip = A_tip[0], b_tip[0]
-    else:
-        A_tip, b_tip = np.eye(3), place.copy()
+    m = _on_machine(frame, rot, p, place)
     tilt_name, rot_name = p.axis_names
-
-    out_ops = []
-    for op in ops:
-        tp = op.toolpath
-        off = np.array([0.0, 0.0, tp.tip_offset_mm])
-        tip_part = frame.to_part(tp.xyz_mm - off)
-        tip_mach = tip_part @ A_tip.T + b_tip
-        feed_code = np.where(tp.kind == RAPID, 0, np.where(tp.use == USE_PLUNGE, 2, 1))
-        moves = {
-            "count": int(tp.n_moves),
-            "type": lists.pick(_TYPE_NAMES, tp.kind),
-            "use": lists.pick(_USE_NAMES, tp.use),
-            "feed_mm_min": lists.pick((None, float(op.feed_mm_min), float(op.plunge_mm_min)), feed_code),
-            "tip_part_mm": lists.floats(tip_part, d),
-            "tip_machine_mm": lists.floats(tip_mach, d),
-        }
-        arc_idx = np.flatnonzero(np.isin(tp.kind, (ARC_CW, ARC_CCW)))
-        cen_part = frame.to_part(tp.centre_mm[arc_idx] - off) if arc_idx.size else np.zeros((0, 3))
-        normals = Rrows[_NORMAL_AXIS[tp.plane[arc_idx]]].reshape(-1, 3)
-        arcs = {
-            "count": int(arc_idx.size),
-            "move": lists.ints(arc_idx),
-            "direction": lists.pick(("cw", "ccw"), (tp.kind[arc_idx] == ARC_CCW).astype(np.int64)),
-            "plane": lists.ints(tp.plane[arc_idx]),
-            "normal_part": lists.floats(normals, _UNIT_DECIMALS, tp.plane[arc_idx]),
-            "normal_machine": lists.floats(normals @ M.T, _UNIT_DECIMALS, tp.plane[arc_idx]),
-            "centre_part_mm": lists.floats(cen_part, d),
-            "centre_machine_mm": lists.floats(cen_part @ A_tip.T + b_tip, d),
-        }
-        entry = {
-            "name": str(op.name),
-            "tool": {"number": int(op.tool_number), "diameter_mm": float(op.tool_diameter_mm),
-                     "type": str(op.tool_type),
-                     "gauge_length_mm": None if op.gauge_length_mm is None else float(op.gauge_length_mm)},
-            "spindle_rpm": float(op.spindle_rpm),
-            "feed_mm_min": float(op.feed_mm_min),
-            "plunge_mm_min": float(op.plunge_mm_min),
-            "tip_offset_mm": float(tp.tip_offset_mm),
-            "cut_length_mm": round(path_length_mm(tp), d),
-            "rapid_length_mm": round(path_length_mm(tp, kinds=(RAPID,)), d),
-            "moves": moves,
-            "arcs": arcs,
-        }
-        G = gauge_of(op, gauge)
-        entry["tool"]["gauge_length_mm"] = G
-        if G is not None:
-            A_c, b_c = machine_position_affine(rot, p, placement_mm=place, tool_radius_mm=0.0, gauge_length_mm=G)
-            entry["controlled_machine_mm"] = lists.floats(tip_part @ A_c[0].T + b_c[0], d)
-        out_ops.append(entry)
+    out_ops = [_operation_entry(op, m, gauge, d, lists) for op in ops]
 
     return {
         "format": NEUTRAL_FORMAT,
@@ -327,7 +271,7 @@ def _document(operations, frame, *, tool_axis, rotary_deg, profile, placement_mm
         "setup": {
             "id": setup_id,
             "tool_axis_part": _r(t, _UNIT_DECIMALS),
-            "tool_axis_machine": _r(M @ t, _UNIT_DECIMALS),
+            "tool_axis_machine": _r(m.M @ t, _UNIT_DECIMALS),
             "rotary_deg": {tilt_name: float(rot[0]) + 0.0, rot_name: float(rot[1]) + 0.0},
             "axis_names": [tilt_name, rot_name],
             "angle_signs": "planning.orientations.kinematics: right-hand rule about the positive machine axis; "
@@ -344,9 +288,98 @@ def _document(operations, frame, *, tool_axis, rotary_deg, profile, placement_mm
                                 if p.is_table_table else "tip_machine_mm = p + placement, the part fixed"),
         },
         "frame": {
-            "origin_part_mm": _r(origin, d),
-            "axes_part": _r(Rrows, _UNIT_DECIMALS),
+            "origin_part_mm": _r(m.origin, d),
+            "axes_part": _r(m.Rrows, _UNIT_DECIMALS),
             "axes_note": "rows: the area frame's x, y, z (= tool axis) in the part frame",
         },
         "operations": out_ops,
+    }
+
+
+class _OnMachine(NamedTuple):
+    """The area frame and the set-up on the machine (module docstring, Frames)."""
+
+    frame: AreaFrame
+    Rrows: np.ndarray     #: (3,3) the frame's axes as rows, part frame
+    origin: np.ndarray    #: (3,) the frame's origin, part frame, mm
+    M: np.ndarray         #: (3,3) part -> machine rotation of the rotary angles (identity for head-head)
+    A_tip: np.ndarray     #: (3,3) and
+    b_tip: np.ndarray     #: (3,) mm: machine tip = A_tip p + b_tip for a part-frame tip p
+    rot: np.ndarray       #: (tilt_deg, rotary_deg)
+    profile: object       #: the MachineProfile
+    place: np.ndarray     #: (3,) placement of the part on the table, mm
+
+
+def _on_machine(frame: AreaFrame, rot: np.ndarray, p, place: np.ndarray) -> _OnMachine:
+    """The frame and the machine mapping of the tips of a checked set-up."""
+    from planning.orientations.kinematics import part_to_machine_rotation
+    from planning.orientations.positions import machine_position_affine
+
+    M = part_to_machine_rotation(rot, p)[0]                 # identity for head-head
+    if p.is_table_table:
+        # the controlled point with a zero gauge length is the tip itself
+        A_tip, b_tip = machine_position_affine(rot, p, placement_mm=place, tool_radius_mm=0.0, gauge_length_mm=0.0)
+        A_tip, b_tip = A_tip[0], b_tip[0]
+    else:
+        A_tip, b_tip = np.eye(3), place.copy()
+    Rrows = np.asarray(frame.rotation, dtype=np.float64)
+    origin = np.asarray(frame.origin_mm, dtype=np.float64)
+    return _OnMachine(frame, Rrows, origin, M, A_tip, b_tip, rot, p, place)
+
+
+def _operation_entry(op: Operation, m: _OnMachine, gauge: float | None, d: int, lists) -> dict:
+    """``operations[k]`` of the document: the tool, feeds, lengths, the moves and the arcs of ``op``
+    (lengths rounded to ``d`` places, long lists by ``lists``)."""
+    from planning.orientations.positions import machine_position_affine
+
+    tp = op.toolpath
+    off = np.array([0.0, 0.0, tp.tip_offset_mm])
+    tip_part = m.frame.to_part(tp.xyz_mm - off)
+    tip_mach = tip_part @ m.A_tip.T + m.b_tip
+    feed_code = np.where(tp.kind == RAPID, 0, np.where(tp.use == USE_PLUNGE, 2, 1))
+    moves = {
+        "count": int(tp.n_moves),
+        "type": lists.pick(_TYPE_NAMES, tp.kind),
+        "use": lists.pick(_USE_NAMES, tp.use),
+        "feed_mm_min": lists.pick((None, float(op.feed_mm_min), float(op.plunge_mm_min)), feed_code),
+        "tip_part_mm": lists.floats(tip_part, d),
+        "tip_machine_mm": lists.floats(tip_mach, d),
+    }
+    entry = {
+        "name": str(op.name),
+        "tool": {"number": int(op.tool_number), "diameter_mm": float(op.tool_diameter_mm),
+                 "type": str(op.tool_type),
+                 "gauge_length_mm": None if op.gauge_length_mm is None else float(op.gauge_length_mm)},
+        "spindle_rpm": float(op.spindle_rpm),
+        "feed_mm_min": float(op.feed_mm_min),
+        "plunge_mm_min": float(op.plunge_mm_min),
+        "tip_offset_mm": float(tp.tip_offset_mm),
+        "cut_length_mm": round(path_length_mm(tp), d),
+        "rapid_length_mm": round(path_length_mm(tp, kinds=(RAPID,)), d),
+        "moves": moves,
+        "arcs": _arc_lists(tp, off, m, d, lists),
+    }
+    G = gauge_of(op, gauge)
+    entry["tool"]["gauge_length_mm"] = G
+    if G is not None:
+        A_c, b_c = machine_position_affine(m.rot, m.profile, placement_mm=m.place, tool_radius_mm=0.0,
+                                           gauge_length_mm=G)
+        entry["controlled_machine_mm"] = lists.floats(tip_part @ A_c[0].T + b_c[0], d)
+    return entry
+
+
+def _arc_lists(tp, off: np.ndarray, m: _OnMachine, d: int, lists) -> dict:
+    """``operations[k]["arcs"]``: one entry per arc of ``tp`` (``off``: the tip offset (0, 0, tip_offset_mm))."""
+    arc_idx = np.flatnonzero(np.isin(tp.kind, (ARC_CW, ARC_CCW)))
+    cen_part = m.frame.to_part(tp.centre_mm[arc_idx] - off) if arc_idx.size else np.zeros((0, 3))
+    normals = m.Rrows[_NORMAL_AXIS[tp.plane[arc_idx]]].reshape(-1, 3)
+    return {
+        "count": int(arc_idx.size),
+        "move": lists.ints(arc_idx),
+        "direction": lists.pick(("cw", "ccw"), (tp.kind[arc_idx] == ARC_CCW).astype(np.int64)),
+        "plane": lists.ints(tp.plane[arc_idx]),
+        "normal_part": lists.floats(normals, _UNIT_DECIMALS, tp.plane[arc_idx]),
+        "normal_machine": lists.floats(normals @ m.M.T, _UNIT_DECIMALS, tp.plane[arc_idx]),
+        "centre_part_mm": lists.floats(cen_part, d),
+        "centre_machine_mm": lists.floats(cen_part @ m.A_tip.T + m.b_tip, d),
     }

@@ -1,4 +1,4 @@
-"""NC programs and path summaries of every area (DESIGN step 8): the glue between the per-area
+"""NC programs and path summaries of every area (docs/design.md stage 8): the glue between the per-area
 tool paths (:mod:`planning.toolpath.area_paths`) and the posts (:mod:`planning.post.iso`,
 :mod:`planning.post.linuxcnc`, :mod:`planning.post.neutral`).
 
@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from planning.post.common import Operation, PostOptions
 from planning.post.iso import iso_program
 from planning.post.linuxcnc import linuxcnc_program
 from planning.post.neutral import neutral_json
+from planning.post.options import Operation, PostOptions
 from planning.toolpath.moves import machining_time_s
 from schemas.plan import (
     AreaPathSummary,

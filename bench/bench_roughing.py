@@ -11,11 +11,17 @@ floor is the area's lowest point + the allowance, the safe height the cloud's to
 Prints per axis: seconds, levels, moves, feed / air length, retracts and the reported minimal
 clearance (which must be >= the allowance).
 
-``--baseline FILE`` also times another copy of the module (for example the previous version saved
-to /tmp) in the same run, alternating the two per axis, and prints the ratio and whether the
-paths are identical (the module is imported as ``roughing_baseline``; numba caches its kernels
-beside the file under that name). The kernels of both are compiled before timing. The default
-axes are two tilted set-ups and the femur plan's area-1 axis.
+``--baseline PATH`` also times another version in the same run, alternating the two per axis, and
+prints the ratio and whether the paths are identical. PATH is either one file, a roughing.py from
+before the module became the package ``planning/toolpath/roughing/`` (for example
+``git show <rev>:planning/toolpath/roughing.py > /tmp/roughing_orig.py``), imported as
+``roughing_baseline``, or a copy of the package folder (for example
+``git archive <rev> planning/toolpath/roughing | tar -x -C /tmp/base``, then
+``--baseline /tmp/base/planning/toolpath/roughing``), imported from that folder as the package
+``roughing_baseline``. numba caches the baseline's kernels beside its files, under those names (a
+file once run under another module name needs its ``__pycache__`` cleared). The kernels of both
+are compiled before timing. The default axes are two tilted set-ups and the femur plan's area-1
+axis.
 
     .venv/bin/python bench/bench_roughing.py [--points 1000000] [--repeat 1]
         [--axis 0.433 -0.75 -0.5] [--axis 0.433 0.25 0.866] [--baseline /tmp/roughing_orig.py] [--profile]
@@ -29,9 +35,11 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import importlib.abc
 import importlib.util
 import os
 import pstats
+import re
 import shlex
 import sys
 import time
@@ -47,7 +55,38 @@ from planning.toolpath.frames import area_frame
 DEFAULT_AXES = [(0.433, -0.75, -0.5), (0.433, 0.25, 0.866), (-0.8138, -0.4698, 0.342)]
 
 
+class _Renamed(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Imports a copy of the package folder as ``roughing_baseline``: its modules import each other
+    as ``planning.toolpath.roughing.*``, names rewritten on import so that the copy (and the numba
+    caches of its kernels, which record their module's name) stays apart from the current package."""
+
+    def __init__(self, folder):
+        self.folder = folder
+
+    def find_spec(self, name, path=None, target=None):
+        if name == "roughing_baseline":
+            return importlib.util.spec_from_file_location(name, os.path.join(self.folder, "__init__.py"), loader=self,
+                                                          submodule_search_locations=[self.folder])
+        file = os.path.join(self.folder, *name.split(".")[1:]) + ".py"
+        if name.startswith("roughing_baseline.") and os.path.isfile(file):
+            return importlib.util.spec_from_file_location(name, file, loader=self)
+        return None
+
+    def create_module(self, spec):
+        return None
+
+    def exec_module(self, module):
+        with open(module.__spec__.origin, encoding="utf-8") as fh:
+            src = re.sub(r"\bplanning\.toolpath\.roughing\b", "roughing_baseline", fh.read())
+        exec(compile(src, module.__spec__.origin, "exec"), module.__dict__)  # noqa: S102 (the copy's own source)
+
+
 def _load(path):
+    """The baseline module ``roughing_baseline``: one file, or a copy of the package folder (see the
+    module docstring)."""
+    if os.path.isdir(path):
+        sys.meta_path.insert(0, _Renamed(os.path.abspath(path)))
+        return importlib.import_module("roughing_baseline")
     spec = importlib.util.spec_from_file_location("roughing_baseline", path)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod             # dataclasses look their module up
@@ -81,7 +120,8 @@ def main() -> None:
     ap.add_argument("--margin", type=float, default=2.0)
     ap.add_argument("--pattern", default="zigzag", choices=["zigzag", "oneway"])
     ap.add_argument("--repeat", type=int, default=1)
-    ap.add_argument("--baseline", help="path of another roughing.py to time in the same run")
+    ap.add_argument("--baseline", help="another roughing.py, or a copy of the package folder, to time in the "
+                    "same run")
     ap.add_argument("--profile", action="store_true", help="cProfile the (first) run of the current module")
     args = ap.parse_args()
     axes = [tuple(a) for a in args.axis] if args.axis else DEFAULT_AXES

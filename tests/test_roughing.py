@@ -20,9 +20,12 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from planning.errors import ParameterError
-from planning.toolpath import roughing as rough
 from planning.toolpath.moves import RAPID, USE_CUT, USE_PLUNGE, USE_RAPID, USE_RETRACT
 from planning.toolpath.roughing import GAP_MM, RoughingPath, min_tool_clearance, roughing_paths
+from planning.toolpath.roughing.common import _argsort_stable
+from planning.toolpath.roughing.links import _grid_path_cells
+from planning.toolpath.roughing.maps import _disc_max, _square_max, _sweep_top
+from planning.toolpath.roughing.regions import _comp_at, _march, _region_runs
 
 RT = 3.0          # tool radius used throughout, mm
 ALLOW = 0.5       # stock allowance, mm
@@ -405,7 +408,7 @@ def test_disc_maximum_gives_the_distance_transform_map():
         nx, ny = (int(v) for v in rng.integers(1, 50, 2))
         v = np.where(rng.random((nx, ny)) < 0.2, rng.normal(size=(nx, ny)), -np.inf)
         h, reach = float(rng.uniform(0.1, 1.0)), float(rng.uniform(0.05, 6.0))
-        got = rough._disc_max(v, h, reach)
+        got = _disc_max(v, h, reach)
         for t in (-1.0, 0.0, 0.8):
             src = v > t
             ref = ndimage.distance_transform_edt(~src) * h < reach if src.any() else np.zeros_like(src)
@@ -418,7 +421,7 @@ def test_square_maximum_matches_the_maximum_filter():
         nx, ny = (int(v) for v in rng.integers(1, 40, 2))
         a = np.where(rng.random((nx, ny)) < 0.7, rng.normal(size=(nx, ny)), -np.inf)
         k = int(rng.integers(0, 9))
-        np.testing.assert_array_equal(rough._square_max(a, k),
+        np.testing.assert_array_equal(_square_max(a, k),
                                       ndimage.maximum_filter(a, size=2 * k + 1, mode="constant", cval=-np.inf))
 
 
@@ -433,12 +436,12 @@ def test_region_runs_components_and_boundary():
         G = np.where(_blobs(rng, nx, ny, float(rng.uniform(0.1, 0.9))), 1.0, 0.0) + rng.uniform(0, 0.1, (nx, ny))
         inbox = rng.random((nx, ny)) < 0.97
         region = np.empty((nx, ny), dtype=bool)
-        runs = rough._region_runs(G, 0.5, inbox, region)
+        runs = _region_runs(G, 0.5, inbox, region)
         np.testing.assert_array_equal(region, inbox & ~(G > 0.5))
         lab, _ = ndimage.label(region, structure=np.ones((3, 3), bool))
-        got = np.array([[rough._comp_at(*runs, i, j) for j in range(ny)] for i in range(nx)]).reshape(nx, ny)
+        got = np.array([[_comp_at(*runs, i, j) for j in range(ny)] for i in range(nx)]).reshape(nx, ny)
         np.testing.assert_array_equal(got, lab)
-        edges, starts = rough._march(region, *runs[:3])
+        edges, starts = _march(region, *runs[:3])
         NY = ny + 2
         NH = (nx + 1) * NY
         P = np.zeros((nx + 2, ny + 2), bool)
@@ -486,7 +489,7 @@ def test_grid_search_finds_a_short_enough_path_whenever_one_exists():
         best = float(dijkstra(graph, indices=src)[dst])
         limit = float(rng.uniform(0.5, 1.5)) * (best if np.isfinite(best) else h * (nx + ny))
         n = nx * ny
-        got = rough._grid_path_cells(region.ravel(), nx, ny, h, src, dst, limit, 0, nx, 0, ny,
+        got = _grid_path_cells(region.ravel(), nx, ny, h, src, dst, limit, 0, nx, 0, ny,
                                      np.empty(n, np.int32), np.empty(n, np.int32), np.zeros(n, np.int32), 1)
         if best <= limit:
             assert got.size > 0
@@ -537,7 +540,7 @@ def test_material_map_is_lowered_only_where_the_flat_bottom_swept_the_whole_cell
         starts = np.concatenate([[0], np.cumsum([p.shape[0] for p in polys])]).astype(np.int64)
         Rf, rc = float(rng.uniform(1, 4)), float(rng.choice([0.0, 0.8]))
         tol = 0.25 * H
-        removed = rough._sweep_top(top, cx, cy, np.hypot(hx[:, None], hy[None, :]), 4 * hx[:, None] * hy[None, :],
+        removed = _sweep_top(top, cx, cy, np.hypot(hx[:, None], hy[None, :]), 4 * hx[:, None] * hy[None, :],
                                    full[0], full[1], np.concatenate(polys), starts, x0, y0, H, 0.0, Rf, Rf + rc,
                                    rc, tol)
         i, j = np.nonzero(inside)
@@ -571,7 +574,7 @@ def test_stable_argsort():
     rng = np.random.default_rng(17)
     for n in (0, 1, 15, 16, 17, 100, 1000, 5000):
         keys = np.round(rng.normal(size=n), 1)            # many equal keys
-        np.testing.assert_array_equal(rough._argsort_stable(keys), np.argsort(keys, kind="stable"))
+        np.testing.assert_array_equal(_argsort_stable(keys), np.argsort(keys, kind="stable"))
 
 
 def test_zone_order_is_the_same_with_distances_by_blocks(monkeypatch):
@@ -579,6 +582,6 @@ def test_zone_order_is_the_same_with_distances_by_blocks(monkeypatch):
     blocks: the same order of the same moves."""
     pts = _pockets([(-10.0, 0.0), (10.0, 0.0)], 20.0)
     a = roughing_paths(pts, tool_radius_mm=RT, step_down_mm=2.0, stepover_mm=1.0)
-    monkeypatch.setattr(rough, "ORDER_DENSE_MAX", 3)
+    monkeypatch.setattr("planning.toolpath.roughing.ordering.ORDER_DENSE_MAX", 3)
     b = roughing_paths(pts, tool_radius_mm=RT, step_down_mm=2.0, stepover_mm=1.0)
     np.testing.assert_array_equal(a.toolpath.xyz_mm, b.toolpath.xyz_mm)

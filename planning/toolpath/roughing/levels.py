@@ -1,0 +1,303 @@
+"""The entry of the Z-level roughing of one set-up (:mod:`planning.toolpath.roughing`; mm, area
+frame, tool tip): :func:`roughing_paths` checks the arguments, builds the stock box, the levels and
+the maps, cuts the levels from the top down and verifies the clearance; :class:`RoughingPath` is
+its result. Stage: called per area by :mod:`planning.toolpath.area_paths`, after the area frame
+(:mod:`planning.toolpath.frames`) and before the post-processor; the tool tip, stock, levels and
+the whole method (Popescu et al. 2014; Tchanchane & Bey) are described in the package docstring.
+
+A level is cut (:func:`_cut_level`) by taking its pieces (:mod:`planning.toolpath.roughing.clearing`)
+in their order (:mod:`planning.toolpath.roughing.ordering`), each joined to the one before by a
+feed link at the level or a lift (:mod:`planning.toolpath.roughing.links`); the remaining-material
+map (:mod:`planning.toolpath.roughing.maps`) is then lowered along the cut.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planning.errors import ParameterError
+from planning.toolpath.moves import (
+    FEED,
+    RAPID,
+    USE_CUT,
+    Toolpath,
+    lines,
+    path_length_mm,
+)
+from planning.toolpath.roughing.clearance import min_tool_clearance
+from planning.toolpath.roughing.clearing import (
+    _contour_pieces,
+    _line_pieces,
+    _line_ys,
+    _Piece,
+)
+from planning.toolpath.roughing.common import (
+    _bounds,
+    _check_points,
+    _check_tool,
+    _finite,
+)
+from planning.toolpath.roughing.links import (
+    _Level,
+    _lift,
+    _lift_cost,
+    _retract,
+    _Scratch,
+    _Writer,
+)
+from planning.toolpath.roughing.maps import (
+    Z_TOL_MM,
+    _ForbiddenMap,
+    _MaterialMap,
+    _Raster,
+    _raster,
+)
+from planning.toolpath.roughing.ordering import _order
+from planning.toolpath.roughing.regions import _region_runs
+
+MAX_LEVELS = 10_000     #: most Z levels
+
+REMOVED_NOTE = ("Each set-up is roughed from the full stock box (the cloud's box in the set-up frame grown by the "
+                "stock margin): material removed by earlier set-ups is not modelled, so lines may cut air.")
+
+
+@dataclass(frozen=True)
+class RoughingPath:
+    """Z-level roughing of one set-up (mm, area frame; see :mod:`planning.toolpath.roughing`).
+
+    ``toolpath``: the moves (tool tip, ``tip_offset_mm`` 0); ``levels_mm`` (n_levels,) tip heights
+    from the top down (the last is the floor); ``n_levels``; ``length_mm``: length of the feed
+    moves (cuts, links at a level, plunges, retracts); ``air_mm``: length of the rapids;
+    ``n_retracts``: lifts off a level (within levels, between levels and the final one);
+    ``level_retracts`` (n_levels,): lifts between two pieces of the same level;
+    ``min_clearance_mm``: smallest distance between the tool solid along every move and any cloud
+    point (:func:`~planning.toolpath.roughing.clearance.min_tool_clearance`; ``inf`` when no point
+    comes within the tool radius); ``removed_mm3`` (n_levels,): the drop of the raster's
+    remaining-material map at each level, mm^3 (cells wholly swept; the sum over the levels is a
+    lower bound of the material removed); ``stock_box_mm`` (2,3): the stock box's lower and upper
+    corners (the lower z is the lowest cloud point); ``cell_mm``: the raster cell used;
+    ``stepover_mm``: the line spacing used; ``removed_note``: what the stock model leaves out."""
+
+    toolpath: Toolpath
+    levels_mm: np.ndarray
+    n_levels: int
+    length_mm: float
+    air_mm: float
+    n_retracts: int
+    min_clearance_mm: float
+    removed_note: str
+    level_retracts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    removed_mm3: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    stock_box_mm: np.ndarray = field(default_factory=lambda: np.zeros((2, 3)))
+    cell_mm: float = 0.0
+    stepover_mm: float = 0.0
+
+
+def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: float = 0.0, step_down_mm: float = 2.0,
+                   stock_allowance_mm: float = 0.5, stock_margin_mm: float = 2.0,
+                   stepover_mm: float | None = None, pattern: str = "zigzag", contour: bool = True,
+                   floor_z_mm: float | None = None, cell_mm: float | None = None,
+                   safe_z_mm: float | None = None,
+                   progress: Callable[[int, int], None] | None = None) -> RoughingPath:
+    """Z-level roughing of one set-up from a stock box (mm, area frame; see :mod:`planning.toolpath.roughing`).
+
+    ``cloud_frame`` (N,3): the whole cloud in the area frame (every point is an obstacle);
+    ``tool_radius_mm`` Rt; ``corner_radius_mm`` rc (0: flat end mill, 0 < rc <= Rt: bull-nose);
+    ``step_down_mm``: depth between levels; ``stock_allowance_mm``: least distance left between
+    the tool and every cloud point; ``stock_margin_mm``: the stock box is the cloud's box grown by
+    this on the sides and on the top; ``stepover_mm``: distance between clearing lines (default
+    0.6 x diameter, at most the diameter); ``pattern``: ``"zigzag"`` or ``"oneway"`` (lines along
+    +X only, rapid back); ``contour``: add the offset-contour pass; ``floor_z_mm``: lowest tip
+    height (default lowest cloud z + allowance); ``cell_mm``: raster cell (default Rt / 16, at
+    most Rt / 2); ``safe_z_mm``: retract height cap and first approach (default stock top + 5 mm);
+    ``progress(levels_done, n_levels)``.
+    """
+    pts, Rt, rc, step, a, margin, s, h = _check_args(cloud_frame, tool_radius_mm, corner_radius_mm, step_down_mm,
+                                                      stock_allowance_mm, stock_margin_mm, stepover_mm, pattern,
+                                                      cell_mm)
+    stock = _stock(pts, a, margin, floor_z_mm, safe_z_mm)
+    levels = _levels(stock.z_top, stock.floor, step, step_down_mm)
+    grid = _raster(pts, stock.box_lo, stock.box_hi, Rt, h)
+    mat = _MaterialMap(grid, stock.box_lo, stock.box_hi, stock.z_top, Rt)
+    ys = _line_ys(stock.box_lo, stock.box_hi, grid.h, Rt, rc, s)
+    forb = _ForbiddenMap(grid.cmax, grid.h, Rt, rc, a, stock.big)
+    w, cur, level_retracts, removed = _cut_levels(levels, grid, forb, mat, ys, pattern == "oneway", contour,
+                                                  stock.safe, Rt, rc, progress)
+    return _result(pts, w, cur, levels, level_retracts, removed, stock, Rt, rc, grid.h, s)
+
+
+def _check_args(cloud_frame, tool_radius_mm, corner_radius_mm, step_down_mm, stock_allowance_mm, stock_margin_mm,
+                stepover_mm, pattern, cell_mm):
+    """The checked arguments of :func:`roughing_paths` (the first wrong one raises
+    :class:`~planning.errors.ParameterError`): (points, Rt, rc, step down, allowance, margin,
+    stepover, cell)."""
+    pts = _check_points(cloud_frame)
+    Rt, rc = _check_tool(tool_radius_mm, corner_radius_mm)
+    step = _finite("step_down_mm", step_down_mm)
+    a = _finite("stock_allowance_mm", stock_allowance_mm)
+    margin = _finite("stock_margin_mm", stock_margin_mm)
+    if not step > 0:
+        raise ParameterError(f"step_down_mm = {step_down_mm}: the depth of cut must be > 0 mm")
+    if not a >= 0:
+        raise ParameterError(f"stock_allowance_mm = {stock_allowance_mm}: must be >= 0 mm")
+    if not margin >= 0:
+        raise ParameterError(f"stock_margin_mm = {stock_margin_mm}: must be >= 0 mm")
+    s = 1.2 * Rt if stepover_mm is None else _finite("stepover_mm", stepover_mm)
+    if not 0 < s <= 2 * Rt:
+        raise ParameterError(f"stepover_mm = {stepover_mm}: must be in (0, {2 * Rt}] mm (at most the tool "
+                             f"diameter, or stock is left between the lines)")
+    if pattern not in ("zigzag", "oneway"):
+        raise ParameterError(f"pattern = {pattern!r}: must be 'zigzag' or 'oneway'")
+    h = Rt / 16.0 if cell_mm is None else _finite("cell_mm", cell_mm)
+    if not 0 < h <= Rt / 2:
+        raise ParameterError(f"cell_mm = {cell_mm}: must be in (0, {Rt / 2}] mm (half the tool radius)")
+    return pts, Rt, rc, step, a, margin, s, h
+
+
+@dataclass(frozen=True)
+class _Stock:
+    """The stock of one set-up (mm): ``lo`` (3,) the cloud's lowest coordinates, ``big`` its
+    largest |coordinate|; ``z_top`` the stock top, ``floor`` the lowest tip height, ``safe`` the
+    retract height cap; ``box_lo``, ``box_hi`` (2,) the stock box's XY corners."""
+
+    lo: np.ndarray
+    big: float
+    z_top: float
+    floor: float
+    safe: float
+    box_lo: np.ndarray
+    box_hi: np.ndarray
+
+
+def _stock(pts, a, margin, floor_z_mm, safe_z_mm) -> _Stock:
+    """The stock box (the cloud's box grown by ``margin`` on the sides and the top), the floor and
+    the safe height, checked."""
+    lo, hi, big = _bounds(pts)
+    z_top = float(hi[2]) + margin
+    floor = float(lo[2]) + a if floor_z_mm is None else _finite("floor_z_mm", floor_z_mm)
+    if not floor < z_top:
+        raise ParameterError(f"floor_z_mm = {floor}: must be below the stock top {z_top} mm")
+    safe = z_top + 5.0 if safe_z_mm is None else _finite("safe_z_mm", safe_z_mm)
+    if not safe > z_top:
+        raise ParameterError(f"safe_z_mm = {safe}: must be above the stock top {z_top} mm (the highest cloud "
+                             f"point + stock_margin_mm)")
+    box_lo = lo[:2] - margin
+    box_hi = hi[:2] + margin
+    return _Stock(lo, big, z_top, floor, safe, box_lo, box_hi)
+
+
+def _levels(z_top, floor, step, step_down_mm) -> np.ndarray:
+    """The tip heights: every ``step`` from the stock top down, the last at the floor (a level
+    within Z_TOL_MM above the floor is dropped); at most MAX_LEVELS."""
+    if (z_top - floor) / step > MAX_LEVELS:
+        raise ParameterError(f"step_down_mm = {step_down_mm}: {(z_top - floor) / step:.0f} levels from the stock top "
+                             f"{z_top} to the floor {floor} mm; at most {MAX_LEVELS}")
+    levels = []
+    k = 1
+    while z_top - k * step > floor + Z_TOL_MM:
+        levels.append(z_top - k * step)
+        k += 1
+    levels.append(floor)
+    return np.array(levels)
+
+
+def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, ys, oneway, contour, safe, Rt, rc,
+                progress):
+    """Cut every level from the top down: its region, pieces, order and links, then lower the
+    remaining material along the cut. Returns (the moves, the last tip (None when nothing was
+    cut), lifts within each level, the volume removed at each level)."""
+    x0, y0, h, nx, ny = grid.x0, grid.y0, grid.h, grid.nx, grid.ny
+    Rf = Rt - rc
+    w = _Writer()
+    cur = None                    # current tip (x, y, z)
+    level_retracts = np.zeros(levels.size, np.int64)
+    removed = np.zeros(levels.size)
+    region = np.empty((nx, ny), dtype=bool)
+    top_dil = None
+    scratch = _Scratch(nx * ny)
+    for li, z in enumerate(levels):
+        thr = forb.threshold(z)
+        runs = _region_runs(forb.G, thr, grid.inbox, region)
+        if top_dil is None:
+            top_dil = mat.dilated()
+        if runs[1].size:
+            lv = _Level(region, x0, y0, h, nx, ny, float(z), top_dil, mat.H, Rt, scratch)
+            pieces = _line_pieces(region, runs, ys, x0, y0, h, ny, oneway)
+            if contour:
+                pieces += _contour_pieces(region, forb.G, thr, runs, x0, y0, h)
+            cur, swept = _cut_level(w, lv, pieces, cur, safe, oneway, level_retracts, li)
+            # remaining material: cells the flat bottom (or the corner) surely swept
+            if swept:
+                removed[li] = mat.sweep(swept, z, Rf, Rt, rc, 0.25 * h)
+                top_dil = None
+        if progress is not None:
+            progress(li + 1, int(levels.size))
+    return w, cur, level_retracts, removed
+
+
+def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock, Rt, rc, h, s) -> RoughingPath:
+    """The last retract to the safe height, the toolpath, its verified clearance
+    (:func:`~planning.toolpath.roughing.clearance.min_tool_clearance`) and the
+    :class:`RoughingPath`."""
+    box_lo, box_hi, lo, z_top = stock.box_lo, stock.box_hi, stock.lo, stock.z_top
+    if cur is not None:
+        _retract(w, cur, stock.safe)
+        xyz = np.concatenate(w.pts)
+        use = w.use()
+    else:
+        xyz = np.zeros((0, 3))
+        use = np.zeros(0, np.int8)
+    tp = lines(xyz, use, tip_offset_mm=0.0)
+    clear = math.inf
+    if xyz.shape[0]:
+        # a point more than Rt below the lowest tip is farther than Rt from the tool solid: leave it out
+        near = pts[pts[:, 2] >= float(xyz[:, 2].min()) - Rt]
+        if near.shape[0]:
+            clear = min_tool_clearance(xyz, near, tool_radius_mm=Rt, corner_radius_mm=rc, reach_mm=Rt).min_mm
+    return RoughingPath(
+        toolpath=tp, levels_mm=levels, n_levels=int(levels.size),
+        length_mm=path_length_mm(tp, kinds=(FEED,)), air_mm=path_length_mm(tp, kinds=(RAPID,)),
+        n_retracts=int(w.n_retracts), min_clearance_mm=float(clear), removed_note=REMOVED_NOTE,
+        level_retracts=level_retracts, removed_mm3=removed,
+        stock_box_mm=np.array([[box_lo[0], box_lo[1], float(lo[2])], [box_hi[0], box_hi[1], z_top]]),
+        cell_mm=float(h), stepover_mm=float(s))
+
+
+def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, level_retracts, li):
+    """Cut the pieces of one level in the order of
+    :func:`~planning.toolpath.roughing.ordering._order`, linked at the level or by lifts; returns
+    the new current tip and the polylines cut at the level."""
+    z = lv.z
+    here = None                  # (xy, cell, component) where the tool is at this level
+    swept = []
+    prev_line = False
+    for piece, xy, cells in _order(pieces, None if cur is None else np.asarray(cur[:2]), oneway):
+        q = xy[0]
+        linked = False
+        if here is not None and here[2] == piece.comp and not (oneway and piece.is_line and prev_line):
+            worth = max(4.0 * lv.Rt, _lift_cost(lv, here[0], q, z, safe))     # longest link kept at the level
+            dist = float(np.hypot(*(q - here[0])))
+            if dist <= worth and lv.visible(here[0], q):
+                w.add([q[0], q[1], z], USE_CUT)
+                swept.append(np.array([here[0], q]))
+                linked = True
+            elif dist <= worth:
+                path = lv.grid_path(here[0], here[1], q, cells[0], worth)
+                if path is not None:
+                    w.add(np.column_stack([path[1:], np.full(path.shape[0] - 1, z)]), USE_CUT)
+                    swept.append(path)
+                    linked = True
+        if not linked:
+            if here is not None:
+                level_retracts[li] += 1
+            _lift(w, lv, cur, q, z, safe)
+        w.add(np.column_stack([xy[1:], np.full(xy.shape[0] - 1, z)]), USE_CUT)
+        prev_line = piece.is_line
+        swept.append(xy)
+        cur = (float(xy[-1, 0]), float(xy[-1, 1]), z)
+        here = (xy[-1].copy(), cells[-1], piece.comp)
+    return cur, swept

@@ -1,0 +1,459 @@
+"""The rasters of the Z-level roughing (:mod:`planning.toolpath.roughing`), in mm in the area
+frame: the forbidden map (where the tool tip may stand at a level) and the remaining-material map
+(how high the stock still stands, for the lifts). Stage: built once per set-up by
+:func:`planning.toolpath.roughing.levels.roughing_paths`, read per level by
+:mod:`planning.toolpath.roughing.regions` (the forbidden map) and
+:mod:`planning.toolpath.roughing.links` (the material map), lowered after each level.
+
+**Binary map per level (Popescu et al. 2014's map, made conservative).** A square XY raster (cell
+``h`` = ``cell_mm``, default ``Rt / 16``). Seen along +Z nothing under a point can be reached, so
+the material that stays at tip height z is every cloud point above ``z - a`` (``a`` the
+allowance) and everything under it (Popescu's "point recovery" projects those points onto the
+slice). The tip may stand at (x, y) only if every such point q keeps a clearance >= ``a``, i.e.
+its XY distance is at least ``r(q) = Rf + sqrt(A^2 - t^2)``, ``A = rc + a``, ``t = clip(z + rc -
+q_z, 0, A)``: ``Rt + a`` for points above the corner (Tchanchane & Bey's offset by R +
+allowance), less for points in the band ``z - a < q_z < z + rc`` under the corner or the flat
+bottom. The band is split into at most MAX_BANDS sub-bands of radius, each point taking its
+sub-band's largest. A cell is *allowed* when every point within ``h`` of its centre is safe: the
+distance between its centre and the centre of every cell holding such points must be at least
+``r + h + h / sqrt(2)`` (a point lies within ``h / sqrt(2)`` of its cell's centre). This is
+decided exactly (the same map as an exact Euclidean distance transform of those cells), once for
+all levels: the sub-band thresholds are the level's z plus constants, so per sub-band each cell
+keeps the highest point of the cells whose centre is closer than the band's reach
+(:func:`_disc_max`), and a level's map is one comparison per cell (with several sub-bands, one
+map of the largest "highest point minus the band's offset", made larger by 1e-12 relative to
+cover rounding: conservative). The map can forbid more than needed (by about ``2.5 h`` at most,
+plus the sub-band width ``A / K`` for K sub-bands), never less. Points at most Z_TOL_MM (1e-6 mm)
+above ``z - a`` are not obstacles (a floor level exactly at the allowance). The raster covers the
+stock box grown by ``g = Rt - h`` and a border of 3 cells; the cells whose centre lies within g
+of the stock box are ``inbox`` (the clearing region's limit,
+:mod:`planning.toolpath.roughing.regions`).
+
+**Remaining material.** A height map on a coarser raster (cells of TOP_CELLS x TOP_CELLS raster
+cells, each clipped to the stock box): the stock top, lowered after each level where the flat
+bottom surely swept a whole cell, i.e. the distance from the centre of its part in the stock to a
+move plus that part's half diagonal is at most Rf (consecutive short moves merged into chords
+that stay within h / 4 of them, the radius shrunk by as much), to z + rc where only the corner
+did (Rt); it is never below a cloud point, so rapids run in free air. The highest remaining
+material under the disc about a point is read from the map's maximum over the square of
+``ceil((Rt + H / 4) / H)`` cells about the point's cell (H the coarse cell; links are sampled
+every H / 4).
+
+Cost per set-up: one pass over the cloud for the cells' highest points and one disc maximum per
+sub-band; per level: the coarse material map's square maximum and its lowering along the moves.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from planning.errors import ParameterError
+from planning.toolpath.roughing.common import _seg_d2
+
+Z_TOL_MM = 1e-6         #: points at most this far above (level - allowance) are not obstacles, mm
+MAX_BANDS = 8           #: most sub-bands of radius under the tool corner / bottom
+MAX_CELLS = 16_000_000  #: the raster's cell grows beyond cell_mm to stay under this many cells
+TOP_CELLS = 2           #: a cell of the remaining-material map spans this many raster cells each way
+_SQ2 = math.sqrt(2.0)
+
+
+# ----------------------------------------------------------------------------------------------
+# The planning raster and the forbidden map
+# ----------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Raster:
+    """The planning raster: cells of side ``h`` (mm) from (``x0``, ``y0``), ``nx`` x ``ny``;
+    ``cmax`` (nx, ny): the highest cloud z per cell (-inf when empty); ``inbox`` (nx, ny): the
+    cell's centre lies within ``Rt - h`` of the stock box."""
+
+    x0: float
+    y0: float
+    h: float
+    nx: int
+    ny: int
+    cmax: np.ndarray
+    inbox: np.ndarray
+
+
+def _raster(pts, box_lo, box_hi, Rt, h) -> _Raster:
+    """The raster over the stock box (XY corners ``box_lo``, ``box_hi``) grown by g = Rt - h (tool
+    centres) and a border of 3 cells; the cell grows beyond ``h`` to stay under MAX_CELLS cells."""
+    g = Rt - h
+    ext = float(max(box_hi[0] - box_lo[0], box_hi[1] - box_lo[1])) + 2 * (g + 3 * h)
+    h = max(h, ext / math.sqrt(MAX_CELLS))
+    if h > Rt / 2:
+        raise ParameterError(f"the stock ({ext:.0f} mm across) is too large for a {2 * Rt} mm cutter: the map would "
+                             f"need more than {MAX_CELLS} cells; use a larger tool or rough a smaller area")
+    g = Rt - h
+    x0 = float(box_lo[0]) - g - 3 * h
+    y0 = float(box_lo[1]) - g - 3 * h
+    nx = int(math.ceil((box_hi[0] + g + 3 * h - x0) / h))
+    ny = int(math.ceil((box_hi[1] + g + 3 * h - y0) / h))
+    cmax = _cell_max(pts, x0, y0, h, nx, ny)
+    cx = x0 + (np.arange(nx) + 0.5) * h
+    cy = y0 + (np.arange(ny) + 0.5) * h
+    ox = np.maximum(np.maximum(box_lo[0] - cx, cx - box_hi[0]), 0.0)     # distance to the box along x
+    oy = np.maximum(np.maximum(box_lo[1] - cy, cy - box_hi[1]), 0.0)
+    inbox = np.hypot(ox[:, None], oy[None, :]) <= g                         # centre within g of the box
+    return _Raster(x0, y0, h, nx, ny, cmax, inbox)
+
+
+@njit(cache=True, nogil=True)
+def _cell_max(pts, x0, y0, h, nx, ny):
+    """Highest z of the points (N,3) in each square cell of side h (-inf when empty), (nx, ny)."""
+    cmax = np.full((nx, ny), -np.inf)
+    for i in range(pts.shape[0]):
+        ix = min(max(int(math.floor((pts[i, 0] - x0) / h)), 0), nx - 1)
+        iy = min(max(int(math.floor((pts[i, 1] - y0) / h)), 0), ny - 1)
+        cmax[ix, iy] = max(cmax[ix, iy], pts[i, 2])
+    return cmax
+
+
+
+def _bands(z, Rt, rc, a, K):
+    """(height threshold, radius) pairs: cells whose highest point is above the threshold keep the
+    tool centre at least the radius away (module docstring)."""
+    Rf, A = Rt - rc, rc + a
+    out = []
+    for j in range(1, K + 1):
+        e_prev = Rf + A * (j - 1) / K
+        e_j = Rf + A * j / K
+        t = math.sqrt(max(A * A - (e_prev - Rf) ** 2, 0.0))
+        thr = z + rc - t
+        if j == 1:
+            thr = z - a + Z_TOL_MM
+        out.append((thr, e_j))
+    return out
+
+
+
+class _ForbiddenMap:
+    """Where the tool tip may not stand, all levels at once (module docstring): at level z the
+    cells with ``G > threshold(z)`` are forbidden. ``K``: the number of sub-bands of radius."""
+
+    def __init__(self, cmax, h, Rt, rc, a, big):
+        nx, ny = cmax.shape
+        self.Rt, self.rc, self.a = Rt, rc, a
+        K = int(min(MAX_BANDS, max(1, math.ceil((rc + a) / (2 * h)))))
+        self.K = K
+        fmargin = h * (1.0 + 1.0 / _SQ2) + 1e-9 * max(1.0, float(big))
+        # per band, the highest point among the cells within its reach of each cell: a level's map is
+        # then one comparison per cell (the same map as a distance transform of the cells above the
+        # band's threshold)
+        bands0 = _bands(0.0, Rt, rc, a, K)
+        if K == 1:          # forb = G > the band's threshold, exactly
+            G = _disc_max(cmax, h, bands0[0][1] + fmargin)
+        else:               # forb = G > z: the bands' thresholds are z + off_j (off_j from z = 0), so G is the
+            # largest (highest point within the band's reach - off_j), made larger by far more than the
+            # rounding of either form of the comparison (conservative)
+            eps = 1e-12 * (big + Rt + a + 1.0)
+            G = np.full((nx, ny), -np.inf)
+            for off, e in bands0:
+                np.maximum(G, _disc_max(cmax, h, e + fmargin) - off + eps, out=G)
+        self.G = G
+
+    def threshold(self, z) -> float:
+        """The level's threshold: cells with ``G`` above it are forbidden at tip height z."""
+        return _bands(float(z), self.Rt, self.rc, self.a, self.K)[0][0] if self.K == 1 else float(z)
+
+
+@njit(cache=True, nogil=True)
+def _max_rows(a, k, out):
+    """``out[i, j] = max(a[i, j - k : j + k + 1])`` (the window clipped to the row), van Herk /
+    Gil-Werman: blocks of 2k + 1 on the row padded by k with -inf, prefix and suffix maxima."""
+    n, m = a.shape
+    w = 2 * k + 1
+    L = m + 2 * k
+    buf = np.full(L, -np.inf)
+    G = np.empty(L)
+    H = np.empty(L)
+    for i in range(n):
+        for j in range(m):
+            buf[k + j] = a[i, j]
+        for b0 in range(0, L, w):
+            b1 = min(b0 + w, L)
+            g = buf[b0]
+            G[b0] = g
+            for p in range(b0 + 1, b1):
+                g = max(g, buf[p])
+                G[p] = g
+            g = buf[b1 - 1]
+            H[b1 - 1] = g
+            for p in range(b1 - 2, b0 - 1, -1):
+                g = max(g, buf[p])
+                H[p] = g
+        for j in range(m):
+            out[i, j] = max(H[j], G[j + 2 * k])
+
+
+@njit(cache=True, nogil=True)
+def _max_cols(a, k, out):
+    """``out[i, j] = max(a[i - k : i + k + 1, j])`` (clipped), as :func:`_max_rows` along the first
+    axis, whole rows at a time (contiguous)."""
+    n, m = a.shape
+    w = 2 * k + 1
+    L = n + 2 * k
+    G = np.empty((L, m))
+    H = np.empty((L, m))
+    for p in range(L):
+        q = p - k
+        inside = 0 <= q < n
+        start = p % w == 0
+        for j in range(m):
+            v = a[q, j] if inside else -np.inf
+            if start or v > G[p - 1, j]:
+                G[p, j] = v
+            else:
+                G[p, j] = G[p - 1, j]
+    for p in range(L - 1, -1, -1):
+        q = p - k
+        inside = 0 <= q < n
+        end = p % w == w - 1 or p == L - 1
+        for j in range(m):
+            v = a[q, j] if inside else -np.inf
+            if end or v > H[p + 1, j]:
+                H[p, j] = v
+            else:
+                H[p, j] = H[p + 1, j]
+    for i in range(n):
+        for j in range(m):
+            out[i, j] = max(H[i, j], G[i + 2 * k, j])
+
+
+def _square_max(a, k):
+    """The maximum over the (2k + 1)^2 square about each cell (-inf outside the raster), as
+    ``scipy.ndimage.maximum_filter(a, 2k + 1, mode="constant", cval=-inf)``."""
+    tmp = np.empty_like(a)
+    out = np.empty_like(a)
+    _max_rows(a, k, tmp)
+    _max_cols(tmp, k, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _disc_max(v, h, reach):
+    """``out[c] = max v[c']`` over the cells c' whose centre is closer than ``reach`` to c's
+    (``sqrt(di^2 + dj^2) h < reach``; -inf when none): with ``v`` the cells' highest point, a cell
+    is within ``reach`` of a cell holding a point above t exactly when ``out > t`` (the same test
+    as an exact distance transform of the cells above t). The disc is cut in rows of offsets
+    ``di``, each a 1-D window of half width ``w(di)``: one row filter per distinct width."""
+    nx, ny = v.shape
+    K = int(math.ceil(reach / h)) + 1
+    wd = np.full(K + 1, -1, np.int64)
+    for di in range(K + 1):
+        for dj in range(K + 1):
+            if math.sqrt(float(di * di + dj * dj)) * h < reach:
+                wd[di] = dj
+    out = np.full((nx, ny), -np.inf)
+    tmp = np.empty((nx, ny))
+    done = np.zeros(K + 1, np.bool_)
+    for d0 in range(K + 1):
+        if wd[d0] < 0 or done[d0]:
+            continue
+        _max_rows(v, wd[d0], tmp)
+        for di in range(d0, K + 1):
+            if wd[di] != wd[d0]:
+                continue
+            done[di] = True
+            for sgn in (-1, 1):
+                if di == 0 and sgn == 1:
+                    continue
+                dd = sgn * di
+                for i in range(max(0, -dd), min(nx, nx - dd)):
+                    for j in range(ny):
+                        out[i, j] = max(out[i, j], tmp[i + dd, j])
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# The remaining-material map
+# ----------------------------------------------------------------------------------------------
+
+class _MaterialMap:
+    """The remaining material (module docstring): ``top`` (ncx, ncy), the stock's height on coarse
+    cells of side ``H`` = TOP_CELLS raster cells from the raster's origin (-inf outside the stock);
+    the part of cell (i, j) in the stock box has centre (``cx[i]``, ``cy[j]``), half diagonal
+    ``hd[i, j]`` and area ``area[i, j]``; ``full_x[i]``, ``full_y[j]``: the column / row lies wholly
+    in the stock. ``kdil``: the half width, in cells, of the square read about a point."""
+
+    def __init__(self, grid: _Raster, box_lo, box_hi, z_top, Rt):
+        x0, y0, h, nx, ny = grid.x0, grid.y0, grid.h, grid.nx, grid.ny
+        self.x0, self.y0 = x0, y0
+        H = TOP_CELLS * h
+        ncx = -(-nx // TOP_CELLS)
+        ncy = -(-ny // TOP_CELLS)
+        tlx = np.maximum(x0 + np.arange(ncx) * H, box_lo[0])
+        thx = np.minimum(x0 + (np.arange(ncx) + 1) * H, box_hi[0])
+        tly = np.maximum(y0 + np.arange(ncy) * H, box_lo[1])
+        thy = np.minimum(y0 + (np.arange(ncy) + 1) * H, box_hi[1])
+        tcx, tcy = 0.5 * (tlx + thx), 0.5 * (tly + thy)
+        inx, iny = thx > tlx, thy > tly
+        thx, thy = np.where(inx, 0.5 * (thx - tlx), 0.0), np.where(iny, 0.5 * (thy - tly), 0.0)
+        tfx = (x0 + np.arange(ncx) * H >= box_lo[0]) & (x0 + (np.arange(ncx) + 1) * H <= box_hi[0])
+        tfy = (y0 + np.arange(ncy) * H >= box_lo[1]) & (y0 + (np.arange(ncy) + 1) * H <= box_hi[1])   # not clipped
+        thd = np.hypot(thx[:, None], thy[None, :])            # half diagonal of the part in the stock
+        tarea = 4.0 * thx[:, None] * thy[None, :]
+        top = np.where(inx[:, None] & iny[None, :], z_top, -np.inf)
+        # a square >= the disc about any point within H / 8 of a cell
+        kdil = int(math.ceil((Rt + 0.25 * H) / H))
+        self.H, self.kdil, self.top = H, kdil, top
+        self.cx, self.cy, self.hd, self.area, self.full_x, self.full_y = tcx, tcy, thd, tarea, tfx, tfy
+
+    def dilated(self):
+        """The maximum of ``top`` over the square of ``kdil`` cells each way about each cell."""
+        return _square_max(self.top, self.kdil)
+
+    def sweep(self, swept, z, Rf, Rt, rc, tol) -> float:
+        """Lower ``top`` after a level cut along the polylines ``swept`` at tip height z
+        (:func:`_sweep_top`); returns the volume removed, mm^3."""
+        starts = np.zeros(len(swept) + 1, np.int64)
+        np.cumsum([p.shape[0] for p in swept], out=starts[1:])
+        return _sweep_top(self.top, self.cx, self.cy, self.hd, self.area, self.full_x, self.full_y,
+                          np.concatenate(swept).astype(np.float64), starts, self.x0, self.y0, self.H, float(z),
+                          Rf, Rt, rc, tol)
+
+
+@njit(cache=True, nogil=True)
+def _lower_cell(top, area, i, j, d2, hd, z, r1, r2, rc):
+    """Lower cell (i, j) of ``top`` whose centre is sqrt(d2) from a move (see
+    :func:`_sweep_segment`); returns the volume removed."""
+    t = top[i, j]
+    if not (t > z):                     # outside the stock (-inf) or already at this level
+        return 0.0
+    new = t
+    q = r1 - hd
+    if q >= 0.0 and d2 <= q * q:
+        new = z
+    elif rc > 0:
+        q = r2 - hd
+        if q >= 0.0 and d2 <= q * q:
+            new = min(t, z + rc)
+    if new < t:
+        top[i, j] = new
+        return (t - new) * area[i, j]
+    return 0.0
+
+
+@njit(cache=True, nogil=True)
+def _sweep_segment(top, cx, cy, hd, area, full_x, full_y, ax, ay, bx, by, x0, y0, H, z, r1, r2, rc):
+    """Lower ``top`` (see :func:`_sweep_top`) for one straight move a -> b: cells whose centre is
+    within ``r1 - hd`` of it drop to z, else (rc > 0) within ``r2 - hd`` to z + rc. ``full_x[i]``,
+    ``full_y[j]``: the column / row lies wholly in the stock (its cells are not clipped). A move
+    along x (all clearing lines) takes, in each full column, the rows whose centre is within
+    ``r - H / sqrt(2)`` of it in closed form (at most as far as a cell's own test allows, since no
+    cell is larger), the clipped cells one by one. Returns the volume removed."""
+    ncx, ncy = top.shape
+    R = r2 if rc > 0 else r1
+    removed = 0.0
+    if R <= 0.0:
+        return removed
+    i0 = max(int(math.floor((min(ax, bx) - R - x0) / H)), 0)
+    i1 = min(int(math.floor((max(ax, bx) + R - x0) / H)), ncx - 1)
+    dx = bx - ax
+    along_x = ay == by
+    hfull = 0.5 * H * 1.4142135623730951
+    ex_last = -1.0
+    k0, k1, m0, m1 = 1, 0, 1, 0
+    for i in range(i0, i1 + 1):
+        # the move's y range over |x - cx| <= R, grown by R: the only cells of the column within R
+        if along_x:
+            ya = ay
+            yb = ay
+        elif abs(dx) > 1e-12:
+            t0 = (cx[i] - R - ax) / dx
+            t1 = (cx[i] + R - ax) / dx
+            if t0 > t1:
+                t0, t1 = t1, t0
+            t0 = max(t0, 0.0)
+            t1 = min(t1, 1.0)
+            if t0 > t1:
+                continue
+            ya = ay + (by - ay) * t0
+            yb = ay + (by - ay) * t1
+        else:
+            ya = ay
+            yb = by
+        j0 = max(int(math.floor((min(ya, yb) - R - y0) / H)), 0)
+        j1 = min(int(math.floor((max(ya, yb) + R - y0) / H)), ncy - 1)
+        if along_x and full_x[i]:
+            ex = max(min(ax, bx) - cx[i], cx[i] - max(ax, bx), 0.0)
+            if ex != ex_last:
+                # rows [k0, k1]: to z; [m0, m1] (contains it): to z + rc (rc > 0); empty when k0 > k1
+                ex_last = ex
+                k0, k1, m0, m1 = 1, 0, 1, 0
+                q = r1 - hfull
+                if q >= 0.0 and ex <= q:
+                    half = math.sqrt(q * q - ex * ex) * (1.0 - 1e-12)
+                    k0 = max(int(math.ceil((ay - half - y0) / H - 0.5)), 0)
+                    k1 = min(int(math.floor((ay + half - y0) / H - 0.5)), ncy - 1)
+                if rc > 0:
+                    q = r2 - hfull
+                    if q >= 0.0 and ex <= q:
+                        half = math.sqrt(q * q - ex * ex) * (1.0 - 1e-12)
+                        m0 = max(int(math.ceil((ay - half - y0) / H - 0.5)), 0)
+                        m1 = min(int(math.floor((ay + half - y0) / H - 0.5)), ncy - 1)
+            for j in range(j0, j1 + 1):
+                t = top[i, j]
+                if not (t > z):
+                    continue
+                if not full_y[j]:
+                    removed += _lower_cell(top, area, i, j, _seg_d2(cx[i], cy[j], ax, ay, bx, by), hd[i, j], z,
+                                           r1, r2, rc)
+                elif k0 <= j <= k1:
+                    removed += (t - z) * area[i, j]
+                    top[i, j] = z
+                elif m0 <= j <= m1 and t > z + rc:
+                    removed += (t - z - rc) * area[i, j]
+                    top[i, j] = z + rc
+            continue
+        for j in range(j0, j1 + 1):
+            if top[i, j] > z:
+                removed += _lower_cell(top, area, i, j, _seg_d2(cx[i], cy[j], ax, ay, bx, by), hd[i, j], z,
+                                       r1, r2, rc)
+    return removed
+
+
+@njit(cache=True, nogil=True)
+def _sweep_top(top, cx, cy, hd, area, full_x, full_y, xy, starts, x0, y0, H, z, Rf, Rt, rc, tol):
+    """Lower the remaining-material map ``top`` (coarse cells of side H from (x0, y0); the part of
+    cell (i, j) in the stock box has centre (cx[i], cy[j]), half diagonal hd[i, j] and area
+    area[i, j]; -inf outside the stock) after a level cut along the polylines
+    ``xy[starts[k]:starts[k + 1]]`` at tip height z: a cell wholly within Rf of a move (the distance
+    from its centre plus its half diagonal) was swept by the flat bottom and drops to z; else
+    (rc > 0) within Rt, swept by the corner, to z + rc. Consecutive moves are merged into one chord
+    while their inner vertices stay within ``tol`` of it (at most 64 moves): every point of the
+    chord is then within ``tol`` of the polyline (it crosses the chord's normal there between two
+    vertices within tol of the chord's line), so the radii shrink by ``tol``. Returns the volume
+    removed (drop x cell area in the stock)."""
+    removed = 0.0
+    tol2 = tol * tol
+    for k in range(starts.shape[0] - 1):
+        p0 = starts[k]
+        p1 = starts[k + 1]
+        if p1 - p0 == 1:
+            removed += _sweep_segment(top, cx, cy, hd, area, full_x, full_y, xy[p0, 0], xy[p0, 1], xy[p0, 0], xy[p0, 1],
+                                      x0, y0, H, z, Rf, Rt, rc)
+            continue
+        s = p0
+        while s < p1 - 1:
+            e = s + 1
+            while e + 1 < p1 and e + 1 - s <= 64:
+                ok = True
+                for q in range(s + 1, e + 1):
+                    if _seg_d2(xy[q, 0], xy[q, 1], xy[s, 0], xy[s, 1], xy[e + 1, 0], xy[e + 1, 1]) > tol2:
+                        ok = False
+                        break
+                if not ok:
+                    break
+                e += 1
+            sh = tol if e > s + 1 else 0.0
+            removed += _sweep_segment(top, cx, cy, hd, area, full_x, full_y, xy[s, 0], xy[s, 1], xy[e, 0], xy[e, 1],
+                                      x0, y0, H, z, Rf - sh, Rt - sh, rc)
+            s = e
+    return removed
+

@@ -23,7 +23,7 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def main() -> None:
+def _args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=1_000_000)
     ap.add_argument("--repeat", type=int, default=2, help="repeats of the normals comparison")
@@ -40,28 +40,19 @@ def main() -> None:
     ap.add_argument("--no-roughing", action="store_true", help="finishing paths only")
     ap.add_argument("--travel", action="store_true",
                     help="check X/Y/Z travel on the default profile (the 400 mm femur does not fit it at 60 deg)")
-    args = ap.parse_args()
+    return ap.parse_args()
 
+
+def _normals_side_by_side(s, repeat: int) -> None:
+    """Sphere throwing and Open3D KNN-20 normals on the same cloud, alternately, and the error of ours."""
     import open3d as o3d
 
-    from planning.inputs.cloud import Cloud
-    from planning.normals.throwing import sphere_throwing
-    from planning.pipeline import run_plan
-    from planning.report.plan_files import write_plan
-    from planning.inputs.samples import femur_like
-    from schemas.params import parse_config
+    from planning.normals import sphere_throwing
 
-    print(f"cores: {os.cpu_count()}  numpy {np.__version__}  open3d {o3d.__version__}")
-    t0 = time.perf_counter()
-    s = femur_like(n_points=args.points, seed=0)
-    print(f"femur_like: {s.points.shape[0]} points generated in {time.perf_counter() - t0:.2f} s, "
-          f"peak RSS {peak_rss_mb():.0f} MB")
     pts = s.points
-
     print("\nnormals, same cloud, same run (seconds):")
     print(f"{'run':>4} {'sphere_throwing(5 dirs)':>24} {'open3d KNN20':>14} {'ratio':>7}")
-    ratios = []
-    for i in range(args.repeat):
+    for i in range(repeat):
         t = time.perf_counter()
         res = sphere_throwing(pts, sphere_diameter_mm=7.0)
         t_st = time.perf_counter() - t
@@ -69,7 +60,6 @@ def main() -> None:
         t = time.perf_counter()
         pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
         t_o3d = time.perf_counter() - t
-        ratios.append(t_st / t_o3d)
         print(f"{i:>4} {t_st:>24.2f} {t_o3d:>14.2f} {t_st / t_o3d:>7.2f}")
         del pcd
     if s.normals is not None:
@@ -78,13 +68,25 @@ def main() -> None:
               f"grid {res.grid_spacing_mm:.3f} mm; error vs exact normals: median {np.median(ang):.2f} deg, "
               f"p95 {np.percentile(ang, 95):.2f} deg")
 
-    cfg = parse_config({"visibility": {"cone_deg": list(args.cone), "global": not args.no_global,
+
+def _config(args):
+    from schemas.params import parse_config
+
+    return parse_config({"visibility": {"cone_deg": list(args.cone), "global": not args.no_global,
                                        "travel": args.travel, "obstacles": args.obstacles},
                         "fixtures": {"fixture_height_mm": args.fixture_height},
                         "setups": {"max_setups": args.max_setups, "coverage": 0.95},
                         "tool": {"diameter_mm": 6.0},
                         "paths": {"finishing": {"enabled": not args.no_paths},
                                   "roughing": {"enabled": not (args.no_paths or args.no_roughing)}}})
+
+
+def _whole_plan(pts, cfg, args):
+    """Run and time the plan (and its writing), printing seconds and peak RSS per stage."""
+    from planning.inputs import Cloud
+    from planning.pipeline import run_plan
+    from planning.report.plan_files import write_plan
+
     marks: dict[str, float] = {}
 
     def progress(stage, fraction, message):
@@ -108,6 +110,10 @@ def main() -> None:
         print(f"{'write':<14}{tw:>9.2f}{peak_rss_mb():>13.0f}")
         total += tw
     print(f"{'total':<14}{total:>9.2f}{peak_rss_mb():>13.0f}")
+    return r
+
+
+def _print_selection(r) -> None:
     sel = r.selection
     v = r.visibility
     print(f"\nvisibility: global {v.global_checked}, travel {v.travel_checked}, {v.n_obstacle_points} obstacle points; "
@@ -116,6 +122,9 @@ def main() -> None:
           f"({sel.n_classes} classes): k {sel.k}, coverage {sel.coverage:.2%}, overlap {sel.overlap}, "
           f"status {sel.status}, solver {sel.solver}, {sel.seconds:.2f} s")
     print("axes: " + "; ".join("({:.3f} {:.3f} {:.3f})".format(*s.tool_axis) for s in r.setups))
+
+
+def _print_paths(r, cfg) -> None:
     paths = [(st.id, st.path) for st in r.setups if st.path is not None]
     if paths:
         print("\ntool paths per area (finishing: ball R 3, scallop "
@@ -133,6 +142,24 @@ def main() -> None:
                   f"{f.machining_time_s / 60:>10.1f} {ro.n_levels if ro else 0:>10} "
                   f"{(ro.machining_time_s / 60) if ro else 0:>9.1f} {sum(p.seconds.values()):>6.1f}")
         print(f"machining time at the post's feeds: finishing {t_fin / 3600:.2f} h, roughing {t_rough / 3600:.2f} h")
+
+
+def main() -> None:
+    args = _args()
+    import open3d as o3d
+
+    from planning.inputs.samples import femur_like
+
+    print(f"cores: {os.cpu_count()}  numpy {np.__version__}  open3d {o3d.__version__}")
+    t0 = time.perf_counter()
+    s = femur_like(n_points=args.points, seed=0)
+    print(f"femur_like: {s.points.shape[0]} points generated in {time.perf_counter() - t0:.2f} s, "
+          f"peak RSS {peak_rss_mb():.0f} MB")
+    _normals_side_by_side(s, args.repeat)
+    cfg = _config(args)
+    r = _whole_plan(s.points, cfg, args)
+    _print_selection(r)
+    _print_paths(r, cfg)
 
 
 if __name__ == "__main__":

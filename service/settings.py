@@ -9,6 +9,7 @@ environment wins over the file; command-line flags of ``scanmill serve`` win ove
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
 import tomllib
@@ -22,6 +23,14 @@ ENV_PREFIX = "SCANMILL_"
 
 def _default_workers() -> int:
     return max(1, (os.cpu_count() or 2) // 2)
+
+
+def host_memory_mb() -> int:
+    """This machine's physical memory, MiB (0 when it cannot be read)."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // (1 << 20))
+    except (ValueError, OSError, AttributeError):
+        return 0
 
 
 class SettingsError(ValueError):
@@ -97,6 +106,38 @@ class Settings(BaseModel):
     max_inline_points: int = Field(100_000, ge=10, description="Most points in an inline (JSON) cloud.")
     max_fixtures: int = Field(8, ge=0, le=64, description="Most fixture files per job.")
     log_level: str = Field("info", pattern="^(critical|error|warning|info|debug)$")
+    # --- budgets, quotas, retention and the edge of the service ---------------------------------
+    job_memory_mb: int | None = Field(
+        None, ge=64, le=16 * 1024 * 1024,
+        description="Memory budget of one job, MiB: a job whose estimate (from its cloud and parameters) is "
+                    "larger is refused at submission (422), and each job runs under this address-space limit "
+                    "(it fails with 'memory_limit_exceeded', never the host). Unset: 80 % of the host's memory "
+                    "shared out over SCANMILL_WORKERS.")
+    max_queued_jobs_per_key: int = Field(
+        100, ge=1, le=1_000_000,
+        description="Most jobs one API key (or the anonymous user) may have queued or running at once; more "
+                    "are refused with 429 and Retry-After.")
+    max_stored_bytes_per_key: int = Field(
+        20 * 1024 ** 3, ge=1024 * 1024,
+        description="Most bytes of uploads and artifacts one API key may keep stored; a submission past it is "
+                    "refused with 507 naming the limit. Delete finished jobs to free space.")
+    retention_days: float = Field(
+        30.0, ge=0, le=36500,
+        description="Finished jobs (succeeded, failed, cancelled) older than this many days are deleted with "
+                    "their files; 0 keeps them forever.")
+    min_free_disk_mb: int = Field(
+        1024, ge=0, le=1024 * 1024 * 1024,
+        description="Free space, MiB, kept on the data directory's file system: an upload or a job start that "
+                    "would leave less is refused with 507 (the space needed and available named), and /healthz "
+                    "reports 'degraded' below it.")
+    body_read_timeout_s: float = Field(
+        30.0, gt=0, le=3600,
+        description="A request body that stops arriving for this many seconds is answered 408 and dropped.")
+    forwarded_allow_ips: list[str] = Field(
+        default_factory=lambda: ["127.0.0.1", "::1"],
+        description="Proxies whose client-address headers (Forwarded, X-Forwarded-For, X-Real-IP) are believed "
+                    "(comma-separated IP addresses or networks; '*' trusts every peer). From any other peer the "
+                    "socket's address decides, e.g. for the loopback-only anonymous access.")
     worker_start_delay_s: float = Field(
         0.0, ge=0, le=3600,
         description="Testing aid only: a worker waits this long before reading the cloud, so that cancellation, "
@@ -107,6 +148,22 @@ class Settings(BaseModel):
     @classmethod
     def _empty_is_unset(cls, v: Any) -> Any:
         return None if isinstance(v, str) and not v.strip() else v
+
+    @field_validator("forwarded_allow_ips", mode="before")
+    @classmethod
+    def _split_ips(cls, v: Any) -> Any:
+        if isinstance(v, str):
+            v = v.split(",")
+        if isinstance(v, (list, tuple)):
+            out = [str(x).strip() for x in v if str(x).strip()]
+            for x in out:
+                if x != "*":
+                    try:
+                        ipaddress.ip_network(x, strict=False)
+                    except ValueError:
+                        raise ValueError(f"{x!r} is not an IP address or network (or '*')") from None
+            return out
+        return v
 
     @field_validator("api_keys", mode="before")
     @classmethod
@@ -143,6 +200,14 @@ class Settings(BaseModel):
     def visibility_timeout_s(self) -> float:
         """The broker's redelivery timeout: set, or longer than the longest job can run."""
         return self.broker_visibility_timeout_s or (self.job_time_limit_s + self.hard_time_limit_grace_s + 600.0)
+
+    @property
+    def job_memory_limit_mb(self) -> int:
+        """``job_memory_mb``, or 80 % of the host's memory shared out over ``workers`` (at least 256 MiB)."""
+        if self.job_memory_mb:
+            return self.job_memory_mb
+        host = host_memory_mb() or 4096
+        return max(256, int(0.8 * host) // self.workers)
 
     @property
     def anonymous(self) -> bool:

@@ -57,6 +57,8 @@ jobs = sa.Table(
     sa.Column("worker", sa.Text),             # host/process of the attempt that runs or ran the job
     sa.Column("heartbeat_at", sa.Text),       # last sign of life of the running attempt (UTC, RFC 3339)
     sa.Column("dispatched_at", sa.Text),      # when the job was handed to the broker (Celery backend)
+    # revision 0003: quotas and retention
+    sa.Column("stored_bytes", sa.BigInteger),  # bytes of the job's files (upload; + artifacts once succeeded)
     sa.CheckConstraint("status IN ('queued','running','succeeded','failed','cancelled')", name="jobs_status"),
     sa.UniqueConstraint("owner", "idempotency_key"),
     sqlite_autoincrement=True,
@@ -64,6 +66,8 @@ jobs = sa.Table(
 sa.Index("jobs_owner_seq", jobs.c.owner, jobs.c.seq)
 sa.Index("jobs_status_seq", jobs.c.status, jobs.c.seq)
 sa.Index("jobs_status_heartbeat", jobs.c.status, jobs.c.heartbeat_at)
+sa.Index("jobs_owner_status", jobs.c.owner, jobs.c.status, jobs.c.stored_bytes)
+sa.Index("jobs_finished_at", jobs.c.finished_at)
 
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 _PG_MIGRATION_LOCK = 0x5CA4_A111   # pg_advisory_lock key held while migrating

@@ -8,7 +8,9 @@ routers only parse HTTP and call it. :func:`job_view` turns a stored row into th
 from __future__ import annotations
 
 import base64
+import binascii
 import logging
+import re
 from datetime import datetime
 from pathlib import Path
 
@@ -26,7 +28,9 @@ from schemas.api import (
     JobPage,
     JobResultSummary,
 )
+from service import quotas
 from service.auth import Principal
+from service.backends import ExecutionBackend
 from service.intake import (
     Submission,
     check_idempotency_key,
@@ -35,9 +39,8 @@ from service.intake import (
 )
 from service.problems import ApiError
 from service.settings import Settings
-from service.storage import Storage, is_job_id, media_type, new_job_id
-from service.store import IdempotencyConflict, JobRecord, JobStore
-from service.backends import ExecutionBackend
+from service.storage import Storage, is_job_id, media_type, new_job_id, tree_bytes
+from service.store import IdempotencyConflict, JobRecord, JobStore, QuotaExceeded
 
 log = logging.getLogger("scanmill.service")
 
@@ -63,19 +66,30 @@ def job_view(job: JobRecord) -> Job:
                        artifacts=f"{base}/artifacts" if done else None))
 
 
+#: A list cursor is ``s`` and a job's sequence number (1 .. 2**63 - 1, no sign, no leading zero), base64url.
+_CURSOR_TEXT = re.compile(r"s[1-9][0-9]{0,18}")
+MAX_CURSOR_SEQ = 2 ** 63 - 1
+
+
 def encode_cursor(seq: int) -> str:
     return base64.urlsafe_b64encode(f"s{seq}".encode()).decode().rstrip("=")
 
 
 def decode_cursor(cursor: str) -> int:
+    """The sequence number in a cursor this service gave out; 422 ``invalid_cursor`` for anything else
+    (not base64url, not ``s`` + digits, not in 1 .. 2**63 - 1, or not in the form :func:`encode_cursor` writes)."""
+    seq = None
     try:
-        raw = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)).decode()
-        if not raw.startswith("s"):
-            raise ValueError
-        return int(raw[1:])
-    except (ValueError, UnicodeDecodeError):
+        raw = base64.b64decode(cursor + "=" * (-len(cursor) % 4), altchars=b"-_", validate=True).decode("ascii")
+        if _CURSOR_TEXT.fullmatch(raw) and int(raw[1:]) <= MAX_CURSOR_SEQ and encode_cursor(int(raw[1:])) == cursor:
+            seq = int(raw[1:])
+    except (ValueError, binascii.Error, UnicodeDecodeError):
+        pass
+    if seq is None:
         raise ApiError(422, "invalid_cursor", "The cursor is not one this service gave out; start from the first "
-                                              "page (no cursor).", errors=["query cursor: invalid"]) from None
+                                              "page (no cursor) and follow next_cursor.",
+                       errors=["query cursor: invalid"])
+    return seq
 
 
 class JobService:
@@ -96,11 +110,16 @@ class JobService:
                 existing = await anyio.to_thread.run_sync(self.store.find_by_idempotency_key, who.owner, key)
                 if existing is not None:
                     return self._replay(existing, sub), True
+            # the quotas, before the cloud is read (cheap); the insert checks them again atomically
+            size = await anyio.to_thread.run_sync(tree_bytes, sub.staging)
+            await anyio.to_thread.run_sync(quotas.check, self.settings, self.store, who.owner, size)
             await validate_submission(sub, self.settings, self.limiter)
             try:
-                job = await anyio.to_thread.run_sync(self._store_job, sub, who, key)
+                job = await anyio.to_thread.run_sync(self._store_job, sub, who, key, size)
             except IdempotencyConflict as exc:     # the same key raced in from a parallel request
                 return self._replay(exc.existing, sub), True
+            except QuotaExceeded as exc:           # parallel submissions of this key got there first
+                raise quotas.refusal(exc) from None
         finally:
             self.storage.discard(sub.staging)      # a no-op once it was moved into the job's folder
         await anyio.to_thread.run_sync(self.backend.submitted, job)
@@ -115,13 +134,14 @@ class JobService:
                            errors=["header Idempotency-Key: already used with another body"])
         return job_view(existing)
 
-    def _store_job(self, sub: Submission, who: Principal, key: str | None) -> JobRecord:
+    def _store_job(self, sub: Submission, who: Principal, key: str | None, size: int) -> JobRecord:
         job_id = new_job_id()
         self.storage.accept_staging(sub.staging, job_id)
         try:
             return self.store.create(job_id=job_id, owner=who.owner, parameters=sub.config.to_json_dict(),
                                      input=sub.input, time_limit_s=sub.time_limit_s, warnings=sub.warnings,
-                                     idempotency_key=key, request_hash=sub.request_hash)
+                                     idempotency_key=key, request_hash=sub.request_hash, stored_bytes=size,
+                                     **quotas.limits(self.settings))
         except BaseException:
             self.storage.remove_job(job_id)
             raise
@@ -148,15 +168,20 @@ class JobService:
 
     # -- cancel / delete ---------------------------------------------------------------------------
     def delete(self, job_id: str, who: Principal) -> Job | None:
-        """Cancel an active job (returns it) or delete a finished one with its files (returns None)."""
+        """Cancel an active job (returns it) or delete a finished one with its files (returns None).
+
+        A cancelled job's files (upload, work, artifacts) are removed at once; its row stays (GET answers
+        ``cancelled``) until it is deleted or the retention sweep removes it.
+        """
         job = self._get(job_id, who)
         if job.status not in FINISHED_STATUSES:
             cancelled = self.store.cancel(job.id, who.owner)
             if cancelled is not None:
-                if self.backend.cancel(job.id):
-                    log.info("job %s: cancelled; its worker was stopped", job.id)
-                else:
-                    log.info("job %s: cancelled before it started", job.id)
+                stopped = self.backend.cancel(job.id)
+                self.storage.remove_job(job.id)      # the worker is stopped: nothing writes there any more
+                self.store.set_stored_bytes(job.id, 0)
+                log.info("job %s: cancelled %s; its files were removed", job.id,
+                         "and its worker stopped" if stopped else "before it started")
                 return job_view(self.store.get(job.id) or cancelled)
             job = self._get(job_id, who)           # it finished meanwhile: delete it below
         self.backend.cancel(job.id)                # a cancelled job's worker may still be stopping

@@ -38,6 +38,7 @@ import os
 import re
 import shutil
 import socket
+import stat
 import time
 import uuid
 from pathlib import Path
@@ -103,6 +104,18 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     fsync_dir(path.parent)
+
+
+def tree_bytes(path: str | os.PathLike) -> int:
+    """Bytes of the regular files under ``path`` (links are not followed; what vanishes meanwhile counts 0)."""
+    total = 0
+    for folder, dirs, files in os.walk(path):
+        for name in files:
+            with contextlib.suppress(OSError):
+                st = os.lstat(os.path.join(folder, name))
+                if stat.S_ISREG(st.st_mode):
+                    total += st.st_size
+    return total
 
 
 class UploadTooLarge(Exception):
@@ -242,6 +255,10 @@ class Storage:
         if resolved.parent != result or path.is_symlink() or not resolved.is_file():
             return None
         return resolved
+
+    def job_bytes(self, job_id: str) -> int:
+        """Bytes of all files of a job (upload, artifacts, attempts in progress): what it keeps stored."""
+        return tree_bytes(self.job_dir(job_id))
 
     def remove_job(self, job_id: str) -> None:
         """Delete all files of a job."""

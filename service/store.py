@@ -11,11 +11,18 @@ and a late worker cannot overwrite a job that was cancelled or re-run meanwhile 
     running, heartbeat older than the lease  --take over (Celery redelivery)-->  running (attempts + 1)
                                              --requeue (reaper)-->  queued | failed 'worker_lost'
 
+Per-key quotas: :meth:`JobStore.create` counts the owner's queued and running jobs and sums the
+bytes its jobs keep stored (``stored_bytes``), and inserts the job only if both stay within the
+limits, all under a per-owner lock (SQLite: one ``BEGIN IMMEDIATE`` transaction; PostgreSQL: a
+transaction-scoped advisory lock), so parallel submissions cannot overshoot.
+
 The schema comes from the Alembic migrations (:mod:`service.db`), applied when a store opens.
 """
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import json
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta, timezone
@@ -39,6 +46,12 @@ _PROGRESS = jobs.update().where(_RUNNING_ATTEMPT).values(
 _HEARTBEAT = jobs.update().where(_RUNNING_ATTEMPT).values(heartbeat_at=sa.bindparam("t"))
 _COUNTS = sa.select(jobs.c.status, sa.func.count()).group_by(jobs.c.status)
 
+ACTIVE_STATUSES = ("queued", "running")
+FINISHED_STATUSES = ("succeeded", "failed", "cancelled")
+#: The largest ``seq`` each database can hold (PostgreSQL: SERIAL, int4; SQLite: INTEGER, int64).
+MAX_SEQ = {"postgresql": 2 ** 31 - 1, "sqlite": 2 ** 63 - 1}
+_OWNER_LOCK_CLASS = 0x5CA4            # first key of the PostgreSQL advisory lock that serializes one owner's inserts
+
 
 def now_iso() -> str:
     """The current UTC time, RFC 3339 with milliseconds."""
@@ -48,6 +61,15 @@ def now_iso() -> str:
 def iso_ago(seconds: float) -> str:
     """The UTC time ``seconds`` ago, formatted like :func:`now_iso` (so that text comparison orders times)."""
     return (datetime.now(timezone.utc) - timedelta(seconds=float(seconds))).isoformat(timespec="milliseconds")
+
+
+class QuotaExceeded(Exception):
+    """A new job would pass a per-owner limit. ``kind``: 'jobs' (queued + running) or 'bytes' (stored);
+    ``used``: the owner's figure now; ``adding``: what the job would add; ``limit``: the limit."""
+
+    def __init__(self, kind: str, used: int, adding: int, limit: int):
+        super().__init__(f"{kind}: {used} + {adding} > {limit}")
+        self.kind, self.used, self.adding, self.limit = kind, int(used), int(adding), int(limit)
 
 
 class IdempotencyConflict(Exception):
@@ -87,6 +109,7 @@ class JobRecord:
     worker: str | None = None
     heartbeat_at: str | None = None
     dispatched_at: str | None = None
+    stored_bytes: int | None = None        # bytes of the job's files; None: not measured yet (before revision 0003)
 
     @classmethod
     def from_row(cls, row: Any) -> "JobRecord":
@@ -119,6 +142,11 @@ class JobStore:
             upgrade(self.engine)
 
     @property
+    def max_seq(self) -> int:
+        """The largest sequence number (``seq``) this database can hold."""
+        return MAX_SEQ.get(self.dialect, 2 ** 31 - 1)
+
+    @property
     def display_url(self) -> str:
         """The database URL without its password (for logs)."""
         return self.url.render_as_string(hide_password=True)
@@ -145,21 +173,77 @@ class JobStore:
     # -- create and read -----------------------------------------------------------------------
     def create(self, *, job_id: str, owner: str, parameters: dict[str, Any], input: dict[str, Any],
                time_limit_s: float, warnings: list[str] | None = None, idempotency_key: str | None = None,
-               request_hash: str | None = None) -> JobRecord:
-        """Insert a queued job. Raises :class:`IdempotencyConflict` if the owner already used the key."""
+               request_hash: str | None = None, stored_bytes: int | None = None, max_active: int | None = None,
+               max_stored_bytes: int | None = None) -> JobRecord:
+        """Insert a queued job.
+
+        Raises :class:`IdempotencyConflict` if the owner already used the key (checked first: a replay is
+        never refused by a quota), then :class:`QuotaExceeded` if the owner already has ``max_active``
+        jobs queued or running, or if its stored bytes plus ``stored_bytes`` would pass ``max_stored_bytes``.
+        The checks and the insert are atomic per owner.
+        """
         t = now_iso()
         stmt = jobs.insert().values(
             id=job_id, owner=owner, status="queued", progress=0.0, created_at=t, updated_at=t,
             time_limit_s=float(time_limit_s), parameters=json.dumps(parameters), input=json.dumps(input),
             warnings=json.dumps(warnings or []), idempotency_key=idempotency_key, request_hash=request_hash,
+            stored_bytes=None if stored_bytes is None else int(stored_bytes),
             message="waiting for a worker").returning(jobs)
         try:
-            return self._one(stmt)
+            with self._owner_transaction(owner) as c:
+                if idempotency_key is not None:
+                    row = c.execute(sa.select(jobs).where((jobs.c.owner == owner)
+                                                          & (jobs.c.idempotency_key == idempotency_key))).fetchone()
+                    if row is not None:
+                        raise IdempotencyConflict(JobRecord.from_row(row))
+                if max_active is not None or max_stored_bytes is not None:
+                    active, used = self._usage(c, owner)
+                    if max_active is not None and active >= max_active:
+                        raise QuotaExceeded("jobs", active, 1, max_active)
+                    adding = int(stored_bytes or 0)
+                    if max_stored_bytes is not None and used + adding > max_stored_bytes:
+                        raise QuotaExceeded("bytes", used, adding, max_stored_bytes)
+                return JobRecord.from_row(c.execute(stmt).fetchone())
         except sa.exc.IntegrityError:
             existing = self.find_by_idempotency_key(owner, idempotency_key) if idempotency_key else None
             if existing is None:
                 raise
             raise IdempotencyConflict(existing) from None
+
+    @contextlib.contextmanager
+    def _owner_transaction(self, owner: str) -> Iterator[sa.Connection]:
+        """A transaction in which no other writer (SQLite) or no other insert of ``owner`` (PostgreSQL) runs."""
+        if self.dialect == "sqlite":
+            # the engine is in autocommit mode: open the transaction by hand, taking the write lock at once
+            with self.engine.connect() as c:
+                c.exec_driver_sql("BEGIN IMMEDIATE")
+                done = False
+                try:
+                    yield c
+                    c.exec_driver_sql("COMMIT")
+                    done = True
+                finally:
+                    if not done:
+                        with contextlib.suppress(Exception):
+                            c.exec_driver_sql("ROLLBACK")
+            return
+        key = int.from_bytes(hashlib.sha256(owner.encode()).digest()[:4], "big", signed=True)
+        with self.engine.begin() as c:
+            c.execute(sa.text("SELECT pg_advisory_xact_lock(CAST(:a AS integer), CAST(:b AS integer))"),
+                      {"a": _OWNER_LOCK_CLASS, "b": key})
+            yield c
+
+    @staticmethod
+    def _usage(c: sa.Connection, owner: str) -> tuple[int, int]:
+        active = sa.func.coalesce(sa.func.sum(sa.case((jobs.c.status.in_(ACTIVE_STATUSES), 1), else_=0)), 0)
+        stored = sa.func.coalesce(sa.func.sum(jobs.c.stored_bytes), 0)
+        row = c.execute(sa.select(active, stored).where(jobs.c.owner == owner)).one()
+        return int(row[0]), int(row[1])
+
+    def usage(self, owner: str) -> tuple[int, int]:
+        """(jobs queued or running, bytes stored) of ``owner``, in one query (unmeasured jobs count 0 bytes)."""
+        with self.engine.connect() as c:
+            return self._usage(c, owner)
 
     def get(self, job_id: str, owner: str | None = None) -> JobRecord | None:
         """The job, or None (also when ``owner`` is given and is not the job's owner)."""
@@ -181,7 +265,11 @@ class JobStore:
         if status is not None:
             q = q.where(jobs.c.status == status)
         if before_seq is not None:
-            q = q.where(jobs.c.seq < int(before_seq))
+            before_seq = int(before_seq)
+            if before_seq <= 1:                            # no job has a sequence number below 1
+                return [], False
+            if before_seq <= self.max_seq:                 # past the column's range: every job is before it
+                q = q.where(jobs.c.seq < before_seq)
         q = q.order_by(jobs.c.seq.desc()).limit(int(limit) + 1)
         with self.engine.connect() as c:
             rows = c.execute(q).fetchall()
@@ -257,12 +345,17 @@ class JobStore:
                                          "b_progress": max(0.0, min(1.0, float(progress))),
                                          "b_message": message[:500], "t": now_iso()}).rowcount == 1
 
-    def succeed(self, job_id: str, attempt: int, result: dict[str, Any], warnings: list[str]) -> bool:
-        """running -> succeeded, for that attempt only."""
+    def succeed(self, job_id: str, attempt: int, result: dict[str, Any], warnings: list[str], *,
+                stored_bytes: int | None = None) -> bool:
+        """running -> succeeded, for that attempt only; ``stored_bytes``: the job's files with its artifacts."""
         t = now_iso()
-        return self._count(jobs.update().where(self._is(job_id, attempt)).values(
-            status="succeeded", stage="write", progress=1.0, message="done", finished_at=t, updated_at=t,
-            result=json.dumps(result), warnings=json.dumps(warnings), error_code=None, error_message=None)) == 1
+        values: dict[str, Any] = {
+            "status": "succeeded", "stage": "write", "progress": 1.0, "message": "done", "finished_at": t,
+            "updated_at": t, "result": json.dumps(result), "warnings": json.dumps(warnings), "error_code": None,
+            "error_message": None}
+        if stored_bytes is not None:
+            values["stored_bytes"] = int(stored_bytes)
+        return self._count(jobs.update().where(self._is(job_id, attempt)).values(**values)) == 1
 
     def fail(self, job_id: str, attempt: int | None, code: str, message: str) -> bool:
         """running (that attempt, or any if None) -> failed with a code and message."""
@@ -289,8 +382,36 @@ class JobStore:
     def delete(self, job_id: str, owner: str) -> bool:
         """Remove a finished job's row (its files are removed by the caller)."""
         return self._count(jobs.delete().where(
-            (jobs.c.id == job_id) & (jobs.c.owner == owner)
-            & jobs.c.status.in_(("succeeded", "failed", "cancelled")))) == 1
+            (jobs.c.id == job_id) & (jobs.c.owner == owner) & jobs.c.status.in_(FINISHED_STATUSES))) == 1
+
+    # -- stored bytes and retention ----------------------------------------------------------------
+    def set_stored_bytes(self, job_id: str, stored_bytes: int, *, only_if_unmeasured: bool = False) -> bool:
+        """Record the bytes a job's files take; ``only_if_unmeasured``: only where none is recorded yet
+        (a measurement that raced with a change that recorded its own figure loses)."""
+        cond = jobs.c.id == job_id
+        if only_if_unmeasured:
+            cond = cond & jobs.c.stored_bytes.is_(None)
+        return self._count(jobs.update().where(cond).values(stored_bytes=int(stored_bytes))) == 1
+
+    def expired(self, finished_before: str, limit: int = 100) -> list[JobRecord]:
+        """Finished jobs (succeeded, failed, cancelled) that finished before ``finished_before`` (RFC 3339),
+        oldest first, at most ``limit``."""
+        q = (sa.select(jobs).where(jobs.c.status.in_(FINISHED_STATUSES) & (jobs.c.finished_at < finished_before))
+             .order_by(jobs.c.finished_at).limit(int(limit)))
+        with self.engine.connect() as c:
+            return [JobRecord.from_row(r) for r in c.execute(q).fetchall()]
+
+    def purge(self, job_id: str, finished_before: str) -> bool:
+        """Remove a finished job's row if it finished before ``finished_before`` (retention; any owner)."""
+        return self._count(jobs.delete().where(
+            (jobs.c.id == job_id) & jobs.c.status.in_(FINISHED_STATUSES)
+            & (jobs.c.finished_at < finished_before))) == 1
+
+    def unmeasured(self, limit: int = 100) -> list[JobRecord]:
+        """Jobs whose stored bytes are unknown (accepted before revision 0003), oldest first, at most ``limit``."""
+        q = sa.select(jobs).where(jobs.c.stored_bytes.is_(None)).order_by(jobs.c.seq).limit(int(limit))
+        with self.engine.connect() as c:
+            return [JobRecord.from_row(r) for r in c.execute(q).fetchall()]
 
     def running(self) -> list[JobRecord]:
         with self.engine.connect() as c:

@@ -55,6 +55,9 @@ def serve(*, host: str | None = None, port: int | None = None, data_dir: str | N
     print(f"scanmill serve: http://{settings.host}:{settings.port}  data: {settings.data_dir.resolve()}  {runs}",
           file=sys.stderr, flush=True)
     app = create_app(settings)
+    # proxy_headers=False: uvicorn would rewrite the client from X-Forwarded-For alone (and trust FORWARDED_ALLOW_IPS
+    # from its own environment); service.auth.client_address applies the one rule instead, with
+    # SCANMILL_FORWARDED_ALLOW_IPS, to Forwarded, X-Forwarded-For and X-Real-IP alike.
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=settings.log_level,
-                timeout_graceful_shutdown=10, access_log=settings.log_level == "debug")
+                timeout_graceful_shutdown=10, access_log=settings.log_level == "debug", proxy_headers=False)
     return 0

@@ -155,15 +155,32 @@ class Problem(BaseModel):
     job_status: JobStatus | None = Field(None, description="For conflicts on a job: its current status.")
 
 
+class DiskHealth(_Model):
+    """Free space on the data directory's file system, against the reserve SCANMILL_MIN_FREE_DISK_MB."""
+
+    status: Literal["ok", "low", "unknown"] = Field(
+        ..., description="'low': less free than the reserve (uploads and job starts are refused with 507); "
+                         "'unknown': the file system could not be asked (also 'degraded').")
+    free_bytes: int | None = Field(None, ge=0, description="Bytes free for the service.")
+    min_free_bytes: int = Field(..., ge=0, description="The reserve, SCANMILL_MIN_FREE_DISK_MB, in bytes.")
+
+
 class Health(_Model):
     """Liveness and readiness of the service."""
 
-    status: Literal["ok"]
-    workers: int = Field(..., ge=0, description="Size of the worker pool of this server (0 with the Celery "
-                                                "backend, whose workers run on other machines).")
+    status: Literal["ok", "degraded"] = Field(
+        ..., description="'ok', or 'degraded' when the service answers but cannot take new work (the disk is "
+                         "below its reserve, or its free space cannot be read): reads still work, submissions "
+                         "are refused with 507.")
+    workers: int = Field(..., ge=0, description="Job slots: this server's worker pool (embedded), or the total pool "
+                                                "size of the Celery workers that answered the API's last census "
+                                                "(at most 30 s old; 0 while the broker is unreachable).")
     busy_workers: int = Field(..., ge=0, description="Jobs running (on this server's pool, or on any Celery worker).")
     queued_jobs: int = Field(..., ge=0)
     running_jobs: int = Field(..., ge=0)
+    disk: DiskHealth | None = Field(None, description="Free space of the data directory.")
+    database: Literal["ok"] | None = Field(None, description="The job store answers ('ok'); when it does not, "
+                                                             "/healthz answers 503 store_unavailable.")
 
 
 class Version(_Model):

@@ -21,6 +21,7 @@ from service.jobs import JobService
 from service.limits import BodyLimitMiddleware
 from service.openapi import build_openapi
 from service.problems import install_handlers
+from service.retention import RetentionSweeper
 from service.routers import jobs as jobs_routes
 from service.routers import system as system_routes
 from service.settings import Settings, load_settings
@@ -68,6 +69,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if settings.anonymous:
             log.warning("SCANMILL_API_KEYS is empty: anonymous requests are accepted from loopback clients only")
         backend.start()
+        retention = RetentionSweeper(settings, store, storage).start()
         app.state.storage, app.state.store, app.state.backend = storage, store, backend
         app.state.jobs = JobService(settings, store, storage, backend, anyio.CapacityLimiter(1))
         log.info("scanmill %s serving; backend %s; jobs in %s; files in %s (%s)", scanmill.__version__,
@@ -75,6 +77,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            retention.stop()
             backend.stop()
             store.close()
             storage.close()

@@ -12,6 +12,13 @@ parameters are validated by ``schemas.params.parse_config`` and the cloud is rea
 ``planning.inputs.cloud.read_cloud`` in a worker thread, so a truncated file, garbage, NaN, an empty
 cloud or a header claiming billions of points is answered at once with a 4xx problem naming what
 is wrong. On any error the staging folder is removed: nothing half-written stays behind.
+
+Before anything is written the free space of the data directory is checked
+(:func:`service.diskspace.check_free_space`, with the declared ``Content-Length``, then each part's
+size); a write that still fails with ENOSPC is answered 507 ``insufficient_storage`` too. The
+multipart parser's own limits (files, fields, text-field and part-header sizes) are answered with
+problems that name the limit (``too_many_fixtures`` naming ``SCANMILL_MAX_FIXTURES``,
+``too_many_fields``, ``field_too_large``, ``part_header_too_large``).
 """
 
 from __future__ import annotations
@@ -21,19 +28,23 @@ import json
 import logging
 import os
 import re
+from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import anyio
 from pydantic import ValidationError
-from starlette.datastructures import UploadFile
+from starlette.datastructures import FormData, UploadFile
+from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import Request
 
 from planning.errors import ParameterError
 from schemas.api import InlineCloud
 from schemas.params import PlanConfig, parse_config
-from service.problems import ApiError
+from service.admission import check_job_budget
+from service.diskspace import InsufficientStorage, check_free_space
+from service.problems import ApiError, disk_full_error, is_disk_full
 from service.settings import Settings
 from service.storage import Storage, UploadTooLarge, cloud_suffix, copy_stream
 from service.workers import read_job_cloud
@@ -48,6 +59,15 @@ _NOT_A_CLOUD = {"application/pdf", "application/zip", "application/gzip", "appli
                 "application/xml", "text/xml", "application/javascript"}
 log = logging.getLogger("scanmill.service")
 _IDEMPOTENCY_KEY_RE = re.compile(r"^[\x21-\x7e]{1,255}$")
+#: the largest text field of a multipart POST /jobs (parameters, name, format, time_limit_s); fixed
+MAX_TEXT_FIELD_BYTES = 1 << 20
+#: the most text fields in a multipart POST /jobs (four are meaningful; a few more get a clear 422)
+MAX_FORM_FIELDS = 16
+try:                                   # the multipart parser's own limits on the header lines of a part
+    from python_multipart.multipart import DEFAULT_MAX_HEADER_COUNT as PART_HEADER_COUNT
+    from python_multipart.multipart import DEFAULT_MAX_HEADER_SIZE as PART_HEADER_BYTES
+except ImportError:  # pragma: no cover - older python-multipart
+    PART_HEADER_COUNT, PART_HEADER_BYTES = 8, 4096 + 128
 FIXTURES_WARNING = ("fixture files are stored with the job but not used yet: collision checks against fixtures "
                     "come with global visibility (visibility.global), which this version does not have")
 
@@ -156,8 +176,10 @@ def _validate_cloud(path: Path, fmt: str | None, config: PlanConfig, settings: S
         raise ParameterError("normals.method is 'input' but the file carries no normals (PLY nx ny nz, PCD "
                              "normal_x normal_y normal_z); use normals.method = sphere_throwing",
                              code="missing_normals")
+    extent = [float(v) for v in cloud.points.max(axis=0) - cloud.points.min(axis=0)]
+    check_job_budget(config, int(cloud.points.shape[0]), settings, extent_mm=extent)
     return {"format": cloud.source_format, "n_points": int(cloud.points.shape[0]),
-            "has_normals": cloud.normals is not None}
+            "has_normals": cloud.normals is not None, "extent_mm": extent}
 
 
 def _validate_fixture(path: Path, settings: Settings, index: int) -> None:
@@ -176,15 +198,108 @@ def _request_hash(config: PlanConfig, input_: dict[str, Any], time_limit_s: floa
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
 
 
+def _disk_full(settings: Settings, needed: int, what: str) -> ApiError:
+    """After a write failed with ENOSPC: the free-space check again (its 507 names the space needed and free),
+    or, if the space is back already, the 507 for a disk that filled up meanwhile."""
+    try:
+        check_free_space(settings, needed, what)
+    except InsufficientStorage as exc:
+        return exc
+    return disk_full_error(settings, what)
+
+
 async def _copy_part(part: UploadFile, dst: Path, settings: Settings, what: str) -> tuple[int, str]:
+    needed = int(part.size or 0)
+    check_free_space(settings, needed, f"the {what} file")
     try:
         return await anyio.to_thread.run_sync(
             lambda: copy_stream(part.file, dst, max_bytes=settings.max_upload_bytes))
     except UploadTooLarge:
         raise ApiError(413, "file_too_large",
                        f"The {what} file is larger than {settings.max_upload_bytes:,} bytes, the limit of this "
-                       "service (SCANMILL_MAX_UPLOAD_BYTES). Decimate the scan or save it as binary PLY.",
+                       f"service (SCANMILL_MAX_UPLOAD_BYTES = {settings.max_upload_bytes}). Decimate the scan or "
+                       "save it as binary PLY.",
                        limit="SCANMILL_MAX_UPLOAD_BYTES", limit_value=settings.max_upload_bytes) from None
+    except OSError as exc:                     # copy_stream removed the partial file
+        if not is_disk_full(exc):
+            raise
+        raise _disk_full(settings, needed, f"the {what} file") from None
+
+
+def _declared_length(request: Request) -> int:
+    value = request.headers.get("content-length", "").strip()
+    return int(value) if value.isdigit() else 0
+
+
+def _too_many_fixtures(settings: Settings, sent: str) -> ApiError:
+    n = settings.max_fixtures
+    return ApiError(422, "too_many_fixtures",
+                    f"{sent}; a job takes one cloud and at most {n} fixture files (SCANMILL_MAX_FIXTURES = {n}). "
+                    f"Send at most {n} 'fixtures' parts (merge fixture clouds into one file if need be).",
+                    errors=[f"fixtures: at most {n} files"], limit="SCANMILL_MAX_FIXTURES", limit_value=n)
+
+
+def _field_too_large(name: str | None = None) -> ApiError:
+    which = f"'{name}'" if name else "(parameters, name, format or time_limit_s)"
+    return ApiError(413, "field_too_large",
+                    f"A multipart text field {which} is larger than {MAX_TEXT_FIELD_BYTES:,} bytes (1 MiB), the limit "
+                    "for a text field of POST /jobs (fixed; not a setting). Send only the plan configuration as "
+                    "'parameters' (a few kB); the scan and fixture clouds go as files ('cloud', 'fixtures').",
+                    errors=[f"{name or 'field'}: at most {MAX_TEXT_FIELD_BYTES} bytes"],
+                    limit="multipart text field bytes", limit_value=MAX_TEXT_FIELD_BYTES)
+
+
+def _multipart_problem(exc: StarletteHTTPException, settings: Settings) -> Exception:
+    """The problem for a multipart body the parser refused: name the limit it hit, and what to do."""
+    detail = str(exc.detail)
+    causes, e = [], exc.__context__
+    while e is not None and len(causes) < 5:
+        causes.append(str(e))
+        e = e.__cause__ or e.__context__
+    why = " ".join(causes).lower()
+    if "maximum number of files" in detail.lower():
+        return _too_many_fixtures(settings, f"The upload has more files than one cloud and {settings.max_fixtures} "
+                                            "fixtures")
+    if "maximum number of fields" in detail.lower():
+        return ApiError(422, "too_many_fields",
+                        f"The multipart body has more than {MAX_FORM_FIELDS} text fields, the limit of POST /jobs. "
+                        "Its text fields are parameters, name, format and time_limit_s, each sent once.",
+                        errors=[f"fields: at most {MAX_FORM_FIELDS}"], limit="multipart text fields",
+                        limit_value=MAX_FORM_FIELDS)
+    if "exceeded maximum size" in detail.lower():
+        return _field_too_large()
+    if "maximum header size" in why:
+        return ApiError(413, "part_header_too_large",
+                        f"A header line of a multipart part is longer than {PART_HEADER_BYTES:,} bytes, the multipart "
+                        "parser's limit; usually a file name of thousands of characters in Content-Disposition. "
+                        "Give the file a shorter name (the service keeps 200 characters of it) and send it again.",
+                        limit="multipart part header line bytes", limit_value=PART_HEADER_BYTES)
+    if "maximum header count" in why:
+        return ApiError(400, "bad_request",
+                        f"A part of the multipart body has more than {PART_HEADER_COUNT} header lines, the multipart "
+                        "parser's limit. Send each part with Content-Disposition and Content-Type only.",
+                        limit="multipart part header lines", limit_value=PART_HEADER_COUNT)
+    return exc                                 # other unreadable bodies: 400 bad_request, the parser's words
+
+
+@asynccontextmanager
+async def _read_form(request: Request, settings: Settings):
+    """``request.form()`` with the service's limits; the parser's refusals become problems naming the limit."""
+    try:
+        form: FormData = await request.form(max_files=1 + settings.max_fixtures, max_fields=MAX_FORM_FIELDS,
+                                            max_part_size=MAX_TEXT_FIELD_BYTES)
+    except StarletteHTTPException as exc:
+        if exc.status_code != 400:
+            raise
+        raise _multipart_problem(exc, settings) from None
+    except OSError as exc:                     # the parser spools file parts to a temporary file
+        if not is_disk_full(exc):
+            raise
+        raise _disk_full(settings, _declared_length(request), "the upload") from None
+    try:
+        yield form
+    finally:
+        await form.close()
 
 
 async def receive_submission(request: Request, settings: Settings, storage: Storage,
@@ -208,8 +323,9 @@ async def _receive_multipart(request: Request, settings: Settings, storage: Stor
                              limiter: anyio.CapacityLimiter) -> Submission:
     staging: Path | None = None
     try:
-        async with request.form(max_files=1 + settings.max_fixtures, max_fields=16,
-                                max_part_size=1024 * 1024) as form:
+        # before anything is written (the parser spools file parts, then they are copied into staging)
+        check_free_space(settings, _declared_length(request), "the upload")
+        async with _read_form(request, settings) as form:
             unknown = sorted({k for k in form.keys() if k not in MULTIPART_FIELDS})
             if unknown:
                 raise ApiError(422, "invalid_request",
@@ -230,15 +346,15 @@ async def _receive_multipart(request: Request, settings: Settings, storage: Stor
             texts: dict[str, str | None] = {}
             for k in ("parameters", "name", "format", "time_limit_s"):
                 v = form.get(k)
-                if isinstance(v, UploadFile):
-                    v = (await v.read(1024 * 1024 + 1)).decode("utf-8", errors="replace")
+                if isinstance(v, UploadFile):     # a text field sent as a file part: same limit
+                    raw = await v.read(MAX_TEXT_FIELD_BYTES + 1)
+                    if len(raw) > MAX_TEXT_FIELD_BYTES:
+                        raise _field_too_large(k)
+                    v = raw.decode("utf-8", errors="replace")
                 texts[k] = v
             fixtures = form.getlist("fixtures")
             if len(fixtures) > settings.max_fixtures:
-                raise ApiError(422, "too_many_fixtures",
-                               f"{len(fixtures)} fixture files sent; the limit is {settings.max_fixtures} "
-                               "(SCANMILL_MAX_FIXTURES).", limit="SCANMILL_MAX_FIXTURES",
-                               limit_value=settings.max_fixtures)
+                raise _too_many_fixtures(settings, f"{len(fixtures)} fixture files were sent")
             if any(not isinstance(f, UploadFile) for f in fixtures):
                 raise ApiError(422, "invalid_request", "Every 'fixtures' part must be a file.",
                                errors=["fixtures: must be files"])
@@ -341,11 +457,19 @@ def _inline_to_ply(body: bytes, settings: Settings, staging: Path) -> tuple[Plan
 
 async def _receive_json(request: Request, settings: Settings, storage: Storage,
                         limiter: anyio.CapacityLimiter) -> Submission:
+    check_free_space(settings, _declared_length(request), "the request")
     body = await request.body()
-    staging = storage.new_staging()
+    staging: Path | None = None
     try:
-        config, input_, tl = await anyio.to_thread.run_sync(lambda: _inline_to_ply(body, settings, staging),
-                                                            limiter=limiter)
+        check_free_space(settings, len(body), "the inline cloud")    # its PLY is smaller than its JSON
+        staging = storage.new_staging()
+        try:
+            config, input_, tl = await anyio.to_thread.run_sync(
+                lambda: _inline_to_ply(body, settings, staging), limiter=limiter)
+        except OSError as exc:
+            if not is_disk_full(exc):
+                raise
+            raise _disk_full(settings, len(body), "the inline cloud") from None
         return Submission(staging=staging, config=config, input=input_, time_limit_s=_time_limit(tl, settings))
     except BaseException:
         storage.discard(staging)

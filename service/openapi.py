@@ -24,10 +24,21 @@ _DESCRIPTIONS = {
     401: "Missing or invalid API key.",
     403: "Anonymous request from outside the local machine (no API keys configured).",
     404: "No such job for this API key, or no such artifact.",
+    408: "The request body stopped arriving for SCANMILL_BODY_READ_TIMEOUT_S (code body_timeout); the connection "
+         "is closed.",
     409: "The job is not in a state that allows this (e.g. results of a job that has not succeeded).",
-    413: "The upload or the cloud exceeds a limit of the service; the problem names it.",
+    413: "The upload, a part of it, or the cloud exceeds a limit of the service; the problem names it. A declared "
+         "Content-Length over the limit is answered before the body is read, and the connection is closed.",
     415: "Unsupported content type.",
-    422: "Invalid parameters, cloud or request; the problem names each.",
+    422: "Invalid parameters, cloud or request; the problem names each. On POST /jobs also job_too_large: the "
+         "job's memory estimate exceeds SCANMILL_JOB_MEMORY_MB (members limit, limit_value, estimate_mb, "
+         "parameter).",
+    429: "This API key already has SCANMILL_MAX_QUEUED_JOBS_PER_KEY jobs queued or running (code too_many_jobs); "
+         "retry after Retry-After seconds, or cancel some.",
+    507: "Not enough free disk space for the upload (code insufficient_storage): the problem names the space "
+         "needed, the space free and SCANMILL_MIN_FREE_DISK_MB. Nothing was kept. Or (code storage_quota_exceeded) "
+         "this API key's uploads and artifacts would pass SCANMILL_MAX_STORED_BYTES_PER_KEY: the problem names the "
+         "limit, used_bytes and needed_bytes; delete finished jobs to free space.",
 }
 
 EXAMPLE_JOB_ID = "3f2b0c3e9a1d4b7c8e6f5a4b3c2d1e0f"
@@ -89,6 +100,9 @@ def problem_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
                                  "content": {"application/problem+json": {"schema": PROBLEM_REF}}}
         if c == 413:
             entry["content"]["application/problem+json"]["example"] = EXAMPLE_PROBLEM
+        if c == 429:
+            entry["headers"] = {"Retry-After": {"schema": {"type": "integer"},
+                                                "description": "Seconds to wait before submitting again."}}
         if c == 401:
             entry["headers"] = {"WWW-Authenticate": {"schema": {"type": "string"},
                                                      "description": "Bearer challenge."}}

@@ -3,22 +3,27 @@
 :class:`ApiError` is what the service code raises; :func:`install_handlers` maps it, the planning
 errors (:class:`planning.errors.PlanningError`, which carry their 4xx status), FastAPI's request
 validation errors and Starlette's HTTP errors (unknown route, wrong method, bad multipart) to
-problem documents. An unexpected exception is logged with its traceback and answered as a problem
-document too (500, code ``internal_error``): no request input is meant to reach it, and the test
-suite (schemathesis included) checks that none does.
+problem documents. A write that fails because the disk (or a quota) is full, anywhere in a request,
+is answered 507 ``insufficient_storage``, and a job store that does not answer 503
+``store_unavailable``; neither says more about the server (paths, hosts, ports, the driver's error)
+than the setting to look at, and the details go to the log. An unexpected exception is logged with
+its traceback and answered as a problem document too (500, code ``internal_error``): no request
+input is meant to reach it, and the test suite (schemathesis included) checks that none does.
 """
 
 from __future__ import annotations
 
+import errno
 import logging
 import re
 from typing import Any
 
 from fastapi import FastAPI, Request
-from sqlalchemy import exc as sa_exc
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy import exc as sa_exc
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 
 from planning.errors import PlanningError
 
@@ -30,9 +35,45 @@ PROBLEM_TYPE_BASE = "https://scanmill.dev/problems/"
 _TITLES = {
     400: "Bad request", 401: "Unauthorized", 403: "Forbidden", 404: "Not found",
     405: "Method not allowed", 406: "Not acceptable", 409: "Conflict", 413: "Content too large",
-    415: "Unsupported media type", 422: "Unprocessable content", 429: "Too many requests",
-    500: "Internal error", 503: "Service unavailable",
+    408: "Request timeout", 415: "Unsupported media type", 422: "Unprocessable content", 429: "Too many requests",
+    500: "Internal error", 503: "Service unavailable", 507: "Insufficient storage",
 }
+
+#: errno values meaning "the file system is full" (a disk full, a quota reached)
+DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+
+def is_disk_full(exc: BaseException) -> bool:
+    """Whether an exception (or one it wraps) says the disk or quota is full: ENOSPC/EDQUOT, SQLite's
+    'database or disk is full', PostgreSQL's disk_full (SQLSTATE 53100)."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, OSError) and e.errno in DISK_FULL_ERRNOS:
+            return True
+        if getattr(e, "sqlstate", None) == "53100":
+            return True
+        if type(e).__module__.startswith("sqlite3") and "full" in str(e).lower():
+            return True
+        e = getattr(e, "orig", None) or e.__cause__ or e.__context__
+    return False
+
+
+def disk_full_error(settings: Any, what: str = "this request") -> ApiError:
+    """The 507 answer for a write that failed because the data directory's disk is full."""
+    from service.diskspace import MIB, free_bytes
+    try:
+        free = free_bytes(settings.data_dir)
+    except OSError:
+        free = 0
+    reserve = int(settings.min_free_disk_mb)
+    return ApiError(507, "insufficient_storage",
+                    f"The disk of the data directory filled up while writing {what} ({free / MIB:,.0f} MiB free; "
+                    f"SCANMILL_MIN_FREE_DISK_MB = {reserve:,} MiB are kept in reserve). Nothing was kept. Free "
+                    "space on the data directory (delete finished jobs) or try again later.",
+                    title="Insufficient storage", limit="SCANMILL_MIN_FREE_DISK_MB", limit_value=reserve,
+                    free_bytes=int(free))
 
 
 class ApiError(Exception):
@@ -157,16 +198,44 @@ def install_handlers(app: FastAPI) -> None:
     @app.exception_handler(sa_exc.OperationalError)
     @app.exception_handler(sa_exc.InterfaceError)
     async def _store_unavailable(request: Request, exc: Exception):
-        # the job database is down or unreachable: nothing was changed; the client may retry
+        if is_disk_full(exc):                  # SQLite 'database or disk is full', PostgreSQL disk_full
+            log.error("job store: disk full on %s %s", request.method, request.url.path)
+            return api_error_response(disk_full_error(request.app.state.settings, "the job store"),
+                                      request.url.path)
+        # the job database is down or unreachable: nothing was changed; the client may retry. The driver's
+        # message (host, port, user) goes to the log only.
         log.error("job store unavailable on %s %s: %s", request.method, request.url.path,
                   str(getattr(exc, "orig", exc)).strip().splitlines()[0] if str(getattr(exc, "orig", exc)) else exc)
-        return problem_response(503, "store_unavailable",
-                                "The job store does not answer right now; nothing was changed. Retry in a few "
-                                "seconds.", instance=request.url.path, headers={"Retry-After": "5"})
+        return store_unavailable_response(request.url.path)
+
+    @app.exception_handler(OSError)
+    async def _os_error(request: Request, exc: OSError):
+        if is_disk_full(exc):                  # a write under the data directory (or the upload spool) failed
+            log.error("disk full on %s %s: %s", request.method, request.url.path, exc)
+            return api_error_response(disk_full_error(request.app.state.settings), request.url.path)
+        return _internal_error(request)
+
+    @app.exception_handler(ClientDisconnect)
+    async def _client_gone(request: Request, exc: ClientDisconnect):
+        # the client closed the connection before its body was complete: nobody reads this answer
+        log.info("client disconnected during %s %s", request.method, request.url.path)
+        return problem_response(400, "client_disconnected", "The client closed the connection before the request "
+                                "body was complete; nothing was kept.", instance=request.url.path)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception):  # pragma: no cover - a bug if reached
-        log.exception("unexpected error on %s %s", request.method, request.url.path)
-        return problem_response(500, "internal_error",
-                                "The service failed unexpectedly; the error was logged. Please report it.",
-                                instance=request.url.path)
+        return _internal_error(request)
+
+
+def store_unavailable_response(instance: str | None, **extra: Any) -> JSONResponse:
+    """503 ``store_unavailable`` with ``Retry-After``; says nothing of the database (host, port, error)."""
+    return problem_response(503, "store_unavailable",
+                            "The job store does not answer right now; nothing was changed. Retry in a few seconds.",
+                            instance=instance, headers={"Retry-After": "5"}, **extra)
+
+
+def _internal_error(request: Request) -> JSONResponse:
+    log.exception("unexpected error on %s %s", request.method, request.url.path)
+    return problem_response(500, "internal_error",
+                            "The service failed unexpectedly; the error was logged. Please report it.",
+                            instance=request.url.path)

@@ -74,11 +74,19 @@ def _pcd_layout(header):
     counts = header.get("COUNT", ["1"] * len(fields))
     if not len(fields) == len(sizes) == len(types) == len(counts):
         raise _pcd_error("FIELDS, SIZE, TYPE and COUNT list different numbers of entries.")
+    for f, c in zip(fields, counts):
+        if not c.isdigit():
+            raise _pcd_error(f"COUNT {c} for field {f!r} is not a whole number; COUNT gives how many values each "
+                             "field holds per point (1 for x, y, z and most fields). Fix the COUNT line.")
+        if int(c) < 1 or (f in ("x", "y", "z", *_PCD_NORMALS) and int(c) != 1):
+            raise _pcd_error(f"COUNT {int(c)} for field {f!r}: {f} holds one value per point, so its COUNT must "
+                             "be 1 (COUNT gives how many values each field holds per point). Fix the COUNT line.")
     try:
         spec = [(_pcd_field_name(f, i), _PCD_TYPES[(t.upper(), int(s))], int(c))
                 for i, (f, s, t, c) in enumerate(zip(fields, sizes, types, counts))]
     except (KeyError, ValueError):
-        raise _pcd_error(f"unknown SIZE/TYPE/COUNT combination {sizes} {types} {counts}.") from None
+        raise _pcd_error(f"unknown SIZE/TYPE combination {sizes} {types} (SIZE 1, 2, 4 or 8 bytes; TYPE F, I "
+                         "or U; F needs SIZE 4 or 8).") from None
     names = [s[0] for s in spec]
     if not {"x", "y", "z"} <= set(names) or len(set(names)) != len(names):
         raise _pcd_error("FIELDS must contain x, y and z exactly once.")
@@ -111,10 +119,20 @@ def _pcd_binary(data: bytes, offset: int, dtype: np.dtype, n: int) -> np.ndarray
     needed = n * dtype.itemsize
     available = max(len(data) - offset, 0)
     if available < needed:
-        raise _pcd_error(f"the header declares {n:,} points ({needed:,} bytes) but the file holds "
-                         f"only {available // dtype.itemsize:,} complete ones; the file was cut "
+        if dtype.itemsize > available:         # not even one point: the header, not the body, is wrong
+            raise _pcd_error(f"by its FIELDS, SIZE and COUNT lines each point takes {dtype.itemsize:,} bytes "
+                             f"(COUNT {' '.join(str(_count(dtype, k)) for k in dtype.names)}), more than the whole "
+                             f"body of the file ({available:,} bytes) for {n:,} points: the COUNT or SIZE line is "
+                             "wrong (COUNT gives how many values each field holds per point, usually 1), or the "
+                             "file was cut off. Fix the header or send the complete file.", code="truncated_file")
+        raise _pcd_error(f"the header declares {n:,} points of {dtype.itemsize:,} bytes each ({needed:,} bytes) "
+                         f"but the file holds only {available // dtype.itemsize:,} complete ones; the file was cut "
                          "off. Send the complete file.", code="truncated_file")
     return np.frombuffer(data, dtype=dtype, count=n, offset=offset)
+
+
+def _count(dtype: np.dtype, name: str) -> int:
+    return int(np.prod(dtype[name].shape, dtype=np.int64)) if dtype[name].shape else 1
 
 
 def _pcd_ascii(data: bytes, offset: int, dtype: np.dtype, n: int) -> np.ndarray:

@@ -44,7 +44,7 @@ def _job_json(job: Job, status: int, headers: dict[str, str] | None = None) -> J
                      "headers": {"Location": {"schema": {"type": "string"}, "description": "/jobs/{id}"}},
                      "content": {"application/json": {"example": {**EXAMPLE_JOB, "status": "queued", "stage": None,
                                                                   "progress": 0.0, "started_at": None}}}},
-               **problem_responses(400, 401, 403, 413, 415, 422)})
+               **problem_responses(400, 401, 403, 408, 413, 415, 422, 429, 507)})
 async def create_job(request: Request, who: Caller, jobs: Jobs,
                      idempotency_key: Annotated[str | None, Header(
                          alias="Idempotency-Key", max_length=255,
@@ -77,8 +77,9 @@ async def get_job(job_id: str, who: Caller, jobs: Jobs):
 
 
 @router.delete("/{job_id}", operation_id="delete_job", tags=["jobs"], summary="Cancel or delete a job",
-               description="A queued or running job is cancelled: its worker process is stopped before the answer "
-                           "(200, the cancelled job). A finished job (succeeded, failed, cancelled) is deleted with "
+               description="A queued or running job is cancelled: its worker process is stopped and its files "
+                           "(upload, artifacts) are removed before the answer (200, the cancelled job, which stays "
+                           "readable until deleted). A finished job (succeeded, failed, cancelled) is deleted with "
                            "its files (204).",
                responses={200: {"description": "Cancelled.", "model": Job},
                           204: {"description": "Deleted with its files."},

@@ -12,12 +12,19 @@ they are queued and published again. The broker's own redelivery (acks_late) usu
 first; the reaper covers messages that were acknowledged without the job ending (hard time limit)
 or are only redelivered after the long visibility timeout. Every transition is fenced in the store,
 so several API replicas may each run a reaper.
+
+``GET /healthz`` reports the job slots of the workers that answer: a census thread asks every worker
+for its statistics through the broker (``inspect().stats()``, answers awaited ``CENSUS_TIMEOUT_S``)
+every ``CENSUS_INTERVAL_S`` and keeps the sum of their pool sizes; ``/healthz`` only reads that
+number, so it never waits on the broker. A census older than ``CENSUS_MAX_AGE_S`` (the broker has
+been unreachable that long) counts no workers.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from datetime import datetime, timezone
 
 from service.celery_app import TASK_NAME, configure
@@ -27,6 +34,55 @@ from service.store import JobRecord, JobStore
 from service.workers import time_limit_message
 
 log = logging.getLogger("scanmill.service")
+
+CENSUS_INTERVAL_S = 5.0    # how often the API asks the workers for their pool sizes
+CENSUS_TIMEOUT_S = 1.0     # how long it waits for their answers
+CENSUS_MAX_AGE_S = 30.0    # a census older than this (the broker is down) counts no workers
+
+
+class WorkerCensus:
+    """The live Celery workers and their job slots, as last counted through the broker (see the module)."""
+
+    def __init__(self, app, interval_s: float = CENSUS_INTERVAL_S, timeout_s: float = CENSUS_TIMEOUT_S,
+                 max_age_s: float = CENSUS_MAX_AGE_S):
+        self.app, self.interval_s, self.timeout_s, self.max_age_s = app, interval_s, timeout_s, max_age_s
+        self._lock = threading.Lock()
+        self._slots: dict[str, int] = {}
+        self._at: float | None = None          # time.monotonic() of the last census that reached the broker
+        self._failing = False
+
+    def take(self) -> dict[str, int] | None:
+        """Ask the workers now (bounded by the timeout and one connection attempt); their slots, or None."""
+        try:
+            with self.app.connection_for_write() as conn:
+                conn.ensure_connection(max_retries=1, interval_start=0, timeout=max(1.0, self.timeout_s))
+                stats = self.app.control.inspect(timeout=self.timeout_s, connection=conn).stats() or {}
+        except Exception as exc:  # noqa: BLE001 - the broker is down: keep the last census until it ages out
+            if not self._failing:
+                log.warning("worker census: the broker does not answer (%s); /healthz keeps the last count for "
+                            "%g s", exc, self.max_age_s)
+            self._failing = True
+            return None
+        slots = {}
+        for node, info in stats.items():
+            pool = (info or {}).get("pool") or {}
+            slots[node] = int(pool.get("max-concurrency") or 1) if isinstance(pool, dict) else 1
+        with self._lock:
+            self._slots, self._at, self._failing = slots, time.monotonic(), False
+        return slots
+
+    def workers(self) -> dict[str, int]:
+        """Job slots per live worker node, from the last census (empty if it is too old or never happened)."""
+        with self._lock:
+            if self._at is None or time.monotonic() - self._at > self.max_age_s:
+                return {}
+            return dict(self._slots)
+
+    def run(self, stop: threading.Event) -> None:
+        while True:
+            self.take()
+            if stop.wait(self.interval_s):
+                return
 
 
 class CeleryBackend:
@@ -40,6 +96,8 @@ class CeleryBackend:
         self._stop = threading.Event()
         self._reaper: threading.Thread | None = None
         self._publish_lock = threading.Lock()
+        self.census = WorkerCensus(self.app)
+        self._census: threading.Thread | None = None
 
     # -- lifecycle -------------------------------------------------------------------------------
     def recover(self) -> dict[str, list[str]]:
@@ -51,11 +109,16 @@ class CeleryBackend:
         if self.settings.reaper_interval_s > 0:
             self._reaper = threading.Thread(target=self._reap_loop, name="job-reaper", daemon=True)
             self._reaper.start()
+        self._census = threading.Thread(target=self.census.run, args=(self._stop,), name="worker-census",
+                                        daemon=True)
+        self._census.start()
 
     def stop(self) -> None:
         self._stop.set()
         if self._reaper is not None:
             self._reaper.join(10)
+        if self._census is not None:
+            self._census.join(5)
         try:
             self.app.pool.force_close_all()
         except Exception:  # noqa: BLE001 - closing at shutdown is best effort
@@ -97,9 +160,9 @@ class CeleryBackend:
         return True
 
     def health(self) -> dict[str, int]:
-        """Job slots are on the worker machines: report the running jobs as busy, slots unknown (0)."""
+        """``workers``: the job slots of the live workers (last census); ``busy_workers``: the running jobs."""
         running = self.store.counts().get("running", 0)
-        return {"workers": 0, "busy_workers": running}
+        return {"workers": sum(self.census.workers().values()), "busy_workers": running}
 
     # -- reaper ----------------------------------------------------------------------------------
     def reap_once(self) -> dict[str, list[str]]:

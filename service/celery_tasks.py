@@ -13,12 +13,24 @@ store says the job is no longer this attempt (cancelled, deleted, or taken over 
 partition) the child process ends itself at once. Progress is written back to the job store; the
 artifacts are written into the attempt's ``work-N`` folder of the shared storage and published
 (renamed to ``result``) before the job is marked succeeded.
+
+Memory: an attempt runs under the job memory limit (:func:`service.memlimit.apply_job_memory_limit`,
+``SCANMILL_JOB_MEMORY_MB``), set in the pool child when the attempt starts, so that each job of a
+child (``SCANMILL_MAX_TASKS_PER_CHILD``) gets its whole budget on top of what the child maps then;
+an allocation past it fails the job ``memory_limit_exceeded``, not the machine.
+
+Broker outages: the job needs the broker only to receive its message. A job whose worker lost
+the broker keeps running and writing its heartbeat; if the broker hands its message out again
+meanwhile, the delivery finds the job ``running`` with a heartbeat that keeps moving and leaves it
+alone (``busy``): no attempt is started or counted. Only a holder whose heartbeat stops for
+``SCANMILL_LEASE_S`` is taken over.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import resource
 import shutil
 import signal
 import socket
@@ -31,10 +43,12 @@ from celery.exceptions import SoftTimeLimitExceeded
 from celery.signals import worker_process_init
 
 from service.celery_app import TASK_NAME, app
+from service.memlimit import apply_job_memory_limit, memory_limit_message
 from service.settings import Settings, load_settings
 from service.storage import Storage
 from service.store import JobRecord, JobStore
 from service.workers import (
+    ArtifactWriteError,
     complete_attempt,
     error_of,
     job_spec,
@@ -177,16 +191,54 @@ def plan_job(self, job_id: str) -> str:
     return _run_attempt(ctx, job)
 
 
+def _limit_memory(job: JobRecord, limit_mb: int) -> tuple[int, int] | None:
+    """Put this pool child under the job memory limit (at each attempt: the budget is per job).
+
+    Returns the address-space limit the child had before, for :func:`_lift_memory_limit`.
+    """
+    before = resource.getrlimit(resource.RLIMIT_AS) if hasattr(resource, "RLIMIT_AS") else None
+    try:
+        cap = apply_job_memory_limit(limit_mb)
+    except (OSError, ValueError) as exc:          # e.g. a hard limit below what the child already maps
+        log.warning("job %s: the job memory limit (%d MiB) could not be applied: %s", job.id, limit_mb, exc)
+        return None
+    if cap is None:
+        log.warning("job %s: no job memory limit on this platform (SCANMILL_JOB_MEMORY_MB = %d MiB not applied)",
+                    job.id, limit_mb)
+        return None
+    log.info("job %s: memory limit %d MiB (address space capped at %d MiB)", job.id, limit_mb, cap >> 20)
+    return before
+
+
+def _lift_memory_limit(before: tuple[int, int] | None) -> None:
+    """The attempt is over: give the child back its own limit (writing the outcome must not hit the job's)."""
+    if before is not None:
+        try:
+            resource.setrlimit(resource.RLIMIT_AS, before)
+        except (OSError, ValueError):  # pragma: no cover - raising a soft limit up to the hard one is allowed
+            log.warning("could not lift the job memory limit", exc_info=True)
+
+
+def _out_of_memory(exc: BaseException) -> bool:
+    """Whether the attempt failed for want of memory (MemoryError, or a C++ allocation failure)."""
+    return isinstance(exc, MemoryError) or (isinstance(exc, RuntimeError) and "bad_alloc" in str(exc))
+
+
 def _run_attempt(ctx: _Context, job: JobRecord) -> str:
     store, storage, s = ctx.store, ctx.storage, ctx.settings
     spec = job_spec(job, s, storage)
     storage.remove_work(job.id, job.attempts)
+    limit_mb = s.job_memory_limit_mb
+    before = _limit_memory(job, limit_mb)
     stop = threading.Event()
     beat = threading.Thread(target=_heartbeat, args=(store, job, s.heartbeat_s, stop), daemon=True,
                             name=f"heartbeat-{job.id[:8]}")
     beat.start()
     try:
-        summary, warnings = plan_attempt(spec, _Progress(store, job))
+        try:
+            summary, warnings = plan_attempt(spec, _Progress(store, job))
+        finally:
+            _lift_memory_limit(before)
     except SoftTimeLimitExceeded:
         stop.set()
         storage.remove_work(job.id, job.attempts)
@@ -196,13 +248,24 @@ def _run_attempt(ctx: _Context, job: JobRecord) -> str:
     except Exception as exc:  # noqa: BLE001 - every failure becomes a job error with a reason
         stop.set()
         storage.remove_work(job.id, job.attempts)
+        if _out_of_memory(exc):
+            store.fail(job.id, job.attempts, "memory_limit_exceeded", memory_limit_message(limit_mb))
+            log.warning("job %s: failed [memory_limit_exceeded]: it needed more than its %d MiB (%s)", job.id,
+                        limit_mb, type(exc).__name__)
+            return "memory_limit_exceeded"
         code, message = error_of(exc)
         store.fail(job.id, job.attempts, code, message)
         log.info("job %s: failed [%s] %s", job.id, code, message)
         return "failed"
     finally:
         stop.set()
-    if not complete_attempt(store, storage, job, summary, warnings):
+    try:
+        completed = complete_attempt(store, storage, job, summary, warnings)
+    except ArtifactWriteError as exc:          # a full disk while publishing: the job says so
+        store.fail(job.id, job.attempts, exc.code, exc.message)
+        log.warning("job %s: failed [%s] %s", job.id, exc.code, exc.message)
+        return "failed"
+    if not completed:
         log.info("job %s: attempt %d finished but the job changed meanwhile; its artifacts were dropped",
                  job.id, job.attempts)
         return "discarded"

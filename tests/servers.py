@@ -1,6 +1,8 @@
 """Real, throwaway database servers on 127.0.0.1 for the tests: Redis and PostgreSQL.
 
-:class:`RedisServer` runs ``redis-server`` without persistence; :class:`PostgresServer` runs
+:class:`RedisServer` runs ``redis-server`` without persistence (or, with ``appendonly=True``, with an
+append-only file, and then :meth:`RedisServer.restart` stops it and starts it again on the same port
+and file, as an operator's restart would); :class:`PostgresServer` runs
 ``initdb`` + ``postgres`` in a temporary directory (as the ``postgres`` system user when the
 tests run as root, since PostgreSQL refuses to run as root). Both take a free loopback port,
 wait until they answer, and stop gently, then by force; an atexit hook kills whatever is left.
@@ -207,12 +209,18 @@ def postgres_available() -> bool:
 
 
 class RedisServer:
-    """``redis-server`` on a free 127.0.0.1 port, no persistence, in its own temp dir."""
+    """``redis-server`` on a free 127.0.0.1 port in its own temp dir; no persistence unless ``appendonly``.
 
-    def __init__(self) -> None:
+    ``appendonly=True``: an append-only file written on every command (``appendfsync always``), so that
+    :meth:`restart` brings the server back with every message it held, as a production broker would.
+    """
+
+    def __init__(self, *, appendonly: bool = False) -> None:
+        self.appendonly = appendonly
         self.port: int | None = None
         self.dir: Path | None = None
         self.proc: subprocess.Popen | None = None
+        self.restarts = 0
 
     @property
     def url(self) -> str:
@@ -227,14 +235,22 @@ class RedisServer:
         binary = _redis_binary()
         if binary is None:
             raise RuntimeError(f"redis-server not found; install it: {INSTALL_HINT}")
+        if self.dir is None:                      # a first start (restart() keeps the directory and port)
+            self.dir = _make_tmpdir("scanmill-redis-")
+            self.port = _free_port()
+        self._spawn(binary)
+        return self
+
+    def _spawn(self, binary: str) -> None:
+        """Run redis-server on ``self.port`` in ``self.dir`` and wait (bounded) until it answers PING."""
         import redis
 
-        self.dir = _make_tmpdir("scanmill-redis-")
-        self.port = _free_port()
-        with open(self.log_path, "wb") as log:
+        persistence = (["--appendonly", "yes", "--appendfsync", "always", "--appendfilename", "broker.aof"]
+                       if self.appendonly else ["--appendonly", "no"])
+        with open(self.log_path, "ab") as log:
             self.proc = subprocess.Popen(
                 [binary, "--port", str(self.port), "--bind", "127.0.0.1", "--dir", str(self.dir),
-                 "--save", "", "--appendonly", "no", "--daemonize", "no", "--logfile", ""],
+                 "--save", "", *persistence, "--daemonize", "no", "--logfile", ""],
                 stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, cwd=self.dir,
                 start_new_session=True)
         _LIVE_PROCS[self.proc.pid] = (self.proc, signal.SIGTERM)
@@ -246,7 +262,18 @@ class RedisServer:
                 client.close()
 
         _wait_ready(self, ping, redis.exceptions.RedisError, f"redis-server on port {self.port} never answered PING")
-        return self
+
+    def restart(self, down_s: float = 0.0) -> None:
+        """Stop the server (SIGTERM: it flushes its append-only file), stay down ``down_s`` seconds, and start
+        it again on the same port and directory (bounded waits). Only meaningful with ``appendonly=True``:
+        without it the restarted server is empty."""
+        binary = _redis_binary()
+        assert binary is not None and self.dir is not None, "restart() needs a started server"
+        _stop_process(self.proc, signal.SIGTERM)
+        self.proc = None
+        time.sleep(down_s)
+        self._spawn(binary)                  # redis-server binds with SO_REUSEADDR: the same port is free again
+        self.restarts += 1
 
     def stop(self) -> None:
         _stop_process(self.proc, signal.SIGTERM)

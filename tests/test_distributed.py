@@ -262,3 +262,135 @@ def test_embedded_backend_on_postgres_and_a_store_outage_answers_503(tmp_path):
             assert "503" in doc["paths"]["/jobs/{job_id}"]["get"]["responses"]
     finally:
         pg.stop()
+
+
+@pytest.fixture
+def restartable_redis():
+    """A Redis of this test's own, with its append-only file, that the test may restart (same port, same file)."""
+    from servers import RedisServer
+
+    with RedisServer(appendonly=True) as server:
+        yield server
+
+
+def test_two_redis_restarts_during_a_job_neither_fail_it_nor_cost_an_attempt(cluster, restartable_redis):
+    """Issue 13, finding 2: Redis restarts twice, ~6 s down each time, while a job runs (the worker reconnects in
+    between). The running task is not terminated, the worker does not stop, the copy of the message the broker
+    hands out again finds the job running with a live heartbeat and leaves it alone: the job succeeds on
+    attempt 1, and the next job runs too."""
+    redis_srv = restartable_redis
+    settings = {"broker_url": redis_srv.url, "max_attempts": 2}
+    with _api(cluster, **settings) as api, api.client() as c, \
+            _worker(cluster, "wr", workers=2, worker_start_delay_s=20, **settings) as w:
+        jid = submit(c, cluster["cloud"]).json()["id"]
+        wait_until(lambda: _row(cluster, jid)["status"] == "running", max_polls=600)
+        for outage in (1, 2):
+            row = _row(cluster, jid)
+            assert (row["status"], row["attempts"]) == ("running", 1), (outage, row)   # the outage hits the job
+            connected = w.log_text().count("consumer.connection: Connected to ")
+            redis_srv.restart(down_s=6)
+            # the worker reconnects by itself (the second time, while the job finishes)
+            wait_until(lambda n=connected: w.log_text().count("consumer.connection: Connected to ") > n, max_polls=600)
+        job = wait_status(c, jid, max_polls=1200)
+        assert job["status"] == "succeeded", job
+        assert job["attempts"] == 1, job
+        log = w.log_text()
+        losses = [m.start() for m in re.finditer("Connection to broker lost", log)]
+        assert len(losses) == 2 and losses[1] < log.index(f"job {jid}: succeeded on attempt 1"), log[-3000:]
+        assert "cannot be acknowledged after a connection loss" not in log and "Unrecoverable error" not in log
+        assert f"job {jid}: delivery redelivered: nothing to do (busy)" in log    # the copy left the job alone
+        assert "took over from a lost worker" not in log
+        # the worker is still there and the broker works again: a new job is published, delivered and claimed
+        again = submit(c, cluster["cloud"]).json()["id"]
+        wait_until(lambda: _row(cluster, again)["status"] == "running", max_polls=600)
+        assert _row(cluster, again)["worker"].startswith("wr@test/") and w.proc.poll() is None
+        assert c.delete(f"/jobs/{again}").status_code == 200          # (so that the worker stops at once)
+
+
+def test_healthz_counts_the_job_slots_of_the_live_celery_workers(cluster):
+    """Issue 13, finding 8 (Celery): /healthz reported ``workers: 0`` while workers ran. It now reports the job
+    slots of the workers that answer the API's census through the broker, and follows them as they come and go."""
+    with _api(cluster) as api, api.client() as c:
+        assert c.get("/healthz").json()["workers"] == 0                       # no worker yet
+        with _worker(cluster, "h1", workers=1), _worker(cluster, "h2", workers=2) as h2:
+            health = wait_until(lambda: (h := c.get("/healthz").json())["workers"] == 3 and h, max_polls=300)
+            assert health["status"] == "ok" and health["busy_workers"] == 0
+            h2.stop()
+            wait_until(lambda: c.get("/healthz").json()["workers"] == 1, max_polls=300)
+
+
+def test_a_job_over_its_memory_limit_fails_alone_on_the_worker(cluster):
+    """Each Celery pool child runs its job under SCANMILL_JOB_MEMORY_MB (an address-space limit set when the attempt
+    starts). A job that needs far more (1-degree orientation steps: matrices of gigabytes) fails
+    ``memory_limit_exceeded`` on its first attempt, with the message naming the limit; the same child then runs a
+    job within the budget. (The API admits the job: its own budget is large, so only the worker's limit acts.)"""
+    import copy
+
+    from service_fixtures import HALF_SPHERE_PARAMS
+
+    from service.memlimit import memory_limit_message
+
+    greedy = copy.deepcopy(HALF_SPHERE_PARAMS)
+    greedy["orientations"] = {"phi_step_deg": 1, "theta_step_deg": 1}
+    with _api(cluster, job_memory_mb=1024 * 1024) as api, api.client() as c, \
+            _worker(cluster, "wm", workers=1, worker_threads=1, job_memory_mb=400) as w:
+        r = submit(c, cluster["cloud"], greedy)
+        assert r.status_code == 202, r.text
+        job = wait_status(c, r.json()["id"], max_polls=1200)
+        assert job["status"] == "failed", job
+        assert job["error"] == {"code": "memory_limit_exceeded", "message": memory_limit_message(400)}, job
+        assert job["attempts"] == 1, job
+        assert f"job {job['id']}: failed [memory_limit_exceeded]" in w.log_text()
+        children = w.children()
+        ok = wait_status(c, submit(c, cluster["cloud"]).json()["id"], max_polls=1200)
+        assert ok["status"] == "succeeded" and ok["attempts"] == 1, ok
+        assert w.children() == children                           # the same pool child, its limit set anew
+
+
+def test_the_worker_census_answers_from_memory_and_forgets_a_silent_broker():
+    """/healthz reads the census and never waits on the broker: a dead broker gives no count (at once), a census
+    counts each answering worker's pool size, and a count older than the census's max age is dropped."""
+    import time
+    from types import SimpleNamespace
+
+    from service.celery_app import configure
+    from service.celery_backend import WorkerCensus
+    from service.settings import Settings
+
+    dead = WorkerCensus(configure(Settings(backend="celery", broker_url="redis://127.0.0.1:1/0")))
+    assert dead.take() is None and dead.workers() == {}
+
+    class Conn:
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def ensure_connection(self, **_):
+            return self
+
+    stats = {"w1@a": {"pool": {"max-concurrency": 2}}, "w2@b": {"pool": {"max-concurrency": 1}}}
+    app = SimpleNamespace(connection_for_write=Conn,
+                          control=SimpleNamespace(inspect=lambda **_: SimpleNamespace(stats=lambda: stats)))
+    census = WorkerCensus(app, max_age_s=0.05)
+    assert census.take() == {"w1@a": 2, "w2@b": 1} == census.workers()
+    time.sleep(0.1)
+    assert census.workers() == {}
+
+
+def test_broker_settings_pick_the_fixed_redis_transport_and_keep_tls():
+    import ssl
+
+    from service.celery_app import broker_options
+    from service.settings import Settings
+
+    def opts(url):
+        return broker_options(Settings(backend="celery", broker_url=url))
+
+    plain = opts("redis://127.0.0.1:6379/0")
+    assert plain["broker_transport"] == "service.celery_app:RedisTransport" and plain["broker_use_ssl"] is None
+    assert plain["broker_transport_options"]["socket_keepalive"] is True
+    assert opts("rediss://h:6380/0")["broker_use_ssl"] == {"ssl_cert_reqs": ssl.CERT_REQUIRED}
+    assert opts("rediss://h:6380/0?ssl_cert_reqs=none")["broker_use_ssl"] is None      # the URL says it
+    assert opts("memory://")["broker_transport"] is None

@@ -14,5 +14,6 @@ docs/design.md "The pipeline" describes each):
 9. ``report``        plan.json, plan.npz, the segmentation PLY and the PNG preview
 
 ``geometry`` (rasters, bases, the tool assembly, fixtures, collision queries) may be used by every
-stage and uses none; ``errors`` holds the typed errors every stage raises.
+stage and uses none; ``errors`` holds the typed errors every stage raises; ``budget`` estimates the
+memory a plan will need from its parameters, before it runs.
 """

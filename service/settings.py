@@ -33,6 +33,15 @@ def host_memory_mb() -> int:
         return 0
 
 
+def _comma_list(v: Any) -> Any:
+    """A comma-separated string or a list as a list of non-empty stripped strings (anything else unchanged)."""
+    if isinstance(v, str):
+        v = v.split(",")
+    if isinstance(v, (list, tuple)):
+        return [str(x).strip() for x in v if str(x).strip()]
+    return v
+
+
 class SettingsError(ValueError):
     """A setting has a bad value; the message names the variable and the allowed range."""
 
@@ -152,31 +161,23 @@ class Settings(BaseModel):
     @field_validator("forwarded_allow_ips", mode="before")
     @classmethod
     def _split_ips(cls, v: Any) -> Any:
-        if isinstance(v, str):
-            v = v.split(",")
-        if isinstance(v, (list, tuple)):
-            out = [str(x).strip() for x in v if str(x).strip()]
-            for x in out:
-                if x != "*":
-                    try:
-                        ipaddress.ip_network(x, strict=False)
-                    except ValueError:
-                        raise ValueError(f"{x!r} is not an IP address or network (or '*')") from None
-            return out
-        return v
+        out = _comma_list(v)
+        for x in out if isinstance(out, list) else ():
+            if x != "*":
+                try:
+                    ipaddress.ip_network(x, strict=False)
+                except ValueError:
+                    raise ValueError(f"{x!r} is not an IP address or network (or '*')") from None
+        return out
 
     @field_validator("api_keys", mode="before")
     @classmethod
     def _split_keys(cls, v: Any) -> Any:
-        if isinstance(v, str):
-            v = v.split(",")
-        if isinstance(v, (list, tuple)):
-            keys = [str(k).strip() for k in v if str(k).strip()]
-            for k in keys:
-                if len(k) < 8 or any(c.isspace() for c in k):
-                    raise ValueError("every API key needs at least 8 characters and no spaces")
-            return keys
-        return v
+        keys = _comma_list(v)
+        for k in keys if isinstance(keys, list) else ():
+            if len(k) < 8 or any(c.isspace() for c in k):
+                raise ValueError("every API key needs at least 8 characters and no spaces")
+        return keys
 
     @model_validator(mode="after")
     def _backend_needs(self) -> "Settings":

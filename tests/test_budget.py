@@ -131,14 +131,21 @@ def test_estimate_is_cheap_and_works_without_an_extent():
 
 
 def _measure(tmp_path: Path, params: dict) -> dict:
-    """Run one job as the embedded worker does (bench/bench_admission.py --one) and return its measurements."""
+    """Run one job as the embedded worker does (bench/bench_admission.py --one) and return its measurements.
+
+    The job runs twice and the second run is measured: on a fresh checkout the first run compiles the
+    numba kernels (LLVM maps hundreds of MiB while it compiles) and writes them to numba's cache; the
+    estimate bounds a job whose kernels are cached, as they are from the second job of an install on.
+    """
     ply = tmp_path / "half.ply"
     if not ply.exists():
         s = half_sphere()
         write_ply(ply, s.points, normals=s.normals, binary=True)
-    out = subprocess.run([sys.executable, str(ROOT / "bench" / "bench_admission.py"), "--one", str(ply),
-                          json.dumps(params)], cwd=ROOT, capture_output=True, text=True, timeout=900, check=False)
-    assert out.returncode == 0, out.stderr[-3000:]
+    for _ in range(2):
+        out = subprocess.run([sys.executable, str(ROOT / "bench" / "bench_admission.py"), "--one", str(ply),
+                              json.dumps(params)], cwd=ROOT, capture_output=True, text=True, timeout=900,
+                             check=False)
+        assert out.returncode == 0, out.stderr[-3000:]
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 

@@ -117,14 +117,28 @@ def no_attempt_files(e: Env, job_id: str) -> bool:
     return not any(d.glob("work-*")) and not e.storage.result_dir(job_id).exists()
 
 
+def run_to_the_end(e, jid):
+    """Start a job runner, wait until the job is final, stop the runner; the job."""
+    runner = e.runner()
+    try:
+        return wait_final(e.store, jid)
+    finally:
+        runner.stop()
+
+
+def recover_at_next_start(e, jid):
+    """What a new server's start does with the job: ``JobRunner.recover()`` on a fresh store; (outcome, job)."""
+    store2 = JobStore(e.storage.db_path)
+    try:
+        return JobRunner(e.settings, store2, e.storage).recover(), store2.get(jid)
+    finally:
+        store2.close()
+
+
 def test_a_job_does_not_start_when_the_disk_is_short_of_its_reserve(env):
     e = env(min_free_disk_mb=HUGE_MB)
     jid = e.add_job()
-    runner = e.runner()
-    try:
-        job = wait_final(e.store, jid)
-    finally:
-        runner.stop()
+    job = run_to_the_end(e, jid)
     assert job.status == "failed" and job.error_code == "insufficient_storage", (job.status, job.error_code)
     msg = job.error_message
     assert "SCANMILL_MIN_FREE_DISK_MB" in msg and "MiB are free" in msg and "not started" in msg
@@ -136,11 +150,7 @@ def test_an_artifact_write_that_hits_a_full_disk_fails_the_job_naming_the_free_s
     e = env()
     jid = e.add_job()
     monkeypatch.setattr(service.workers, "run_job", run_job_disk_full)
-    runner = e.runner()
-    try:
-        job = wait_final(e.store, jid)
-    finally:
-        runner.stop()
+    job = run_to_the_end(e, jid)
     assert job.status == "failed" and job.error_code == "disk_full", (job.error_code, job.error_message)
     assert "No space left on device" in job.error_message and "MiB free" in job.error_message
     assert "SCANMILL_DATA_DIR" in job.error_message
@@ -155,11 +165,7 @@ def test_a_publication_that_hits_a_full_disk_fails_the_job(env, monkeypatch):
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(Storage, "publish_result", publish_disk_full)
-    runner = e.runner()
-    try:
-        job = wait_final(e.store, jid)
-    finally:
-        runner.stop()
+    job = run_to_the_end(e, jid)
     assert job.status == "failed" and job.error_code == "disk_full", (job.error_code, job.error_message)
     assert "MiB free" in job.error_message
     assert no_attempt_files(e, jid)
@@ -197,12 +203,7 @@ def test_a_failure_the_store_cannot_record_is_settled_at_the_next_start(env, mon
     finally:
         runner.stop()
     # the service stops with the job still 'running' in the store; the next start settles it, no re-run
-    store2 = JobStore(e.storage.db_path)
-    try:
-        out = JobRunner(e.settings, store2, e.storage).recover()
-        job = store2.get(jid)
-    finally:
-        store2.close()
+    out, job = recover_at_next_start(e, jid)
     assert out["failed"] == [jid] and out["requeued"] == [], out
     assert job.status == "failed" and job.error_code == "disk_full" and job.attempts == 1
     assert "MiB free" in job.error_message
@@ -248,11 +249,6 @@ def test_a_published_plan_the_store_never_recorded_succeeds_at_the_next_start(en
         assert (e.storage.result_dir(jid) / "plan.json").is_file()   # published; the store still says running
     finally:
         runner.stop()
-    store2 = JobStore(e.storage.db_path)
-    try:
-        out = JobRunner(e.settings, store2, e.storage).recover()
-        job = store2.get(jid)
-    finally:
-        store2.close()
+    out, job = recover_at_next_start(e, jid)
     assert out["succeeded"] == [jid], out
     assert job.status == "succeeded" and job.attempts == 1 and job.result["n_setups"] >= 1

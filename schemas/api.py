@@ -21,8 +21,9 @@ API_VERSION = "1"
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 #: Statuses of a job that is done: its worker has stopped and its files no longer change.
 FINISHED_STATUSES: tuple[str, ...] = ("succeeded", "failed", "cancelled")
-#: The stages a running job goes through, in order ("read" the cloud, the pipeline's five, "write").
-JOB_STAGES: tuple[str, ...] = ("read", "normals", "orientations", "visibility", "setups", "areas", "write")
+#: The stages a running job goes through, in order ("read" the cloud, the pipeline's seven, "write").
+JOB_STAGES: tuple[str, ...] = ("read", "normals", "orientations", "visibility", "setups", "areas", "paths", "post",
+                               "write")
 CloudFormat = Literal["ply", "pcd", "xyz", "csv", "txt"]
 
 
@@ -74,7 +75,8 @@ class Job(_Model):
     id: str = Field(..., description="Job identifier (32 hex digits).", examples=["3f2b0c3e9a1d4b7c8e6f5a4b3c2d1e0f"])
     status: JobStatus = Field(..., description="queued -> running -> succeeded | failed; cancelled by DELETE.")
     stage: str | None = Field(None, description="Current (or last) stage: read, normals, orientations, visibility, "
-                                                "setups, areas, write (later versions may add stages).",
+                                                "setups, areas, paths, post, write (later versions may add "
+                                                "stages).",
                               examples=["visibility"])
     progress: float = Field(..., ge=0, le=1, description="Fraction of the whole job done, 0..1.")
     message: str | None = Field(None, description="Latest progress message.")

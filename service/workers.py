@@ -79,8 +79,10 @@ THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NU
 PRELOAD = ["numpy", "planning.inputs.cloud", "planning.pipeline", "planning.report.plan_files", "schemas.params"]
 
 #: Share of the whole job each stage stands for (for ``progress`` 0..1); rough, from the benchmarks.
-STAGE_WEIGHTS = {"read": 0.05, "normals": 0.35, "orientations": 0.05, "visibility": 0.2, "setups": 0.2,
-                 "areas": 0.05, "write": 0.1}
+# Share of a job's time per stage, from the femur-like and half-sphere plans with paths (BENCHMARKS.md):
+# the tool paths take about half of it, the collision checks of visibility a quarter.
+STAGE_WEIGHTS = {"read": 0.03, "normals": 0.07, "orientations": 0.01, "visibility": 0.25, "setups": 0.08,
+                 "areas": 0.01, "paths": 0.45, "post": 0.04, "write": 0.06}
 _STAGE_START = {s: sum(STAGE_WEIGHTS[t] for t in JOB_STAGES[:i]) for i, s in enumerate(JOB_STAGES)}
 
 

@@ -181,6 +181,15 @@ def test_overall_progress_is_monotonic():
     assert values == sorted(values) and values[0] == 0.0 and values[-1] == 1.0
 
 
+def test_every_pipeline_stage_moves_the_progress():
+    """The tool paths and posts take most of a job's time: their progress must show, in pipeline order."""
+    from planning.pipeline import STAGES
+
+    assert list(STAGES) == [s for s in JOB_STAGES if s in STAGES]
+    for s in STAGES:
+        assert overall_progress(s, 0.0) < overall_progress(s, 1.0), s
+
+
 # -- auth --------------------------------------------------------------------------------------
 
 def _request(host: str, settings):

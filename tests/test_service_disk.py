@@ -118,10 +118,11 @@ def no_attempt_files(e: Env, job_id: str) -> bool:
 
 
 def run_to_the_end(e, jid):
-    """Start a job runner, wait until the job is final, stop the runner; the job."""
+    """Start a job runner, wait until the job is final, stop the runner; the job and what the runner still
+    had to record in the store then (``unsettled``)."""
     runner = e.runner()
     try:
-        return wait_final(e.store, jid)
+        return wait_final(e.store, jid), runner.unsettled
     finally:
         runner.stop()
 
@@ -138,7 +139,7 @@ def recover_at_next_start(e, jid):
 def test_a_job_does_not_start_when_the_disk_is_short_of_its_reserve(env):
     e = env(min_free_disk_mb=HUGE_MB)
     jid = e.add_job()
-    job = run_to_the_end(e, jid)
+    job, _ = run_to_the_end(e, jid)
     assert job.status == "failed" and job.error_code == "insufficient_storage", (job.status, job.error_code)
     msg = job.error_message
     assert "SCANMILL_MIN_FREE_DISK_MB" in msg and "MiB are free" in msg and "not started" in msg
@@ -150,7 +151,7 @@ def test_an_artifact_write_that_hits_a_full_disk_fails_the_job_naming_the_free_s
     e = env()
     jid = e.add_job()
     monkeypatch.setattr(service.workers, "run_job", run_job_disk_full)
-    job = run_to_the_end(e, jid)
+    job, _ = run_to_the_end(e, jid)
     assert job.status == "failed" and job.error_code == "disk_full", (job.error_code, job.error_message)
     assert "No space left on device" in job.error_message and "MiB free" in job.error_message
     assert "SCANMILL_DATA_DIR" in job.error_message
@@ -165,7 +166,7 @@ def test_a_publication_that_hits_a_full_disk_fails_the_job(env, monkeypatch):
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(Storage, "publish_result", publish_disk_full)
-    job = run_to_the_end(e, jid)
+    job, _ = run_to_the_end(e, jid)
     assert job.status == "failed" and job.error_code == "disk_full", (job.error_code, job.error_message)
     assert "MiB free" in job.error_message
     assert no_attempt_files(e, jid)
@@ -215,12 +216,7 @@ def test_a_store_that_refuses_writes_for_a_while_gets_the_failure_later(env, mon
     jid = e.add_job()
     monkeypatch.setattr(service.workers, "run_job", run_job_disk_full)
     calls = failing_store_writes(e.store, 6)     # more than one supervisor's tries: the dispatcher lands it
-    runner = e.runner()
-    try:
-        job = wait_final(e.store, jid)
-        unsettled = runner.unsettled
-    finally:
-        runner.stop()
+    job, unsettled = run_to_the_end(e, jid)
     assert job.status == "failed" and job.error_code == "disk_full" and calls["n"] == 7
     assert unsettled == [] and not (e.storage.job_dir(jid) / "outcome-1.json").exists()
 
@@ -229,12 +225,7 @@ def test_a_success_the_store_refuses_for_a_while_is_recorded_later(env):
     e = env()
     jid = e.add_job()
     calls = failing_store_writes(e.store, 6, "succeed")   # the files are published first, the row follows
-    runner = e.runner()
-    try:
-        job = wait_final(e.store, jid)
-        unsettled = runner.unsettled
-    finally:
-        runner.stop()
+    job, unsettled = run_to_the_end(e, jid)
     assert job.status == "succeeded" and calls["n"] == 7 and unsettled == []
     assert (e.storage.result_dir(jid) / "plan.json").is_file() and not any(e.storage.job_dir(jid).glob("work-*"))
 

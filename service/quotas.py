@@ -71,8 +71,7 @@ def check(settings: Settings, store: JobStore, owner: str, adding_bytes: int) ->
 
     Raises :class:`TooManyJobs` or :class:`StorageQuotaExceeded`. The insert checks again atomically.
     """
-    active, used = store.usage(owner)
-    if active >= settings.max_queued_jobs_per_key:
-        raise TooManyJobs(active, settings.max_queued_jobs_per_key)
-    if used + int(adding_bytes) > settings.max_stored_bytes_per_key:
-        raise StorageQuotaExceeded(used, int(adding_bytes), settings.max_stored_bytes_per_key)
+    try:
+        store.check_quota(owner, int(adding_bytes), **limits(settings))
+    except QuotaExceeded as exc:
+        raise refusal(exc) from None

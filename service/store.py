@@ -72,6 +72,14 @@ class QuotaExceeded(Exception):
         self.kind, self.used, self.adding, self.limit = kind, int(used), int(adding), int(limit)
 
 
+def _check_quota(active: int, used: int, adding: int, max_active: int | None, max_stored_bytes: int | None) -> None:
+    """The per-owner limits: ``max_active`` jobs queued or running, ``max_stored_bytes`` bytes stored."""
+    if max_active is not None and active >= max_active:
+        raise QuotaExceeded("jobs", active, 1, max_active)
+    if max_stored_bytes is not None and used + adding > max_stored_bytes:
+        raise QuotaExceeded("bytes", used, adding, max_stored_bytes)
+
+
 class IdempotencyConflict(Exception):
     """The owner already used this Idempotency-Key; ``existing`` is that job."""
 
@@ -197,12 +205,7 @@ class JobStore:
                     if row is not None:
                         raise IdempotencyConflict(JobRecord.from_row(row))
                 if max_active is not None or max_stored_bytes is not None:
-                    active, used = self._usage(c, owner)
-                    if max_active is not None and active >= max_active:
-                        raise QuotaExceeded("jobs", active, 1, max_active)
-                    adding = int(stored_bytes or 0)
-                    if max_stored_bytes is not None and used + adding > max_stored_bytes:
-                        raise QuotaExceeded("bytes", used, adding, max_stored_bytes)
+                    _check_quota(*self._usage(c, owner), int(stored_bytes or 0), max_active, max_stored_bytes)
                 return JobRecord.from_row(c.execute(stmt).fetchone())
         except sa.exc.IntegrityError:
             existing = self.find_by_idempotency_key(owner, idempotency_key) if idempotency_key else None
@@ -244,6 +247,13 @@ class JobStore:
         """(jobs queued or running, bytes stored) of ``owner``, in one query (unmeasured jobs count 0 bytes)."""
         with self.engine.connect() as c:
             return self._usage(c, owner)
+
+    def check_quota(self, owner: str, adding_bytes: int, max_active: int | None,
+                    max_stored_bytes: int | None) -> None:
+        """Raise :class:`QuotaExceeded` if one more job of ``owner`` adding ``adding_bytes`` would pass a limit
+        (the same test :meth:`create` makes atomically with its insert; this one takes no lock)."""
+        with self.engine.connect() as c:
+            _check_quota(*self._usage(c, owner), int(adding_bytes), max_active, max_stored_bytes)
 
     def get(self, job_id: str, owner: str | None = None) -> JobRecord | None:
         """The job, or None (also when ``owner`` is given and is not the job's owner)."""

@@ -43,7 +43,7 @@ from celery.exceptions import SoftTimeLimitExceeded
 from celery.signals import worker_process_init
 
 from service.celery_app import TASK_NAME, app
-from service.memlimit import apply_job_memory_limit, memory_limit_message
+from service.memlimit import apply_job_memory_limit, is_memory_exhaustion, memory_limit_message
 from service.settings import Settings, load_settings
 from service.storage import Storage
 from service.store import JobRecord, JobStore
@@ -219,11 +219,6 @@ def _lift_memory_limit(before: tuple[int, int] | None) -> None:
             log.warning("could not lift the job memory limit", exc_info=True)
 
 
-def _out_of_memory(exc: BaseException) -> bool:
-    """Whether the attempt failed for want of memory (MemoryError, or a C++ allocation failure)."""
-    return isinstance(exc, MemoryError) or (isinstance(exc, RuntimeError) and "bad_alloc" in str(exc))
-
-
 def _run_attempt(ctx: _Context, job: JobRecord) -> str:
     store, storage, s = ctx.store, ctx.storage, ctx.settings
     spec = job_spec(job, s, storage)
@@ -248,7 +243,7 @@ def _run_attempt(ctx: _Context, job: JobRecord) -> str:
     except Exception as exc:  # noqa: BLE001 - every failure becomes a job error with a reason
         stop.set()
         storage.remove_work(job.id, job.attempts)
-        if _out_of_memory(exc):
+        if is_memory_exhaustion(exc):
             store.fail(job.id, job.attempts, "memory_limit_exceeded", memory_limit_message(limit_mb))
             log.warning("job %s: failed [memory_limit_exceeded]: it needed more than its %d MiB (%s)", job.id,
                         limit_mb, type(exc).__name__)

@@ -86,15 +86,15 @@ def is_memory_exhaustion(exc: BaseException) -> bool:
     """Whether ``exc`` is how running out of memory (or of the address-space limit) shows in Python code.
 
     :class:`MemoryError` (numpy's ``_ArrayMemoryError`` included), an :class:`OSError` with
-    ``ENOMEM``, a thread that cannot start (its stack cannot be mapped) and a shared library that
-    cannot be mapped while being imported.
+    ``ENOMEM``, a thread that cannot start (its stack cannot be mapped), a C++ allocation failure
+    (``bad_alloc``) and a shared library that cannot be mapped while being imported.
     """
     if isinstance(exc, MemoryError):
         return True
     if isinstance(exc, OSError) and exc.errno == errno.ENOMEM:
         return True
     text = str(exc).lower()
-    if isinstance(exc, RuntimeError) and "can't start new thread" in text:
+    if isinstance(exc, RuntimeError) and ("can't start new thread" in text or "bad_alloc" in text):
         return True
     return isinstance(exc, ImportError) and ("cannot allocate memory" in text or "failed to map segment" in text)
 

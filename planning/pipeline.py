@@ -27,6 +27,8 @@ from planning.toolpath.area_paths import area_toolpaths
 from planning.visibility import GlobalVisibility, cone_visibility, global_visibility
 from schemas.params import PlanConfig
 from schemas.plan import (
+    AreaRegions,
+    AreasSummary,
     AxisFilters,
     InputSummary,
     NormalsSummary,
@@ -248,11 +250,11 @@ def _areas_warnings(areas: Areas, nrm: _Normals) -> list[str]:
 
 def _paths(points: np.ndarray, areas: Areas, sel_axes: np.ndarray, tool, gv: GlobalVisibility,
            config: PlanConfig, progress) -> list:
-    """Stage 7 (Makki §4; Sood; Popescu; Tchanchane & Bey): roughing and finishing per area, area frames."""
+    """Stage 7 (Makki §4; Sood; Popescu; Tchanchane & Bey): roughing and finishing per area and region."""
     return area_toolpaths(
         points, areas.input_labels, sel_axes, tool=tool, paths_params=config.paths, fixtures=gv.fixtures,
         forbidden=gv.forbidden_mm, max_slope_deg=min(float(config.visibility.cone_deg[1]), 87.0),
-        progress=progress)
+        input_regions=areas.input_regions, progress=progress)
 
 
 def _paths_warnings(area_paths) -> list[str]:
@@ -281,8 +283,20 @@ def _setup_rows(ori: _Orientations, vis: np.ndarray, selected: np.ndarray, areas
             rotary_deg={names[0]: float(angles[j, 0]), names[1]: float(angles[j, 1])},
             n_visible=int(vis[:, j].sum()), n_points=int(lab.sum()),
             n_integrated=int((lab & areas.integrated).sum()),
-            n_input_points=int((areas.input_labels == i).sum()), path=path_summaries.get(i)))
+            n_input_points=int((areas.input_labels == i).sum()), regions=_regions_row(areas, i),
+            path=path_summaries.get(i)))
     return setups
+
+
+def _regions_row(areas: Areas, i: int) -> AreaRegions | None:
+    """plan.json ``setups[i].regions`` from the areas stage's figures."""
+    if i >= len(areas.figures):
+        return None
+    f = areas.figures[i]
+    return AreaRegions(n_regions=f.n_regions, largest_region_share=round(f.largest_region_share, 6),
+                       n_small_regions=f.n_small_regions, min_regions=f.min_regions,
+                       n_visible_regions=f.n_visible_regions, area_mm2=round(f.area_mm2, 3),
+                       seam_mm=round(f.seam_mm, 3))
 
 
 def _plan_arrays(nrm: _Normals, ori: _Orientations, vis: np.ndarray, selected: np.ndarray, areas: Areas,
@@ -330,7 +344,8 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     selected = np.asarray(sel.selected, dtype=np.int64)
     sel_axes = ori.axes[selected]
     areas = run.stage("areas", lambda p: assign_areas(points, nrm.sample_index, nrm.normals, gv.visible,
-                                                      selected, sel_axes, config.visibility.cone_deg))
+                                                      selected, sel_axes, config.visibility.cone_deg,
+                                                      config.areas))
     run.warnings += _areas_warnings(areas, nrm)
     area_paths = []
     pp = config.paths
@@ -348,7 +363,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
                           _setup_rows(ori, gv.visible, selected, areas, names, path_summaries), run)
     return PlanOutcome(result=result, arrays=_plan_arrays(nrm, ori, gv.visible, selected, areas, area_paths),
                        points=points, input_labels=areas.input_labels, selected_axes=sel_axes,
-                       extra={"programs": programs, "area_paths": area_paths})
+                       extra={"programs": programs, "area_paths": area_paths, "areas": areas})
 
 
 def _plan_result(cloud: Cloud, config: PlanConfig, name, nrm: _Normals, ori: _Orientations, vis: _Visibility,
@@ -376,4 +391,7 @@ def _plan_result(cloud: Cloud, config: PlanConfig, name, nrm: _Normals, ori: _Or
                             best_coverage_at_max=sel.best_coverage_at_max, n_classes=int(sel.n_classes),
                             seconds=float(sel.seconds), message=sel.message),
         setups=setups, coverage=float(sel.coverage), overlap_points=int(sel.overlap),
-        n_integrated=int(areas.integrated.sum()), timings=run.timings, warnings=run.warnings)
+        n_integrated=int(areas.integrated.sum()),
+        areas=AreasSummary(method=areas.method, n_regions=sum(f.n_regions for f in areas.figures),
+                           seam_mm=round(areas.seam_mm, 3), label_change_share=round(areas.label_change_share, 6)),
+        timings=run.timings, warnings=run.warnings)

@@ -54,12 +54,15 @@ def _load_config(args) -> dict:
 
 
 def _summary_table(result) -> str:
-    rows = [("set-up", "tool axis (x, y, z)", "phi/theta deg", "rotary deg", "visible", "points", "integrated")]
+    rows = [("set-up", "tool axis (x, y, z)", "phi/theta deg", "rotary deg", "visible", "points", "integrated",
+             "regions (min)", "largest", "seam mm")]
     for s in result.setups:
         rot = " ".join(f"{k}{v:+.1f}" for k, v in s.rotary_deg.items())
+        g = s.regions
+        reg = (f"{g.n_regions} ({g.min_regions})", f"{g.largest_region_share:.0%}", f"{g.seam_mm:.0f}") if g else ("", "", "")
         rows.append((str(s.id), "({:+.3f}, {:+.3f}, {:+.3f})".format(*s.tool_axis),
                      f"{s.phi_deg:.0f}/{s.theta_deg:.0f}", rot, str(s.n_visible), str(s.n_points),
-                     str(s.n_integrated)))
+                     str(s.n_integrated)) + reg)
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
@@ -110,6 +113,10 @@ def cmd_plan(args) -> int:
     print(f"sampled points {r.normals.n_sampled} of {r.input.n_points}; candidate axes "
           f"{r.orientations.n_machine_feasible} within machine travel; coverage {r.coverage:.1%}; "
           f"overlap {r.overlap_points} points; integrated {r.n_integrated}")
+    if r.areas is not None:
+        print(f"areas ({r.areas.method}): {r.areas.n_regions} regions, seams {r.areas.seam_mm:.0f} mm, "
+              f"{r.areas.label_change_share:.1%} of neighbour pairs change area; regions (min) = regions "
+              f"(at least this many forced by the visibility)")
     print(_summary_table(r))
     paths_text = _paths_table(r)
     if paths_text:

@@ -294,6 +294,31 @@ class SetupsParams(_Strict):
         60.0, gt=0, le=86_400, description="Time limit of the exact search, in seconds; the gap is reported if hit.")
 
 
+class AreasParams(_Strict):
+    """Assignment of every point to one chosen set-up (Makki §3.1), as contiguous regions with short
+    seams: a labelling energy over the points' neighbourhood graph minimised by a graph cut
+    (planning/areas/labelling.py; docs/design.md stage 6)."""
+
+    method: Literal["graphcut", "per_point"] = Field(
+        "graphcut", description="'graphcut': minimise comfort plus seam length (alpha-expansion); 'per_point': each "
+                                "point its most comfortable set-up alone, leftovers to the nearest labelled point "
+                                "(the former rule, speckled; kept for comparison).")
+    neighbours: int = Field(
+        8, ge=3, le=32, description="k of the symmetrised k-nearest-neighbour graph of the sampled points.")
+    smoothness_mm: float = Field(
+        5.0, ge=0, le=10_000,
+        description="lambda, mm: a seam 1 mm long costs as much as lambda mm^2 of surface machined at the edge of "
+                    "the tool cone instead of its middle. 0 = the per-point rule.")
+    sharp_edge_deg: float = Field(
+        30.0, ge=0, le=180, description="Neighbours whose normals differ by more than this (degrees) lie across a "
+                                        "sharp edge of the part, where a seam shows least.")
+    sharp_edge_weight: float = Field(
+        0.25, ge=0, le=1, description="Factor on the cost of a seam across a sharp edge (1 = no preference).")
+    min_region_mm2: float = Field(
+        25.0, ge=0, le=1e7, description="Regions smaller than this (mm^2) join a larger neighbouring area that sees "
+                                        "all their points; 0 keeps every region.")
+
+
 class FinishingParams(_Strict):
     """Ball-end finishing of each area by ball drop on the cloud (Sood 2015; Makki 2010 §4), with the
     ``tool`` above as the cutter."""
@@ -396,6 +421,7 @@ class PlanConfig(_Strict):
     fixtures: FixturesParams = Field(default_factory=FixturesParams)
     visibility: VisibilityParams = Field(default_factory=VisibilityParams)
     setups: SetupsParams = Field(default_factory=SetupsParams)
+    areas: AreasParams = Field(default_factory=AreasParams)
     paths: PathsParams = Field(default_factory=PathsParams)
     post: PostParams = Field(default_factory=PostParams)
 

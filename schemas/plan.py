@@ -90,7 +90,8 @@ class FrameSummary(_Out):
 class FinishingSummary(_Out):
     """Ball-end finishing of one area (frame units: mm)."""
 
-    n_passes: int
+    n_passes: int = Field(..., description="Passes, summed over the area's regions (a line across two regions counts twice).")
+    n_regions: int = Field(1, description="Connected regions of the area finished one after the other.")
     step_over_mm: float
     n_cl: int = Field(..., description="CL points (ball centres) of the final path, all moves; plan.npz cl_i.")
     n_cl_before_reduction: int = Field(..., description="CL points before CL reduction and arc fitting.")
@@ -136,6 +137,33 @@ class AreaPathSummary(_Out):
     seconds: dict[str, float] = Field(default_factory=dict, description="Time per path step, s.")
 
 
+class AreaRegions(_Out):
+    """The shape of one area on the points' neighbourhood graph (planning/areas/regions.py)."""
+
+    n_regions: int = Field(..., description="Connected regions of the area (each is machined on its own).")
+    largest_region_share: float = Field(..., description="Share of the area's sampled points in its largest region.")
+    n_small_regions: int = Field(
+        ..., description="Regions under areas.min_region_mm2 that stay: each holds a point only this set-up sees.")
+    min_regions: int = Field(
+        ..., description="Lower bound on n_regions from the visibility alone: connected pieces of the visible set "
+                         "holding a point no other chosen set-up sees.")
+    n_visible_regions: int = Field(
+        ..., description="Connected pieces (of at least areas.min_region_mm2) of the set of points this set-up sees.")
+    area_mm2: float = Field(..., description="Surface of the area, mm^2 (sum of the points' areas).")
+    seam_mm: float = Field(..., description="Length of the area's border with other areas, mm (Crofton estimate "
+                                            "over the cut graph edges, docs/design.md stage 6).")
+
+
+class AreasSummary(_Out):
+    """How the points were split into areas (stage 6)."""
+
+    method: Literal["graphcut", "per_point"]
+    n_regions: int = Field(..., description="Connected regions of all areas together.")
+    seam_mm: float = Field(..., description="Total seam length between areas, mm (each seam counted once).")
+    label_change_share: float = Field(
+        ..., description="Share of neighbour pairs of the sampled points (the kNN graph) carrying different areas.")
+
+
 class Setup(_Out):
     id: int = Field(..., ge=0, description="Area / set-up number, also the label in plan.npz.")
     candidate_index: int = Field(..., ge=0, description="Index into plan.npz candidate_axes.")
@@ -147,6 +175,7 @@ class Setup(_Out):
     n_points: int = Field(..., description="Sampled points labelled with this set-up (integrated ones included).")
     n_integrated: int = Field(..., description="Of those, leftovers attached by distance (accessibility not guaranteed).")
     n_input_points: int = Field(..., description="Points of the whole submitted cloud labelled with this set-up.")
+    regions: AreaRegions | None = Field(None, description="Connected regions and seam of the area.")
     path: AreaPathSummary | None = Field(
         None, description="Tool path summary (length, passes, CL count, clearance, programs); null when no path "
                           "was computed (paths disabled, or an area without points).")
@@ -203,6 +232,7 @@ class PlanResult(_Out):
     coverage: float = Field(..., description="Fraction of sampled points seen by at least one chosen orientation.")
     overlap_points: int
     n_integrated: int = Field(..., description="Sampled points attached to an area by distance.")
+    areas: AreasSummary | None = Field(None, description="Regions and seams of the areas together.")
     timings: list[Timing]
     warnings: list[str]
     artifacts: Artifacts = Field(default_factory=Artifacts)

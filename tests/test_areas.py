@@ -3,6 +3,9 @@
 import numpy as np
 
 from planning.areas.assign import assign_areas
+from schemas.params import AreasParams
+
+PER_POINT = AreasParams(method="per_point")
 
 
 def test_rules_on_a_hand_made_case():
@@ -15,7 +18,7 @@ def test_rules_on_a_hand_made_case():
     normals = np.array([up, up, up, up, up])
     axes = np.array([tilt30, tilt60])
     vis = np.array([[1, 0], [0, 1], [1, 1], [0, 0], [0, 0]], bool)
-    a = assign_areas(points, sample_index, normals, vis, np.array([0, 1]), axes, cone_deg=(10, 80))
+    a = assign_areas(points, sample_index, normals, vis, np.array([0, 1]), axes, cone_deg=(10, 80), params=PER_POINT)
     # point 2 is seen by both: angles 30 and 60 are both 15 from the middle 45 -> tie -> lowest id
     assert a.labels.tolist()[:3] == [0, 1, 0]
     assert a.overlap.tolist() == [False, False, True, False, False]
@@ -32,7 +35,7 @@ def test_overlap_goes_to_the_axis_nearest_the_cone_middle():
     a20 = np.array([np.sin(np.radians(20)), 0, np.cos(np.radians(20))])
     a40 = np.array([np.sin(np.radians(40)), 0, np.cos(np.radians(40))])
     a = assign_areas(points, np.array([0]), normals, np.array([[True, True]]), np.array([0, 1]),
-                     np.array([a20, a40]), cone_deg=(10, 80))
+                     np.array([a20, a40]), cone_deg=(10, 80), params=PER_POINT)
     assert a.labels.tolist() == [1]
 
 
@@ -44,7 +47,7 @@ def test_leftovers_match_brute_force_nearest():
     vis = rng.random((200, 3)) < 0.3
     axes = np.array([[0, 0.3, 0.95], [0.3, 0, 0.95], [-0.3, 0, 0.95]])
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
-    a = assign_areas(pts, sample_index, normals, vis, np.array([0, 1, 2]), axes)
+    a = assign_areas(pts, sample_index, normals, vis, np.array([0, 1, 2]), axes, params=PER_POINT)
     seen = vis.any(axis=1)
     sp = pts[sample_index]
     for i in np.flatnonzero(~seen):

@@ -1,13 +1,18 @@
-"""Areas (Makki 2010 §3.1): one set-up per sampled point, leftovers integrated, the whole scan labelled.
+"""Areas (Makki 2010 §3.1): one chosen set-up per sampled point, as contiguous regions; the whole
+scan labelled (issue 14).
 
-Rules (documented in the README):
-- a point seen by exactly one chosen axis takes it;
-- an overlap point (seen by several) takes the axis whose angle to its normal is nearest the
-  middle of the tool cone, (v1 + v2) / 2 (ties: the lowest set-up id) - the most comfortable cut;
-- a point no chosen axis sees (a leftover) takes the label of its nearest labelled point, which
-  realises the paper's attachment to the nearest area by point-to-set (Hausdorff) distance, and is
-  flagged ``integrated``: its accessibility is not guaranteed;
-- every input point takes the label of its nearest sampled point (so the whole scan is segmented).
+1. the neighbourhood graph of the sampled points (:mod:`planning.areas.graph`);
+2. a start: each point the most comfortable set-up that sees it (the angle between normal and
+   axis nearest the middle of the tool cone; ties: the lowest set-up id); a point no chosen set-up
+   sees (a leftover) the label of its nearest labelled point, which realises the paper's attachment
+   to the nearest area by point-to-set distance, flagged ``integrated`` (accessibility not
+   guaranteed);
+3. with ``areas.method = graphcut`` (default): the labelling energy (comfort plus seam length,
+   :mod:`planning.areas.labelling`) minimised by alpha-expansion from that start, then regions
+   smaller than ``areas.min_region_mm2`` merged into a larger neighbour that sees them
+   (:mod:`planning.areas.regions`). A point never takes a set-up that cannot see it, unless no
+   chosen set-up does;
+4. every input point takes the label and the region of its nearest sampled point.
 """
 
 from __future__ import annotations
@@ -17,52 +22,91 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from planning.visibility.cone import axis_normal_angles_deg
+from planning.areas.graph import SurfaceGraph, neighbour_graph
+from planning.areas.labelling import alpha_expansion, labelling_energy, per_point_labels
+from planning.areas.regions import AreaFigures, area_figures, merge_small_regions, region_index, seam_totals
+from schemas.params import AreasParams
 
 
 @dataclass(frozen=True)
 class Areas:
-    labels: np.ndarray        # (n,) int64 in [0, k): set-up of each sampled point
-    integrated: np.ndarray    # (n,) bool: leftover attached by distance
-    overlap: np.ndarray       # (n,) bool: seen by two or more chosen axes
-    input_labels: np.ndarray  # (N,) int64: set-up of every input point (via its nearest sampled point)
+    """``labels`` (n,) int64 in [0, k): set-up of each sampled point (-1 when no set-up is chosen);
+    ``integrated`` (n,) bool: seen by no chosen set-up; ``overlap`` (n,) bool: seen by two or more;
+    ``input_labels`` (N,): set-up of every input point; ``regions`` (n,) / ``input_regions`` (N,):
+    region number within the area (0 = its largest); ``figures``: per set-up
+    :class:`~planning.areas.regions.AreaFigures`; ``label_change_share``: share of graph edges
+    whose ends differ; ``seam_mm``: total seam length (mm); ``method``: the rule used."""
+
+    labels: np.ndarray
+    integrated: np.ndarray
+    overlap: np.ndarray
+    input_labels: np.ndarray
+    regions: np.ndarray | None = None
+    input_regions: np.ndarray | None = None
+    figures: tuple[AreaFigures, ...] = ()
+    label_change_share: float = 0.0
+    seam_mm: float = 0.0
+    method: str = "per_point"
 
 
 def assign_areas(points: np.ndarray, sample_index: np.ndarray, normals: np.ndarray,
                  visibility: np.ndarray, selected: np.ndarray, selected_axes: np.ndarray,
-                 cone_deg=(10.0, 80.0)) -> Areas:
-    """Label sampled and input points with set-ups (Makki §3.1: areas, overlap, nearest-area leftovers).
+                 cone_deg=(10.0, 80.0), params: AreasParams | None = None) -> Areas:
+    """Label sampled and input points with set-ups (see the module docstring).
 
-    ``points`` (N,3) mm is the whole cloud, ``sample_index`` (n,) the sampled points with
-    ``normals`` (n,3); ``visibility`` (n,m) bool; ``selected`` (k,) column indices with unit
-    ``selected_axes`` (k,3). Distances are Euclidean in mm.
+    ``points`` (N,3) mm is the whole cloud, ``sample_index`` (n,) the sampled points with unit
+    ``normals`` (n,3); ``visibility`` (n,m) bool after every global filter; ``selected`` (k,)
+    column indices with unit ``selected_axes`` (k,3); ``cone_deg`` the tool cone (degrees);
+    ``params`` :class:`schemas.params.AreasParams` (default values when None).
     """
+    params = params or AreasParams()
     points = np.asarray(points, dtype=np.float64)
     sample_index = np.asarray(sample_index, dtype=np.int64)
-    n = sample_index.shape[0]
-    k = len(selected)
-    sub = np.asarray(visibility)[:, np.asarray(selected, dtype=np.int64)]  # (n,k)
-    n_seen = sub.sum(axis=1)
-    seen = n_seen > 0
-    integrated = ~seen
-    labels = np.full(n, -1, dtype=np.int64)   # no set-up (k == 0) or no point seen: all -1
-    if seen.any():
-        middle = 0.5 * (float(cone_deg[0]) + float(cone_deg[1]))
-        # rounded so that equal angles up to float noise tie, and the tie goes to the lowest set-up id
-        score = np.round(np.abs(axis_normal_angles_deg(normals, selected_axes) - middle), 6)
-        score = np.where(sub, score, np.inf)
-        labels = np.argmin(score, axis=1).astype(np.int64)  # the first (lowest id) on ties
-        if integrated.any():
-            sp = points[sample_index]
-            tree = cKDTree(sp[seen])
-            _, j = tree.query(sp[integrated], k=1, workers=-1)
-            labels[integrated] = labels[seen][j]
-    if n > 0 and k > 0:
-        tree = cKDTree(points[sample_index])
-        _, j = tree.query(points, k=1, workers=-1)
-        input_labels = labels[j]
-        # A sampled point keeps its own label even when a duplicate coordinate exists.
-        input_labels[sample_index] = labels
-    else:
-        input_labels = np.full(points.shape[0], -1, dtype=np.int64)
-    return Areas(labels=labels, integrated=integrated, overlap=n_seen >= 2, input_labels=input_labels)
+    n, k = sample_index.shape[0], len(selected)
+    sub = np.asarray(visibility, dtype=bool)[:, np.asarray(selected, dtype=np.int64)]  # (n,k)
+    seen = sub.any(axis=1)
+    sp = points[sample_index]
+    graph = neighbour_graph(sp, normals, params.neighbours)
+    labels = np.full(n, -1, dtype=np.int64)
+    method = params.method if params.smoothness_mm > 0 else "per_point"
+    if seen.any() and k > 0:
+        energy = labelling_energy(graph, normals, sub, selected_axes, cone_deg, params.smoothness_mm,
+                                  params.sharp_edge_deg, params.sharp_edge_weight)
+        labels = _attach_leftovers(sp, per_point_labels(energy), seen)
+        if method == "graphcut":
+            labels = alpha_expansion(energy, graph.edges, labels)
+            labels = merge_small_regions(graph, labels, sub | ~seen[:, None], params.min_region_mm2)
+    regions = region_index(graph, labels)
+    input_labels, input_regions = _propagate(points, sample_index, labels, regions, k)
+    share, seam = seam_totals(graph, labels)
+    return Areas(labels=labels, integrated=~seen, overlap=sub.sum(axis=1) >= 2, input_labels=input_labels,
+                 regions=regions, input_regions=input_regions,
+                 figures=tuple(area_figures(graph, labels, sub, params.min_region_mm2)),
+                 label_change_share=share, seam_mm=seam, method=method)
+
+
+def _attach_leftovers(sp: np.ndarray, labels: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Step 2 for the leftovers: the label of the nearest seen sampled point (Euclidean, mm)."""
+    labels = labels.copy()
+    if (~seen).any():
+        _, j = cKDTree(sp[seen]).query(sp[~seen], k=1, workers=-1)
+        labels[~seen] = labels[seen][j]
+    return labels
+
+
+def _propagate(points, sample_index, labels, regions, k):
+    """Step 4: the label and region of every input point from its nearest sampled point (a sampled
+    point keeps its own even when a duplicate coordinate exists)."""
+    N = points.shape[0]
+    if sample_index.shape[0] == 0 or k == 0:
+        return np.full(N, -1, np.int64), np.full(N, -1, np.int64)
+    _, j = cKDTree(points[sample_index]).query(points, k=1, workers=-1)
+    input_labels, input_regions = labels[j], regions[j]
+    input_labels[sample_index] = labels
+    input_regions[sample_index] = regions
+    return input_labels, input_regions
+
+
+def graph_of(points: np.ndarray, normals: np.ndarray | None, params: AreasParams | None = None) -> SurfaceGraph:
+    """The neighbourhood graph :func:`assign_areas` labels on (for reports and benchmarks)."""
+    return neighbour_graph(points, normals, (params or AreasParams()).neighbours)

@@ -74,7 +74,7 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
         if ap.finishing is not None:
             info = ap.finishing_info
             fin = FinishingSummary(
-                n_passes=int(info.n_passes), step_over_mm=float(info.step_over_mm), n_cl=int(ap.finishing.n_moves),
+                n_passes=int(info.n_passes), n_regions=int(getattr(info, "n_regions", 1)), step_over_mm=float(info.step_over_mm), n_cl=int(ap.finishing.n_moves),
                 n_cl_before_reduction=int(info.toolpath.n_moves), n_arcs=int(ap.n_arcs),
                 n_retracts=int(info.n_retracts), length_mm=round(float(_cut_length(ap.finishing)), 3),
                 tolerance_mm=float(fp.tolerance_mm), min_clearance_mm=round(float(ap.min_clearance_mm), 6),

@@ -10,9 +10,13 @@ For area ``i`` with tool axis ``t_i``:
    the highest of the cloud (frame z = 0) and of the fixtures whose frame footprint comes within the
    holder's reach of the path window (:func:`obstacle_top_mm`);
 3. roughing (when enabled; :mod:`planning.toolpath.roughing`) from a stock box, down to the area's
-   lowest point;
-4. finishing by ball drop (:func:`planning.toolpath.finishing.finishing_passes`), then CL reduction
-   and arc fitting (:mod:`planning.toolpath.reduce`), each gouge-checked;
+   lowest point, in a window over the area's footprint (:func:`roughing_window_reach_mm`): the
+   tool centre cuts only within that reach of the area's points, the material elsewhere is left to
+   the set-ups of the other areas;
+4. finishing by ball drop (:func:`planning.toolpath.finishing.finishing_passes`) once per connected
+   region of the area (``input_regions``; one region when not given), the regions' paths joined
+   in a nearest-next order at the safe height (:func:`join_region_paths`), then CL reduction and
+   arc fitting (:mod:`planning.toolpath.reduce`) of the joined path, each gouge-checked;
 5. verification (:mod:`planning.toolpath.verify`): the minimal clearance between the final
    finishing moves (lines and arcs) and every cloud point, which must be >= R - tolerance; the
    cutter, shank and holder above the ball at every finishing CL point against the cloud
@@ -30,6 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from planning.errors import ParameterError
 from planning.geometry.collision import centres_collision_free
 from planning.geometry.fixtures import (
     BoxFixture,
@@ -39,9 +44,10 @@ from planning.geometry.fixtures import (
     fixture_collision_free,
 )
 from planning.geometry.tool import ToolAssembly
+from planning.toolpath.balldrop import DropSurface
 from planning.toolpath.finishing import FinishingPath, finishing_passes
 from planning.toolpath.frames import AreaFrame, area_frame
-from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath
+from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath, concatenate
 from planning.toolpath.reduce import fit_arcs, reduce_cl
 from planning.toolpath.roughing import roughing_paths
 from planning.toolpath.verify import BinnedCloud, move_clearance
@@ -142,7 +148,7 @@ def _count_arcs(tp: Toolpath) -> int:
 
 def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarray, *, tool: ToolAssembly,
                    paths_params, fixtures: Sequence = (), forbidden: np.ndarray | None = None,
-                   max_slope_deg: float = 87.0,
+                   max_slope_deg: float = 87.0, input_regions: np.ndarray | None = None,
                    progress: Progress | None = None) -> list[AreaPaths]:
     """Tool paths for every area (see the module docstring).
 
@@ -151,13 +157,16 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     holder; ``paths_params``: :class:`schemas.params.PathsParams`; ``fixtures``: fixture solids and
     the table (part frame); ``forbidden`` (K,3): forbidden points (obstacles like the cloud);
     ``max_slope_deg``: the steepest surface an area holds (the tool cone's upper angle), which
-    bounds how short the adaptive side step gets.
+    bounds how short the adaptive side step gets; ``input_regions`` (N,) int: the connected region
+    of every point within its area (0 the largest, 1 the next, ...; any value where the label is
+    -1), each finished on its own; None: every area is one region.
     """
     fp = paths_params.finishing
     R = float(tool.radius_mm)
     tol = float(fp.tolerance_mm)
     forbidden = np.zeros((0, 3)) if forbidden is None else np.asarray(forbidden, dtype=np.float64).reshape(-1, 3)
     obstacles = np.concatenate([points, forbidden]) if forbidden.size else points
+    regions = _check_regions(input_regions, input_labels)
     reach = max([s.radius_mm for s in tool.segments] + [R])
     k = axes.shape[0]
     out: list[AreaPaths] = []
@@ -172,11 +181,10 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
         sec["frame"] = time.perf_counter() - t0
         ap = AreaPaths(area=i, frame=frame, safe_z_mm=safe, finishing=None, finishing_info=None, radius_mm=R,
                        tolerance_mm=tol)
-        _add_roughing(ap, cloud_f, area_f, top, paths_params, sec)
+        _add_roughing(ap, cloud_f, area_f, top, paths_params, sec, roughing_window_reach_mm(paths_params, tool))
         if fp.enabled:
-            area_mask = np.zeros(cloud_f.shape[0], dtype=bool)
-            area_mask[:points.shape[0]] = mine
-            _add_finishing(ap, cloud_f, area_mask, fp, max_slope_deg, sec)
+            masks = _region_masks(mine, regions, cloud_f.shape[0])
+            _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec)
             # cutter, shank and holder above the ball at every CL point of the cut
             t0 = time.perf_counter()
             _count_collisions(ap, obstacles, axes[i], tool, fixtures)
@@ -186,6 +194,43 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
         if progress is not None:
             progress((i + 1) / k, f"area {i}: paths done")
     return out
+
+
+def roughing_window_reach_mm(paths_params, tool: ToolAssembly) -> float:
+    """How far (mm, frame x, y) from the area's points the roughing tool centre may cut (step 3):
+    the finishing ball's contact lies in the band ``margin_mm`` around the area, its centre within
+    R of the contact, and the cutter, shank and holder within their largest radius of that centre;
+    a roughing tool centre clears the material within its radius Rt. So
+    ``margin + R + max segment radius + Rt``: everywhere the finishing tool can be, the material
+    above the area has been roughed (or lies where a centre cannot go, beside the part)."""
+    fp, rp = paths_params.finishing, paths_params.roughing
+    R = float(tool.radius_mm)
+    widest = max([s.radius_mm for s in tool.segments] + [R])
+    return float(fp.margin_mm) + R + float(widest) + rp.diameter_mm / 2.0
+
+
+def _check_regions(input_regions, input_labels) -> np.ndarray | None:
+    """``input_regions`` as an (N,) int64 array (None stays None); every labelled point needs a
+    region id >= 0."""
+    if input_regions is None:
+        return None
+    regions = np.asarray(input_regions).reshape(-1)
+    labels = np.asarray(input_labels).reshape(-1)
+    if regions.shape != labels.shape or not np.issubdtype(regions.dtype, np.integer):
+        raise ParameterError(f"input_regions must be ({labels.size},) integers like input_labels")
+    if np.any(regions[labels >= 0] < 0):
+        raise ParameterError("input_regions: every point of an area needs a region id >= 0")
+    return regions.astype(np.int64, copy=False)
+
+
+def _region_masks(mine: np.ndarray, regions: np.ndarray | None, n_obstacles: int) -> list[np.ndarray]:
+    """(n_obstacles,) bool masks over the obstacles (cloud first, then the forbidden points) of the
+    area's points ``mine`` (N,), one per region id present, by increasing id (the area's largest
+    region first); one mask of the whole area when ``regions`` is None."""
+    pad = np.zeros(n_obstacles - mine.shape[0], dtype=bool)
+    if regions is None:
+        return [np.concatenate([mine, pad])]
+    return [np.concatenate([mine & (regions == r), pad]) for r in np.unique(regions[mine])]
 
 
 def _frame_and_top(points, mine, axis, obstacles, fixtures, fp, R: float, reach: float):
@@ -204,8 +249,9 @@ def _frame_and_top(points, mine, axis, obstacles, fixtures, fp, R: float, reach:
     return frame, cloud_f, area_f, top
 
 
-def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec: dict) -> None:
-    """Step 3: roughing (when enabled and there is stock above the area's floor) into ``ap``."""
+def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec: dict, window_reach: float) -> None:
+    """Step 3: roughing (when enabled and there is stock above the area's floor) into ``ap``, the
+    tool centre within ``window_reach`` mm of the area's points (:func:`roughing_window_reach_mm`)."""
     rp = paths_params.roughing
     floor = float(area_f[:, 2].min()) + rp.stock_allowance_mm
     if rp.enabled and floor < float(cloud_f[:, 2].max()) + rp.stock_margin_mm:
@@ -214,20 +260,21 @@ def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec:
                             corner_radius_mm=rp.corner_radius_mm, step_down_mm=rp.step_down_mm,
                             stock_allowance_mm=rp.stock_allowance_mm, stock_margin_mm=rp.stock_margin_mm,
                             stepover_mm=rp.stepover_mm, pattern=rp.pattern, floor_z_mm=floor,
-                            safe_z_mm=top + rp.stock_margin_mm + paths_params.safe_clearance_mm)
+                            safe_z_mm=top + rp.stock_margin_mm + paths_params.safe_clearance_mm,
+                            window_xy_mm=area_f[:, :2], window_reach_mm=window_reach)
         ap.roughing, ap.roughing_info = rr.toolpath, rr
         sec["roughing"] = time.perf_counter() - t0
 
 
-def _add_finishing(ap: AreaPaths, cloud_f, area_mask, fp, max_slope_deg: float, sec: dict) -> None:
-    """Step 4 and the gouge check of step 5 into ``ap``: finishing passes, arc fitting or CL
-    reduction, and the minimal clearance of the final moves (capped at R)."""
-    R, tol, safe = ap.radius_mm, ap.tolerance_mm, ap.safe_z_mm
+def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, max_slope_deg: float,
+                   sec: dict) -> None:
+    """Step 4 and the gouge check of step 5 into ``ap``: finishing passes per region
+    (:func:`_region_finishing`), arc fitting or CL reduction of the joined path, and the minimal
+    clearance of the final moves (capped at R)."""
+    R, tol = ap.radius_mm, ap.tolerance_mm
     t0 = time.perf_counter()
     binned = BinnedCloud(cloud_f, R / 4.0)
-    fin = finishing_passes(cloud_f, area_mask, radius_mm=R, scallop_mm=fp.scallop_mm, step_mm=fp.step_mm,
-                           margin_mm=fp.margin_mm, zigzag=fp.pattern == "zigzag", tol_mm=tol,
-                           safe_z_mm=safe, lead_mm=fp.lead_mm, max_slope_deg=max_slope_deg, binned=binned)
+    fin = _region_finishing(cloud_f, region_masks, binned, fp, R, tol, ap.safe_z_mm, max_slope_deg)
     sec["finishing"] = time.perf_counter() - t0
     tp = fin.toolpath
     t0 = time.perf_counter()
@@ -245,6 +292,60 @@ def _add_finishing(ap: AreaPaths, cloud_f, area_mask, fp, max_slope_deg: float, 
     sec["verify"] = time.perf_counter() - t0
     ap.finishing, ap.finishing_info = tp, fin
     ap.n_arcs = _count_arcs(tp)
+
+
+def _region_finishing(cloud_f, region_masks, binned: BinnedCloud, fp, R: float, tol: float, safe: float,
+                      max_slope_deg: float) -> FinishingPath:
+    """The finishing passes (:func:`planning.toolpath.finishing.finishing_passes`, ``safe`` the
+    ball-centre height of retracts and rapids, mm) of each region in ``region_masks`` (bool masks
+    over ``cloud_f``), joined by :func:`join_region_paths`. A region on which no pass lies adds
+    nothing; when none gets a pass, the first region's error is raised (as for a one-region area)."""
+    surface = DropSurface(cloud_f, R)
+    fins, first_error = [], None
+    for mask in region_masks:
+        try:
+            fins.append(finishing_passes(cloud_f, mask, radius_mm=R, scallop_mm=fp.scallop_mm, step_mm=fp.step_mm,
+                                         margin_mm=fp.margin_mm, zigzag=fp.pattern == "zigzag", tol_mm=tol,
+                                         safe_z_mm=safe, lead_mm=fp.lead_mm, max_slope_deg=max_slope_deg,
+                                         binned=binned, surface=surface))
+        except ParameterError as e:
+            if len(region_masks) == 1:
+                raise
+            first_error = first_error or e
+    if not fins:
+        raise first_error
+    return join_region_paths(fins) if len(fins) > 1 else fins[0]
+
+
+def join_region_paths(paths: Sequence[FinishingPath]) -> FinishingPath:
+    """One :class:`FinishingPath` for the finishing paths of several regions of one area, mm.
+
+    Order: the first of ``paths`` (the area's largest region), then always the unvisited one whose
+    first point is nearest in (x, y) to the last point of the one before (short rapids). Every
+    path of :func:`planning.toolpath.finishing.finishing_passes` starts with a rapid at the safe
+    height and ends at the safe height after its lead-out, so consecutive paths are joined by that
+    rapid at the safe height: the joined path never goes from one region to the next below it.
+    ``pass_index`` of each path is offset by the passes before it (the passes of two regions are
+    never merged by the reducer); ``n_passes``, ``length_mm`` summed, ``min_clearance_mm`` the
+    smallest, ``n_retracts`` summed plus one retract per join (the lead-out and retract that ends
+    a region is not counted in its own path), ``n_regions`` the number of paths."""
+    if not paths:
+        raise ParameterError("no finishing path to join")
+    order = [0]
+    left = list(range(1, len(paths)))
+    while left:
+        end = paths[order[-1]].toolpath.xyz_mm[-1, :2]
+        d = [float(np.hypot(*(paths[j].toolpath.xyz_mm[0, :2] - end))) for j in left]
+        order.append(left.pop(int(np.argmin(d))))
+    ps = [paths[j] for j in order]
+    offsets = np.cumsum([0] + [p.n_passes for p in ps[:-1]])
+    pass_index = np.concatenate([np.where(p.pass_index >= 0, p.pass_index + o, -1).astype(np.int32)
+                                 for p, o in zip(ps, offsets)])
+    return FinishingPath(toolpath=concatenate([p.toolpath for p in ps]), n_passes=sum(p.n_passes for p in ps),
+                         step_over_mm=ps[0].step_over_mm, min_clearance_mm=min(p.min_clearance_mm for p in ps),
+                         length_mm=float(sum(p.length_mm for p in ps)),
+                         n_retracts=sum(p.n_retracts for p in ps) + len(ps) - 1, pass_index=pass_index,
+                         n_regions=sum(p.n_regions for p in ps))
 
 
 def _count_collisions(ap: AreaPaths, obstacles, axis, tool: ToolAssembly, fixtures: Sequence) -> None:

@@ -63,7 +63,10 @@ class FinishingPath:
     R), ``n_passes``, ``step_over_mm``, ``min_clearance_mm`` (smallest distance from a cloud point
     to the feed moves; >= R - tol when gouge free), ``length_mm`` (feed length), ``n_retracts``
     (retracts to the safe height between stretches), ``pass_index`` (P,) the pass each point of a
-    stretch lies on (-1 for links, leads, retracts and rapids)."""
+    stretch lies on (-1 for links, leads, retracts and rapids), ``n_regions``: how many connected
+    regions of the area the path finishes one after another
+    (:func:`planning.toolpath.area_paths.area_toolpaths` joins one path per region; 1 for a path
+    of :func:`finishing_passes`)."""
 
     toolpath: Toolpath
     n_passes: int
@@ -72,7 +75,7 @@ class FinishingPath:
     length_mm: float
     n_retracts: int
     pass_index: np.ndarray
-
+    n_regions: int = 1
 
     @property
     def cl_mm(self) -> np.ndarray:
@@ -99,7 +102,7 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
                      zigzag: bool = True, tol_mm: float = 1e-3, safe_z_mm: float | None = None,
                      lead_mm: float = 1.0, link_max_mm: float | None = None, adaptive: bool = True,
                      max_slope_deg: float = 87.0, max_splits: int = 12,
-                     binned: BinnedCloud | None = None) -> FinishingPath:
+                     binned: BinnedCloud | None = None, surface: DropSurface | None = None) -> FinishingPath:
     """Ball-end finishing of one area (mm, area frame; see the module docstring).
 
     ``cloud_frame`` (N,3): every cloud point (and forbidden point); ``area_mask`` (N,) bool: the
@@ -118,7 +121,10 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
     stays at the target), never shorter than ``s cos(max_slope_deg)`` (the steepest surface the
     area has: the tool cone's upper angle; this also keeps a sparse cloud's ball-drop noise from
     crowding the passes), else a constant step-over (the target holds on a plane only);
-    ``binned``: ``cloud_frame`` already binned for the clearance queries (built here if None).
+    ``binned``: ``cloud_frame`` already binned for the clearance queries (built here if None);
+    ``surface``: ``cloud_frame`` already binned for ball drops of radius ``radius_mm``
+    (:class:`planning.toolpath.balldrop.DropSurface`, built here if None; a caller finishing
+    several regions of one cloud shares one).
     """
     pts = np.asarray(cloud_frame, dtype=np.float64)
     mask = np.asarray(area_mask, dtype=bool).reshape(-1)
@@ -138,7 +144,10 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
     # ball centres touching the band lie within R of it in (x, y)
     y0, y1 = area[:, 1].min() - margin_mm - R, area[:, 1].max() + margin_mm + R
     xs = np.arange(lo[0] - R, hi[0] + R + step, step)
-    surface = DropSurface(pts, R)
+    if surface is None:
+        surface = DropSurface(pts, R)
+    elif surface.R != R or surface.n != pts.shape[0]:
+        raise ParameterError("surface must bin cloud_frame for a ball of radius radius_mm")
     # the clearance queries' raster (verify.move_clearance); the caller may share one
     tree = BinnedCloud(pts, R / 4.0) if binned is None else binned
 
@@ -215,6 +224,10 @@ def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float) -
                 break
             # fixed point of dy = sqrt(s^2 - dz(dy)^2): dz ~ dy tan(slope) converges in a few rounds
             dy = max(min(math.sqrt(max(s * s - dz * dz, 0.0)), 0.999 * dy), dy_min)
+        else:
+            # the rounds ran out with a shorter step than the last one dropped: drop the pass that
+            # is taken (its heights, not those of the step before, go with its y)
+            nxt = drop_pass(y + dy)
         y, cur = y + dy, nxt
     return passes
 

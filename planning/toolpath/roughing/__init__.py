@@ -17,7 +17,9 @@ to that solid (0 or below: inside the tool).
 **Stock.** The cloud's bounding box grown by ``stock_margin_mm`` on the four sides and on the top:
 the stock top is the highest cloud z + ``stock_margin_mm`` (so ``stock_margin_mm`` in a set-up
 frame). Each set-up starts from this full box: material removed by earlier set-ups is NOT
-modelled, so some lines may cut air.
+modelled, so some lines may cut air. With a window (``window_xy_mm``, ``window_reach_mm``) the tool
+centre cuts only within the given reach of the window's points (the area being machined); the
+stock outside it is left to the other set-ups.
 
 **Levels.** Tip heights from the stock top down every ``step_down_mm``, the last exactly at the
 floor (``floor_z_mm``, default the lowest cloud z + allowance; the caller passes the area's

@@ -4,6 +4,8 @@ the maps, cuts the levels from the top down and verifies the clearance; :class:`
 its result. Stage: called per area by :mod:`planning.toolpath.area_paths`, after the area frame
 (:mod:`planning.toolpath.frames`) and before the post-processor; the tool tip, stock, levels and
 the whole method (Popescu et al. 2014; Tchanchane & Bey) are described in the package docstring.
+With ``window_xy_mm`` the clearing region of every level is also limited to the raster cells within
+``window_reach_mm`` of the window's points (:func:`_window_cells`: the caller's area footprint).
 
 A level is cut (:func:`_cut_level`) by taking its pieces (:mod:`planning.toolpath.roughing.clearing`)
 in their order (:mod:`planning.toolpath.roughing.ordering`), each joined to the one before by a
@@ -15,9 +17,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from planning.errors import ParameterError
 from planning.toolpath.moves import (
@@ -101,7 +105,7 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
                    stock_allowance_mm: float = 0.5, stock_margin_mm: float = 2.0,
                    stepover_mm: float | None = None, pattern: str = "zigzag", contour: bool = True,
                    floor_z_mm: float | None = None, cell_mm: float | None = None,
-                   safe_z_mm: float | None = None,
+                   safe_z_mm: float | None = None, window_xy_mm=None, window_reach_mm: float = 0.0,
                    progress: Callable[[int, int], None] | None = None) -> RoughingPath:
     """Z-level roughing of one set-up from a stock box (mm, area frame; see :mod:`planning.toolpath.roughing`).
 
@@ -114,7 +118,11 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     +X only, rapid back); ``contour``: add the offset-contour pass; ``floor_z_mm``: lowest tip
     height (default lowest cloud z + allowance); ``cell_mm``: raster cell (default Rt / 16, at
     most Rt / 2); ``safe_z_mm``: retract height cap and first approach (default stock top + 5 mm);
-    ``progress(levels_done, n_levels)``.
+    ``window_xy_mm`` (M,2): frame (x, y) positions, mm, that restrict the cut to a window: the
+    tool centre (tip x, y) cuts only in raster cells whose centre lies within ``window_reach_mm``
+    (mm, >= 0) of one of them (:func:`_window_cells`; the stock box, levels and retract heights
+    are unchanged; the material outside is left for other set-ups); None (default): the whole
+    stock box; ``progress(levels_done, n_levels)``.
     """
     pts, Rt, rc, step, a, margin, s, h = _check_args(cloud_frame, tool_radius_mm, corner_radius_mm, step_down_mm,
                                                       stock_allowance_mm, stock_margin_mm, stepover_mm, pattern,
@@ -122,6 +130,8 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     stock = _stock(pts, a, margin, floor_z_mm, safe_z_mm)
     levels = _levels(stock.z_top, stock.floor, step, step_down_mm)
     grid = _raster(pts, stock.box_lo, stock.box_hi, Rt, h)
+    if window_xy_mm is not None:
+        grid = replace(grid, inbox=grid.inbox & _window_cells(grid, window_xy_mm, window_reach_mm))
     mat = _MaterialMap(grid, stock.box_lo, stock.box_hi, stock.z_top, Rt)
     ys = _line_ys(stock.box_lo, stock.box_hi, grid.h, Rt, rc, s)
     forb = _ForbiddenMap(grid.cmax, grid.h, Rt, rc, a, stock.big)
@@ -156,6 +166,39 @@ def _check_args(cloud_frame, tool_radius_mm, corner_radius_mm, step_down_mm, sto
     if not 0 < h <= Rt / 2:
         raise ParameterError(f"cell_mm = {cell_mm}: must be in (0, {Rt / 2}] mm (half the tool radius)")
     return pts, Rt, rc, step, a, margin, s, h
+
+
+def _window_cells(grid: _Raster, window_xy_mm, window_reach_mm: float) -> np.ndarray:
+    """(nx, ny) bool: the raster cells whose centre lies within ``window_reach_mm`` (mm) of a point
+    of ``window_xy_mm`` (M,2, frame x, y, mm), exactly (points off the raster are ignored; the
+    caller's points are cloud points, which the raster covers). The cells of the points are
+    marked and their Euclidean distance transform taken: a cell centre is within h / sqrt(2) of
+    the points of its cell, so cells whose distance to a marked cell centre is at most
+    ``reach - h / sqrt(2)`` are in, those farther than ``reach + h / sqrt(2)`` out, and the thin
+    ring in between is decided by a k-d tree of the points."""
+    xy = np.asarray(window_xy_mm, dtype=np.float64)
+    if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
+        raise ParameterError("window_xy_mm must be a finite (M,2) array of frame x, y positions, mm")
+    reach = _finite("window_reach_mm", window_reach_mm)
+    if not reach >= 0:
+        raise ParameterError(f"window_reach_mm = {window_reach_mm}: must be >= 0 mm")
+    h, nx, ny = grid.h, grid.nx, grid.ny
+    ij = np.floor((xy - np.array([grid.x0, grid.y0])) / h).astype(np.int64)
+    on = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
+    marked = np.zeros((nx, ny), dtype=bool)
+    marked[ij[on, 0], ij[on, 1]] = True
+    if not marked.any():
+        return marked
+    d = ndimage.distance_transform_edt(~marked, sampling=h)
+    slack = h / math.sqrt(2.0)
+    inside = d <= reach - slack
+    ring = np.argwhere((d <= reach + slack) & ~inside)
+    if ring.shape[0]:
+        centres = np.column_stack([grid.x0 + (ring[:, 0] + 0.5) * h, grid.y0 + (ring[:, 1] + 0.5) * h])
+        dist, _ = cKDTree(xy[on]).query(centres, k=1, distance_upper_bound=reach * (1 + 1e-12) + 1e-12)
+        ok = np.isfinite(dist)
+        inside[ring[ok, 0], ring[ok, 1]] = True
+    return inside
 
 
 @dataclass(frozen=True)

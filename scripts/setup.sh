@@ -7,13 +7,15 @@ VENV=${VENV:-.venv}
 PYTHON=${PYTHON:-python3}
 
 # System packages: libusb-1.0-0 (Open3D's wheel links it); redis-server and postgresql, which the tests
-# of the distributed backend start on 127.0.0.1 (SCANMILL_SKIP_SERVERS=1 leaves them out where only
-# the embedded service is wanted).
+# of the distributed backend start on 127.0.0.1, and linuxcnc-uspace, whose standalone interpreter rs274
+# the tests run on the LinuxCNC programs as an independent reader (SCANMILL_SKIP_SERVERS=1 leaves these
+# three out where only the embedded service is wanted).
 APT=()
 ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || APT+=(libusb-1.0-0)
 if [ "${SCANMILL_SKIP_SERVERS:-0}" != "1" ]; then
   command -v redis-server >/dev/null 2>&1 || [ -x /usr/bin/redis-server ] || APT+=(redis-server)
   ls /usr/lib/postgresql/*/bin/postgres >/dev/null 2>&1 || APT+=(postgresql)
+  command -v rs274 >/dev/null 2>&1 || [ -x /usr/bin/rs274 ] || APT+=(linuxcnc-uspace)
 fi
 if [ ${#APT[@]} -gt 0 ]; then
   echo "setup: installing ${APT[*]} (apt)"

@@ -1,0 +1,228 @@
+"""Stage 9, verification (issue 15): the posted programs run on a simulated machine and stock.
+
+1. the stock (``stock.*``: a box or a cylinder around the part, in the part frame) and the solids
+   that may never be cut (the fixtures, the riser under the stock, the table top) as tri-dexel
+   models at ``simulate.resolution_mm`` (:mod:`planning.simulate.dexel`, :mod:`planning.simulate.stock`);
+2. each area's program in the chosen dialect read back from its TEXT as a control would
+   (:func:`planning.simulate.program.read_program`), in the plan's set-up order, the stock carried
+   from one set-up to the next;
+3. every move, in program order: a rapid whose tool meets the stock (more than
+   ``simulate.rapid_clearance_mm``) is a rapid into material; a feed move cuts what its cutting
+   part sweeps, and its shank or holder meeting the stock is a holder collision; any part of the
+   tool meeting a fixture, the riser or the table is a fixture collision; the machine's axes at
+   the end of every move are checked against the profile's travel
+   (:func:`planning.simulate.program.check_travel`);
+4. the signed deviation of every scan point from the final surface (positive: material left);
+5. the verdict: ``passed`` only when there are no collisions, no rapids into material, no travel
+   excursions and no gouge beyond the tolerance.
+
+What it does not prove (docs/programs.md): dynamics (acceleration, the control's look-ahead, feed
+overrides), a mis-set work offset or tool length, the fixture model matching the real set-up, and
+anything finer than the resolution (a wall thinner than one ray spacing can vanish between rays).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from planning.geometry.tool import ToolAssembly
+from planning.simulate.motion import RAPID, ProgramMotion
+from planning.simulate.tools import finishing_shape, roughing_shape
+from schemas.plan import (
+    AreaVerification,
+    DeviationFigures,
+    Verification,
+    VerificationOffence,
+)
+
+Progress = Callable[[float, str], None]
+
+#: Offences of each class listed in ``verification.worst``.
+WORST_PER_CLASS = 5
+
+
+@dataclass
+class SimulationOutcome:
+    """``verification``: the plan.json block; ``deviation_mm`` (N,) per input point (NaN where not
+    measured); ``stock``: the final stock model (for the mesh artifact)."""
+
+    verification: Verification
+    deviation_mm: np.ndarray | None = None
+    stock: object = None
+
+
+def skipped(message: str) -> SimulationOutcome:
+    """The verification block of a plan that was not simulated."""
+    return SimulationOutcome(Verification(status="skipped", message=message))
+
+
+def choose_dialect(programs: dict[str, str], wanted: str) -> str | None:
+    """``simulate.dialect``: ``auto`` = linuxcnc when posted, else iso; None when nothing is posted."""
+    posted = {name.split(".")[1] for name in programs if name.endswith(".nc")}
+    if wanted != "auto":
+        return wanted if wanted in posted else None
+    for d in ("linuxcnc", "iso"):
+        if d in posted:
+            return d
+    return None
+
+
+def stock_extent(points: np.ndarray, stock) -> tuple[np.ndarray, np.ndarray]:
+    """The stock's bounding box (lo, hi) in the part frame, mm (``stock``: :class:`StockParams`)."""
+    if stock.min_mm is not None:
+        return np.asarray(stock.min_mm, float), np.asarray(stock.max_mm, float)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    return lo - stock.margin_mm, hi + stock.margin_mm
+
+
+def _tools(config, tool: ToolAssembly) -> dict:
+    post = config.post
+    return {post.finishing_tool_number: finishing_shape(tool, post.finishing_tool_number, config.tool.flute_length_mm),
+            post.roughing_tool_number: roughing_shape(tool, post.roughing_tool_number, config.paths.roughing,
+                                                      config.tool.stickout_mm)}
+
+
+def _feed_for(config, tool_number: int) -> float:
+    post = config.post
+    return post.roughing_feed_mm_min if tool_number == post.roughing_tool_number else post.feed_mm_min
+
+
+def _machining_time_s(motion: ProgramMotion, config) -> float:
+    """Feed moves at the feed of their tool, rapids at ``post.rapid_mm_min`` (no acceleration), s."""
+    length = np.linalg.norm(motion.end_mm - motion.start_mm, axis=1)
+    rapid = motion.kind == RAPID
+    feeds = np.array([_feed_for(config, int(t)) for t in motion.tool]) if motion.n_moves else np.zeros(0)
+    t = float(length[rapid].sum()) / config.post.rapid_mm_min
+    t += float((length[~rapid] / np.maximum(feeds[~rapid], 1e-9)).sum())
+    return 60.0 * t
+
+
+def _offences(kind: str, motion: ProgramMotion, amount: np.ndarray, detail: str) -> list[VerificationOffence]:
+    idx = np.flatnonzero(amount > 0)
+    worst = idx[np.argsort(-amount[idx], kind="stable")][:WORST_PER_CLASS]
+    return [VerificationOffence(kind=kind, program=motion.program, line=int(motion.line[i]),
+                                position_mm=tuple(round(float(c), 4) for c in motion.end_mm[i]),
+                                amount=round(float(amount[i]), 4), detail=detail) for i in worst]
+
+
+def deviation_figures(dev: np.ndarray, limit_mm: float, gouge_mm: float,
+                      dev_high: np.ndarray | None = None) -> DeviationFigures:
+    """Figures of the signed deviations ``dev`` (mm; NaN = not measured): within ``limit_mm`` on
+    both sides counts as finished; a cut deeper than ``gouge_mm`` is a gouge, judged on
+    ``dev_high`` (the highest reading around each point, default ``dev``)."""
+    high = dev if dev_high is None else dev_high
+    ok = np.isfinite(dev) & np.isfinite(high)
+    d, h = dev[ok], high[ok]
+    if d.size == 0:
+        return DeviationFigures(n_points=0, finished_share=0.0, left_p50_mm=0.0, left_p95_mm=0.0, left_max_mm=0.0,
+                                gouge_max_mm=0.0, n_gouged=0)
+    left = np.maximum(d, 0.0)
+    return DeviationFigures(
+        n_points=int(d.size), finished_share=round(float((np.abs(d) <= limit_mm).mean()), 6),
+        left_p50_mm=round(float(np.percentile(left, 50)), 4), left_p95_mm=round(float(np.percentile(left, 95)), 4),
+        left_max_mm=round(float(left.max()), 4), gouge_max_mm=round(float(max(0.0, -h.min())), 4),
+        n_gouged=int((h < -gouge_mm).sum()))
+
+
+def _message(v: Verification) -> str:
+    lines = []
+    if v.travel_excursions:
+        lines.append(f"{v.travel_excursions} moves beyond the machine's travel")
+    if v.rapids_into_material:
+        lines.append(f"{v.rapids_into_material} rapids into material")
+    if v.holder_collisions:
+        lines.append(f"{v.holder_collisions} moves where the shank or holder meets material")
+    if v.fixture_collisions:
+        lines.append(f"{v.fixture_collisions} moves where the tool meets a fixture, the riser or the table")
+    if v.deviation is not None and v.deviation.n_gouged:
+        lines.append(f"{v.deviation.n_gouged} scan points cut below the surface (deepest "
+                     f"{v.deviation.gouge_max_mm:.3f} mm)")
+    if not lines:
+        share = f"; {v.deviation.finished_share:.1%} of the scan finished within tolerance" if v.deviation else ""
+        return f"the programs ran clean on the simulated machine and stock{share}"
+    return "; ".join(lines)
+
+
+def verification_status(v: Verification) -> str:
+    """``passed`` when every offence count is zero, else ``failed``."""
+    bad = v.travel_excursions + v.rapids_into_material + v.holder_collisions + v.fixture_collisions
+    bad += v.deviation.n_gouged if v.deviation is not None else 0
+    return "passed" if bad == 0 else "failed"
+
+
+def verify_plan(*, programs: dict[str, str], k: int, config, profile, placement_mm, tool: ToolAssembly,
+                fixtures: Sequence, points: np.ndarray, normals: np.ndarray, input_labels: np.ndarray,
+                progress: Progress | None = None) -> SimulationOutcome:
+    """Run every area's program of ``programs`` on the simulated machine and stock (module docstring).
+
+    ``k`` set-ups run in their order 0..k-1; ``profile`` the machine profile; ``placement_mm`` the
+    part-frame origin on the table; ``tool`` the finishing assembly; ``fixtures`` the fixture solids
+    and the table (part frame); ``points`` (N,3) the scan with unit ``normals`` (N,3) and
+    ``input_labels`` (N,). Lengths in mm."""
+    from planning.simulate import models as stock_models
+    from planning.simulate.program import check_travel, read_program
+    from planning.simulate.run import run_moves, signed_deviation
+
+    t0 = time.perf_counter()
+    sim = config.simulate
+    dialect = choose_dialect(programs, sim.dialect)
+    if dialect is None:
+        return skipped(f"no program in the dialect {sim.dialect!r} was posted")
+    tools = _tools(config, tool)
+    lo, hi = stock_extent(points, config.stock)
+    models = stock_models.build_models(lo, hi, config, fixtures, tools, resolution_mm=sim.resolution_mm)
+    v = Verification(status="passed", message="", dialect=dialect, resolution_mm=sim.resolution_mm,
+                     stock_box_mm=(tuple(map(float, lo)), tuple(map(float, hi))),
+                     stock_volume_mm3=round(float(models.stock.volume_mm3()), 1),
+                     measuring_bound_mm=float(models.measuring_bound_mm), notes=list(models.notes))
+    worst: list[VerificationOffence] = []
+    names = [f"area_{i}.{dialect}.nc" for i in range(k) if f"area_{i}.{dialect}.nc" in programs]
+    for n_done, name in enumerate(names):
+        area = int(name.split("_")[1].split(".")[0])
+        motion = read_program(programs[name], dialect=dialect, program=name, area=area, profile=profile,
+                              placement_mm=placement_mm, tools=tools)
+        v.notes += [n for n in motion.notes if n not in v.notes]
+        travel = check_travel(motion, profile)
+        run = run_moves(models.stock, models.obstacles, motion, tools,
+                              rapid_clearance_mm=sim.rapid_clearance_mm)
+        av = AreaVerification(area=area, program=name, n_moves=motion.n_moves,
+                              removed_mm3=round(float(run.removed_mm3.sum()), 1),
+                              machining_time_s=round(_machining_time_s(motion, config), 1),
+                              rapids_into_material=int((run.rapid_depth_mm > 0).sum()),
+                              holder_collisions=int((run.holder_depth_mm > 0).sum()),
+                              fixture_collisions=int((run.fixture_depth_mm > 0).sum()),
+                              travel_excursions=len(travel))
+        v.areas.append(av)
+        worst += _offences("rapid_into_material", motion, run.rapid_depth_mm, "tool in stock at rapid")
+        worst += _offences("holder_collision", motion, run.holder_depth_mm, "shank or holder in stock")
+        worst += _offences("fixture_collision", motion, run.fixture_depth_mm, "fixture, riser or table")
+        worst += [VerificationOffence(kind="travel", program=t["program"], line=int(t["line"]),
+                                      position_mm=tuple(round(float(c), 4) for c in motion.end_mm[t["move"]])
+                                      if "move" in t else (math.nan,) * 3,
+                                      amount=round(float(t["excess"]), 4),
+                                      detail=f"{t['axis']} {t['value']:.3f} beyond {t['limit']:.3f}")
+                  for t in sorted(travel, key=lambda t: -t["excess"])[:WORST_PER_CLASS]]
+        if progress is not None:
+            progress((n_done + 1) / (len(names) + 1), f"{name}: {motion.n_moves} moves simulated")
+    dev = signed_deviation(models.stock, points, normals, max_mm=10.0)
+    dev_high = signed_deviation(models.stock, points, normals, max_mm=10.0, highest=True)
+    fp = config.paths.finishing
+    limit = fp.tolerance_mm + fp.scallop_mm + models.measuring_bound_mm
+    gouge = fp.tolerance_mm + models.measuring_bound_mm
+    v.deviation = deviation_figures(dev, limit, gouge, dev_high)
+    for av in v.areas:
+        mine = input_labels == av.area
+        av.deviation = deviation_figures(dev[mine], limit, gouge, dev_high[mine])
+    for field in ("rapids_into_material", "holder_collisions", "fixture_collisions", "travel_excursions"):
+        setattr(v, field, sum(getattr(a, field) for a in v.areas))
+    v.machining_time_s = round(sum(a.machining_time_s for a in v.areas), 1)
+    v.worst = worst
+    v.status = verification_status(v)
+    v.message = _message(v)
+    v.seconds = round(time.perf_counter() - t0, 3)
+    return SimulationOutcome(verification=v, deviation_mm=dev, stock=models.stock)

@@ -20,7 +20,12 @@ from planning.areas import Areas, assign_areas
 from planning.errors import InputError, ParameterError
 from planning.inputs import Cloud
 from planning.normals import sphere_throwing
-from planning.orientations import CandidateAxes, candidate_axes, load_profile, machine_visibility
+from planning.orientations import (
+    CandidateAxes,
+    candidate_axes,
+    load_profile,
+    machine_visibility,
+)
 from planning.post.programs import post_areas
 from planning.setups import SetupSelection, select_setups, zone_mask
 from planning.toolpath.area_paths import area_toolpaths
@@ -43,7 +48,7 @@ from schemas.plan import (
 # progress(stage, fraction of that stage done in [0, 1], message)
 Progress = Callable[[str, float, str], None]
 
-STAGES = ("normals", "orientations", "visibility", "setups", "areas", "paths", "post")
+STAGES = ("normals", "orientations", "visibility", "setups", "areas", "paths", "post", "simulate")
 
 _ROTARY_NAMES = {
     "table_table_ac": ("A", "C"), "table_table_bc": ("B", "C"),
@@ -357,13 +362,35 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
         programs, path_summaries = run.stage("post", lambda p: post_areas(
             area_paths, setups_axes=sel_axes, rotary_deg=ori.angles_deg[selected], profile=profile,
             placement_mm=gv.placement_mm, gauge_length_mm=tool.gauge_length_mm, config=config))
+    simulation = _simulation(cloud, config, nrm, areas, programs, selected.size, profile, tool, gv, run)
 
     names = _ROTARY_NAMES[profile.kinematics]
     result = _plan_result(cloud, config, name, nrm, ori, vis, sel, areas, profile, names,
                           _setup_rows(ori, gv.visible, selected, areas, names, path_summaries), run)
+    result.verification = simulation.verification
+    if simulation.deviation_mm is not None:
+        result.artifacts.deviation_ply, result.artifacts.deviation_png = "deviation.ply", "deviation.png"
+    if simulation.stock is not None:
+        result.artifacts.stock_ply = "stock.ply"
     return PlanOutcome(result=result, arrays=_plan_arrays(nrm, ori, gv.visible, selected, areas, area_paths),
                        points=points, input_labels=areas.input_labels, selected_axes=sel_axes,
-                       extra={"programs": programs, "area_paths": area_paths, "areas": areas})
+                       extra={"programs": programs, "area_paths": area_paths, "areas": areas,
+                              "simulation": simulation})
+
+
+def _simulation(cloud: Cloud, config: PlanConfig, nrm: _Normals, areas: Areas, programs: dict, k: int, profile,
+                tool, gv: GlobalVisibility, run: _Run):
+    """Stage 9 (issue 15): the posted programs run on the simulated machine and stock, or why not."""
+    from planning.simulate.verify import skipped, verify_plan
+
+    if not config.simulate.enabled:
+        return skipped("simulate.enabled is false")
+    if not programs:
+        return skipped("no program was posted")
+    normals = cloud.normals if cloud.normals is not None else nrm.normals[areas.nearest_sample]
+    return run.stage("simulate", lambda p: verify_plan(
+        programs=programs, k=k, config=config, profile=profile, placement_mm=gv.placement_mm, tool=tool,
+        fixtures=gv.fixtures, points=cloud.points, normals=normals, input_labels=areas.input_labels, progress=p))
 
 
 def _plan_result(cloud: Cloud, config: PlanConfig, name, nrm: _Normals, ori: _Orientations, vis: _Visibility,

@@ -16,7 +16,7 @@ from pathlib import Path
 import scanmill
 from planning.errors import PlanningError
 
-EXIT_OK, EXIT_ERROR, EXIT_INFEASIBLE = 0, 2, 3
+EXIT_OK, EXIT_ERROR, EXIT_INFEASIBLE, EXIT_UNSAFE = 0, 2, 3, 4
 
 
 class _Progress:
@@ -90,6 +90,31 @@ def _paths_table(result) -> str:
     return "\n".join(out)
 
 
+def _print_verification(r) -> None:
+    """The verification verdict: one line per class of offence, the worst offenders, the deviation."""
+    v = r.verification
+    if v is None:
+        return
+    print(f"verification: {v.status.upper()} - {v.message}")
+    if v.status == "skipped":
+        return
+    for part in v.message.split("; ") if v.status == "failed" else []:
+        print(f"  - {part}")
+    shown: dict[str, int] = {}
+    for o in v.worst:
+        shown[o.kind] = shown.get(o.kind, 0) + 1
+        if shown[o.kind] > 2:
+            continue
+        print(f"  {o.kind}: {o.program} line {o.line} at ({o.position_mm[0]:.2f}, {o.position_mm[1]:.2f}, "
+              f"{o.position_mm[2]:.2f}) {o.amount:.3f} {o.detail}")
+    if v.deviation is not None:
+        d = v.deviation
+        print(f"  deviation from the scan: {d.finished_share:.1%} finished within tolerance; material left p50 "
+              f"{d.left_p50_mm:.3f}, p95 {d.left_p95_mm:.3f}, max {d.left_max_mm:.3f} mm; deepest cut below "
+              f"the scan {d.gouge_max_mm:.3f} mm; simulated machining {v.machining_time_s / 60:.0f} min "
+              f"(resolution {v.resolution_mm} mm, {r.artifacts.deviation_png})")
+
+
 def cmd_plan(args) -> int:
     from planning.inputs.cloud import read_cloud
     from planning.pipeline import run_plan
@@ -121,11 +146,14 @@ def cmd_plan(args) -> int:
     paths_text = _paths_table(r)
     if paths_text:
         print(paths_text)
+    _print_verification(r)
     for w in r.warnings:
         print(f"warning: {w}")
     print("timings: " + ", ".join(f"{t.stage} {t.seconds:.2f} s" for t in r.timings))
     print(f"wrote {len(paths)} files into {args.out}: {', '.join(p.name for p in paths.values())}")
-    return EXIT_OK if r.status == "planned" else EXIT_INFEASIBLE
+    if r.status != "planned":
+        return EXIT_INFEASIBLE
+    return EXIT_UNSAFE if r.verification is not None and r.verification.status == "failed" else EXIT_OK
 
 
 def cmd_sample(args) -> int:

@@ -23,7 +23,7 @@ JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 FINISHED_STATUSES: tuple[str, ...] = ("succeeded", "failed", "cancelled")
 #: The stages a running job goes through, in order ("read" the cloud, the pipeline's seven, "write").
 JOB_STAGES: tuple[str, ...] = ("read", "normals", "orientations", "visibility", "setups", "areas", "paths", "post",
-                               "write")
+                               "simulate", "write")
 CloudFormat = Literal["ply", "pcd", "xyz", "csv", "txt"]
 
 
@@ -59,6 +59,12 @@ class JobResultSummary(_Model):
     n_setups: int = Field(..., ge=0, description="Number of set-ups (fixed tool orientations).")
     coverage: float = Field(..., ge=0, le=1, description="Fraction of sampled points the set-ups see.")
     overlap_points: int = Field(..., ge=0, description="Sampled points seen by two or more chosen set-ups.")
+    verification: Literal["passed", "failed", "skipped"] | None = Field(
+        None, description="plan.json 'verification.status': the programs run on a simulated machine and stock; "
+                          "'failed' means a program would harm the machine, the tool or the part (the job itself "
+                          "succeeded: the plan and its verdict are the result).")
+    verification_message: str | None = Field(None, description="plan.json 'verification.message': why, one line "
+                                                               "per class of offence.")
 
 
 class JobLinks(_Model):
@@ -75,7 +81,7 @@ class Job(_Model):
     id: str = Field(..., description="Job identifier (32 hex digits).", examples=["3f2b0c3e9a1d4b7c8e6f5a4b3c2d1e0f"])
     status: JobStatus = Field(..., description="queued -> running -> succeeded | failed; cancelled by DELETE.")
     stage: str | None = Field(None, description="Current (or last) stage: read, normals, orientations, visibility, "
-                                                "setups, areas, paths, post, write (later versions may add "
+                                                "setups, areas, paths, post, simulate, write (later versions may add "
                                                 "stages).",
                               examples=["visibility"])
     progress: float = Field(..., ge=0, le=1, description="Fraction of the whole job done, 0..1.")

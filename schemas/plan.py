@@ -210,6 +210,78 @@ class Artifacts(_Out):
     plan_npz: str = "plan.npz"
     segmentation_ply: str = "segmentation.ply"
     preview_png: str = "preview.png"
+    deviation_ply: str | None = Field(None, description="Every scan point coloured by its deviation from the "
+                                                        "simulated result, with a deviation_mm property.")
+    deviation_png: str | None = Field(None, description="Views of the deviation with a colour bar in mm.")
+    stock_ply: str | None = Field(None, description="The simulated final stock as a triangle mesh.")
+
+
+class VerificationOffence(_Out):
+    """One move of one program that would harm the machine, the tool or the part."""
+
+    kind: Literal["travel", "rapid_into_material", "holder_collision", "fixture_collision"] = Field(
+        ..., description="'travel': an axis beyond its limit; 'rapid_into_material': a G0 whose tool meets stock; "
+                         "'holder_collision': the shank or holder meets stock or part; 'fixture_collision': any part "
+                         "of the tool meets a fixture, the riser or the table.")
+    program: str = Field(..., description="Program artifact.")
+    line: int = Field(..., ge=1, description="1-based line of the program text.")
+    position_mm: tuple[float, float, float] = Field(..., description="Tool tip at the end of the move, part frame, mm.")
+    amount: float = Field(..., description="Depth of the contact (mm) or excess beyond the limit (mm or deg).")
+    detail: str = Field("", description="Which axis or solid.")
+
+
+class DeviationFigures(_Out):
+    """Signed distance from the simulated final surface to the scan points (positive: material left)."""
+
+    n_points: int
+    finished_share: float = Field(
+        ..., description="Share of the points within paths.finishing.tolerance_mm + scallop_mm (+ the measuring "
+                         "bound) of the final surface on both sides.")
+    left_p50_mm: float
+    left_p95_mm: float
+    left_max_mm: float
+    gouge_max_mm: float = Field(..., description="Deepest cut below a scan point, mm (0: none), read as the highest of "
+                                                "the four rays around it (a cut must show on all four).")
+    n_gouged: int = Field(..., description="Points cut below the scan by more than the tolerance and the bound.")
+
+
+class AreaVerification(_Out):
+    """What the simulation found for one area's program."""
+
+    area: int
+    program: str
+    n_moves: int
+    removed_mm3: float
+    machining_time_s: float = Field(..., description="Feed moves at the programmed feeds, rapids at post.rapid_mm_min, s.")
+    rapids_into_material: int
+    holder_collisions: int
+    fixture_collisions: int
+    travel_excursions: int
+    deviation: DeviationFigures | None = None
+
+
+class Verification(_Out):
+    """The posted programs run on a simulated machine and stock (planning/simulate/, docs/programs.md)."""
+
+    status: Literal["passed", "failed", "skipped"] = Field(
+        ..., description="'passed' only when collisions, rapids into material, travel excursions and gouges beyond "
+                         "the tolerance are all zero; 'skipped' when simulate.enabled is false or nothing was posted.")
+    message: str = Field(..., description="One line per class of offence, or why it passed or was skipped.")
+    dialect: str | None = None
+    resolution_mm: float | None = None
+    stock_box_mm: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    stock_volume_mm3: float | None = None
+    measuring_bound_mm: float | None = Field(None, description="Stated accuracy of the deviation figures, mm.")
+    areas: list[AreaVerification] = Field(default_factory=list, description="In the order the set-ups run.")
+    deviation: DeviationFigures | None = None
+    rapids_into_material: int = 0
+    holder_collisions: int = 0
+    fixture_collisions: int = 0
+    travel_excursions: int = 0
+    machining_time_s: float = 0.0
+    worst: list[VerificationOffence] = Field(default_factory=list, description="The worst offences of each class.")
+    notes: list[str] = Field(default_factory=list, description="What the simulation assumed.")
+    seconds: float = 0.0
 
 
 class PlanResult(_Out):
@@ -233,6 +305,7 @@ class PlanResult(_Out):
     overlap_points: int
     n_integrated: int = Field(..., description="Sampled points attached to an area by distance.")
     areas: AreasSummary | None = Field(None, description="Regions and seams of the areas together.")
+    verification: Verification | None = Field(None, description="The programs run on a simulated machine and stock.")
     timings: list[Timing]
     warnings: list[str]
     artifacts: Artifacts = Field(default_factory=Artifacts)

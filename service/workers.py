@@ -81,8 +81,8 @@ PRELOAD = ["numpy", "planning.inputs.cloud", "planning.pipeline", "planning.repo
 #: Share of the whole job each stage stands for (for ``progress`` 0..1); rough, from the benchmarks.
 # Share of a job's time per stage, from the femur-like and half-sphere plans with paths (BENCHMARKS.md):
 # the tool paths take about half of it, the collision checks of visibility a quarter.
-STAGE_WEIGHTS = {"read": 0.03, "normals": 0.07, "orientations": 0.01, "visibility": 0.25, "setups": 0.08,
-                 "areas": 0.01, "paths": 0.45, "post": 0.04, "write": 0.06}
+STAGE_WEIGHTS = {"read": 0.03, "normals": 0.07, "orientations": 0.01, "visibility": 0.22, "setups": 0.07,
+                 "areas": 0.01, "paths": 0.40, "post": 0.04, "simulate": 0.09, "write": 0.06}
 _STAGE_START = {s: sum(STAGE_WEIGHTS[t] for t in JOB_STAGES[:i]) for i, s in enumerate(JOB_STAGES)}
 
 
@@ -96,8 +96,11 @@ def overall_progress(stage: str, fraction: float) -> float | None:
 
 def plan_summary(r: PlanResult) -> dict[str, Any]:
     """The job's ``result`` headline (:class:`schemas.api.JobResultSummary` fields) of a finished plan."""
+    v = r.verification
     return {"status": r.status, "message": r.message, "n_setups": len(r.setups),
-            "coverage": float(r.coverage), "overlap_points": int(r.overlap_points)}
+            "coverage": float(r.coverage), "overlap_points": int(r.overlap_points),
+            "verification": v.status if v is not None else None,
+            "verification_message": v.message if v is not None else None}
 
 
 def read_job_cloud(path: str | os.PathLike, fmt: str | None, config: PlanConfig, max_points: int) -> Cloud:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from planning.inputs.cloud import read_cloud
-from scanmill.cli import EXIT_ERROR, EXIT_INFEASIBLE, EXIT_OK, main
+from scanmill.cli import EXIT_ERROR, EXIT_INFEASIBLE, EXIT_OK, EXIT_UNSAFE, main
 from schemas.plan import plan_json_schema
 
 HS = ["--set", "normals.method=\"input\"", "--set", "setups.max_setups=2", "--set", "tool.diameter_mm=10",
@@ -23,7 +23,7 @@ def half_sphere_ply(tmp_path_factory):
 
 def test_plan_writes_the_contract(half_sphere_ply, tmp_path, capsys):
     out = tmp_path / "plan"
-    assert main(["plan", str(half_sphere_ply), "--out", str(out), *HS]) == EXIT_OK
+    code = main(["plan", str(half_sphere_ply), "--out", str(out), *HS])
     text = capsys.readouterr()
     assert "set-up" in text.out and "coverage" in text.out      # summary table
     assert "normals" in text.err and "setups" in text.err       # progress per stage
@@ -54,6 +54,9 @@ def test_plan_writes_the_contract(half_sphere_ply, tmp_path, capsys):
         for name in list(st["path"]["programs"].values()) + [st["path"]["moves"]]:
             assert (out / name).is_file()
     assert {"paths", "post"} <= {t["stage"] for t in doc["timings"]}
+    # the verdict of the simulated machine sets the exit status and is printed
+    assert code == (EXIT_OK if doc["verification"]["status"] == "passed" else EXIT_UNSAFE)
+    assert f"verification: {doc['verification']['status'].upper()}" in text.out
 
 
 def test_schema_document_rejects_a_broken_plan(half_sphere_ply, tmp_path):
@@ -126,9 +129,10 @@ def test_plan_with_a_mesh_fixture_next_to_the_config(half_sphere_ply, tmp_path, 
     cfg = {"fixtures": {"items": [{"type": "mesh", "name": "clamp", "path": "clamp.stl"}]}}
     (cfg_dir / "config.json").write_text(json.dumps(cfg))
     out = tmp_path / "plan"
-    assert main(["plan", str(half_sphere_ply), "--config", str(cfg_dir / "config.json"), "--out", str(out),
-                 *HS]) == EXIT_OK
+    code = main(["plan", str(half_sphere_ply), "--config", str(cfg_dir / "config.json"), "--out", str(out), *HS])
     doc = json.loads((out / "plan.json").read_text())
+    assert code == (EXIT_OK if doc["verification"]["status"] == "passed" else EXIT_UNSAFE)
+    assert "clamp" not in " ".join(doc["verification"]["notes"])      # the clamp was simulated as a solid
     assert doc["visibility"]["removed_total"]["fixture_collision"] > 0
     # a missing mesh is a clear error, and nothing is written
     cfg["fixtures"]["items"][0]["path"] = "nope.stl"

@@ -27,6 +27,8 @@ CONFIG = {
     "visibility": {"cone_deg": [10, 80]},
     "setups": {"coverage": 0.95, "max_setups": 2, "min_points": 1},
     "paths": {"finishing": {"scallop_mm": 0.1}},
+    # these tests are about the paths and the posts; tests/test_verification.py runs the simulation
+    "simulate": {"enabled": False},
 }
 R = 5.0
 

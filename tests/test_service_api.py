@@ -74,6 +74,8 @@ def test_finished_job_reports_times_progress_and_summary(done_job):
     assert j["attempts"] == 1 and j["error"] is None
     assert j["result"]["status"] == "planned" and j["result"]["n_setups"] == 2
     assert j["result"]["coverage"] >= 0.95
+    # the programs ran on the simulated machine: the verdict is part of the result, not an error
+    assert j["result"]["verification"] in ("passed", "failed") and j["result"]["verification_message"]
     assert j["links"]["result"].endswith("/result") and j["links"]["artifacts"].endswith("/artifacts")
 
 
@@ -91,7 +93,8 @@ def test_artifacts_list_and_download(a, done_job):
     r = a.get(done_job["links"]["artifacts"])
     assert r.status_code == 200
     items = {it["name"]: it for it in r.json()["items"]}
-    assert {"plan.json", "plan.npz", "segmentation.ply", "preview.png"} <= set(items)
+    assert {"plan.json", "plan.npz", "segmentation.ply", "preview.png", "deviation.png", "deviation.ply",
+            "stock.ply"} <= set(items)
     png = a.get(items["preview.png"]["href"])
     assert png.status_code == 200 and png.headers["content-type"] == "image/png"
     assert png.content[:8] == b"\x89PNG\r\n\x1a\n" and len(png.content) == items["preview.png"]["size_bytes"]

@@ -24,7 +24,13 @@ from scipy.spatial import cKDTree
 
 from planning.areas.graph import SurfaceGraph, neighbour_graph
 from planning.areas.labelling import alpha_expansion, labelling_energy, per_point_labels
-from planning.areas.regions import AreaFigures, area_figures, merge_small_regions, region_index, seam_totals
+from planning.areas.regions import (
+    AreaFigures,
+    area_figures,
+    merge_small_regions,
+    region_index,
+    seam_totals,
+)
 from schemas.params import AreasParams
 
 
@@ -47,6 +53,7 @@ class Areas:
     label_change_share: float = 0.0
     seam_mm: float = 0.0
     method: str = "per_point"
+    nearest_sample: np.ndarray | None = None
 
 
 def assign_areas(points: np.ndarray, sample_index: np.ndarray, normals: np.ndarray,
@@ -77,12 +84,13 @@ def assign_areas(points: np.ndarray, sample_index: np.ndarray, normals: np.ndarr
             labels = alpha_expansion(energy, graph.edges, labels)
             labels = merge_small_regions(graph, labels, sub | ~seen[:, None], params.min_region_mm2)
     regions = region_index(graph, labels)
-    input_labels, input_regions = _propagate(points, sample_index, labels, regions, k)
+    nearest = _nearest_sample(points, sample_index)
+    input_labels, input_regions = _propagate(nearest, sample_index, labels, regions, k)
     share, seam = seam_totals(graph, labels)
     return Areas(labels=labels, integrated=~seen, overlap=sub.sum(axis=1) >= 2, input_labels=input_labels,
                  regions=regions, input_regions=input_regions,
                  figures=tuple(area_figures(graph, labels, sub, params.min_region_mm2)),
-                 label_change_share=share, seam_mm=seam, method=method)
+                 label_change_share=share, seam_mm=seam, method=method, nearest_sample=nearest)
 
 
 def _attach_leftovers(sp: np.ndarray, labels: np.ndarray, seen: np.ndarray) -> np.ndarray:
@@ -94,17 +102,22 @@ def _attach_leftovers(sp: np.ndarray, labels: np.ndarray, seen: np.ndarray) -> n
     return labels
 
 
-def _propagate(points, sample_index, labels, regions, k):
-    """Step 4: the label and region of every input point from its nearest sampled point (a sampled
-    point keeps its own even when a duplicate coordinate exists)."""
-    N = points.shape[0]
+def _nearest_sample(points, sample_index) -> np.ndarray:
+    """(N,) the nearest sampled point of every input point (a sampled point is its own)."""
+    if sample_index.shape[0] == 0:
+        return np.zeros(points.shape[0], np.int64)
+    _, j = cKDTree(points[sample_index]).query(points, k=1, workers=-1)
+    j = np.asarray(j, dtype=np.int64)
+    j[sample_index] = np.arange(sample_index.shape[0])
+    return j
+
+
+def _propagate(nearest, sample_index, labels, regions, k):
+    """Step 4: the label and region of every input point from its nearest sampled point."""
+    N = nearest.shape[0]
     if sample_index.shape[0] == 0 or k == 0:
         return np.full(N, -1, np.int64), np.full(N, -1, np.int64)
-    _, j = cKDTree(points[sample_index]).query(points, k=1, workers=-1)
-    input_labels, input_regions = labels[j], regions[j]
-    input_labels[sample_index] = labels
-    input_regions[sample_index] = regions
-    return input_labels, input_regions
+    return labels[nearest], regions[nearest]
 
 
 def graph_of(points: np.ndarray, normals: np.ndarray | None, params: AreasParams | None = None) -> SurfaceGraph:

@@ -60,5 +60,31 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike) -> dict[str, Pa
         paths[name] = out / name
         _atomic_bytes(paths[name], text.encode())
 
+    paths.update(_write_simulation(outcome, out))
     _atomic_bytes(paths["plan_json"], plan_json_text(outcome).encode())
+    return paths
+
+
+def _write_simulation(outcome: PlanOutcome, out: Path) -> dict[str, Path]:
+    """The verification's artifacts (deviation PLY and PNG, final stock mesh) when it ran."""
+    from planning.report.deviation import render_deviation_png, write_deviation_ply, write_mesh_ply
+
+    sim = outcome.extra.get("simulation")
+    names = outcome.result.artifacts
+    paths: dict[str, Path] = {}
+    if sim is None or sim.deviation_mm is None:
+        return paths
+    fp = outcome.result.parameters.paths.finishing
+    v = outcome.result.verification
+    limit = fp.tolerance_mm + fp.scallop_mm + (v.measuring_bound_mm or 0.0)
+    paths["deviation_ply"] = out / names.deviation_ply
+    write_deviation_ply(paths["deviation_ply"], outcome.points, sim.deviation_mm, limit)
+    paths["deviation_png"] = out / names.deviation_png
+    render_deviation_png(paths["deviation_png"], outcome.points, sim.deviation_mm, limit,
+                         title=f"verification {v.status}: {v.message}"[:160])
+    if sim.stock is not None and names.stock_ply:
+        from planning.simulate.mesh import stock_mesh
+        vertices, faces = stock_mesh(sim.stock)
+        paths["stock_ply"] = out / names.stock_ply
+        write_mesh_ply(paths["stock_ply"], vertices, faces)
     return paths

@@ -1,0 +1,84 @@
+"""The verification's artifacts (issue 15): the scan coloured by its deviation from the simulated
+result (PLY with a ``deviation_mm`` property, and a PNG of three views with a colour bar in mm), and
+the final simulated stock as a triangle mesh (PLY). Written atomically (:func:`atomic_path`)."""
+
+from __future__ import annotations
+
+import numpy as np
+from plyfile import PlyData, PlyElement
+
+from planning.report.files import atomic_path
+
+#: Points drawn in the deviation PNG at most (a random, seeded subset of the scan).
+PNG_MAX_POINTS = 120_000
+
+
+def deviation_colors(dev: np.ndarray, limit_mm: float) -> np.ndarray:
+    """(N,3) uint8: blue where material is left (dev > 0), red where cut below the scan (dev < 0),
+    white within ``limit_mm``, saturated at 10 x ``limit_mm``; grey where not measured (NaN)."""
+    dev = np.asarray(dev, dtype=np.float64)
+    scale = max(10.0 * limit_mm, 1e-9)
+    t = np.clip(np.nan_to_num(dev, nan=0.0) / scale, -1.0, 1.0)
+    t = np.where(np.abs(dev) <= limit_mm, 0.0, t)
+    white = np.array([255.0, 255.0, 255.0])
+    blue, red = np.array([30.0, 80.0, 220.0]), np.array([220.0, 30.0, 30.0])
+    a = np.abs(t)[:, None]
+    col = np.where((t > 0)[:, None], (1 - a) * white + a * blue, (1 - a) * white + a * red)
+    col[~np.isfinite(dev)] = 128.0
+    return np.rint(col).astype(np.uint8)
+
+
+def write_deviation_ply(path, points: np.ndarray, dev: np.ndarray, limit_mm: float) -> None:
+    """Every scan point (mm) with its colour (:func:`deviation_colors`) and ``deviation_mm``."""
+    col = deviation_colors(dev, limit_mm)
+    v = np.empty(points.shape[0], dtype=[("x", "f8"), ("y", "f8"), ("z", "f8"), ("red", "u1"), ("green", "u1"),
+                                         ("blue", "u1"), ("deviation_mm", "f4")])
+    v["x"], v["y"], v["z"] = points[:, 0], points[:, 1], points[:, 2]
+    v["red"], v["green"], v["blue"] = col[:, 0], col[:, 1], col[:, 2]
+    v["deviation_mm"] = dev.astype(np.float32)
+    with atomic_path(path) as tmp:
+        PlyData([PlyElement.describe(v, "vertex")], byte_order="<").write(str(tmp))
+
+
+def write_mesh_ply(path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """A triangle mesh (vertices (V,3) mm, faces (F,3) indices) as binary PLY."""
+    v = np.empty(vertices.shape[0], dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    v["x"], v["y"], v["z"] = vertices[:, 0], vertices[:, 1], vertices[:, 2]
+    f = np.empty(faces.shape[0], dtype=[("vertex_indices", "i4", (3,))])
+    f["vertex_indices"] = faces.astype(np.int32)
+    with atomic_path(path) as tmp:
+        PlyData([PlyElement.describe(v, "vertex"), PlyElement.describe(f, "face")], byte_order="<").write(str(tmp))
+
+
+def render_deviation_png(path, points: np.ndarray, dev: np.ndarray, limit_mm: float, title: str = "") -> None:
+    """Three orthographic views (top, front, side) of the scan coloured by deviation, with a colour
+    bar in mm (positive: material left, negative: cut below the scan)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LinearSegmentedColormap, Normalize
+
+    n = points.shape[0]
+    idx = np.arange(n) if n <= PNG_MAX_POINTS else np.sort(
+        np.random.default_rng(0).choice(n, PNG_MAX_POINTS, replace=False))
+    p, d = points[idx], dev[idx]
+    span = max(10.0 * limit_mm, 1e-6)
+    cmap = LinearSegmentedColormap.from_list("dev", [(0.86, 0.12, 0.12), (1, 1, 1), (0.12, 0.31, 0.86)])
+    norm = Normalize(vmin=-span, vmax=span)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5.4), constrained_layout=True)
+    for ax, (h, v, name) in zip(axes, ((0, 1, "top (from +Z)"), (0, 2, "front (from -Y)"), (1, 2, "side (from +X)"))):
+        order = np.argsort(p[:, 3 - h - v]) if name.startswith("top") else np.argsort(
+            -p[:, 1] if name.startswith("front") else p[:, 0])
+        ax.scatter(p[order, h], p[order, v], c=np.nan_to_num(d[order], nan=0.0), cmap=cmap, norm=norm, s=0.5,
+                   linewidths=0)
+        ax.set_aspect("equal")
+        ax.set_title(name)
+        ax.set_xlabel("XYZ"[h] + " (mm)")
+        ax.set_ylabel("XYZ"[v] + " (mm)")
+    bar = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes, shrink=0.8)
+    bar.set_label("deviation, mm (+ material left, - cut below the scan)")
+    fig.suptitle(title or "deviation of the simulated result from the scan")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)

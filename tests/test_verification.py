@@ -1,0 +1,102 @@
+"""The verification stage (issue 15) in the plan: the posted programs run on the simulated machine and
+stock, the verdict in plan.json, the CLI's exit status and the artifacts; it finds today's defects
+(it must be able to fail) and passes a program that is clean."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from plyfile import PlyData
+
+from planning.inputs.cloud import read_cloud
+from planning.inputs.samples import make_sample
+from planning.pipeline import run_plan
+from planning.report.files import write_ply
+from planning.report.plan_files import write_plan
+from planning.simulate.verify import deviation_figures, verification_status
+from schemas.params import apply_overrides, parse_config
+from schemas.plan import DeviationFigures, Verification
+
+FAST = ["paths.finishing.scallop_mm=0.2", "paths.roughing.step_down_mm=5", "simulate.resolution_mm=1.0"]
+
+
+def _write_sample(name, path):
+    s = make_sample(name)
+    write_ply(path, s.points, normals=s.normals)
+
+
+@pytest.fixture(scope="module")
+def slot_plan(tmp_path_factory):
+    out = tmp_path_factory.mktemp("slot")
+    cloud_path = out / "slot.ply"
+    _write_sample("slot", cloud_path)
+    cloud = read_cloud(cloud_path)
+    outcome = run_plan(cloud, parse_config(apply_overrides({}, FAST)), name="slot.ply")
+    paths = write_plan(outcome, out / "plan")
+    return outcome, paths
+
+
+def test_todays_slot_programs_fail_verification_with_the_defects_on_their_lines(slot_plan):
+    outcome, paths = slot_plan
+    v = outcome.result.verification
+    assert v is not None and v.status == "failed"
+    assert v.dialect == "linuxcnc" and v.resolution_mm == 1.0
+    # the approach height from the top of a large arc's circle lies beyond the Z travel
+    assert v.travel_excursions > 0
+    travel = [o for o in v.worst if o.kind == "travel"]
+    assert travel and travel[0].amount > 100.0
+    text = outcome.extra["programs"][travel[0].program].splitlines()
+    assert text[travel[0].line - 1].lstrip().startswith(("G0", "Z", "X", "G53"))
+    assert v.rapids_into_material + v.holder_collisions + v.fixture_collisions > 0
+    assert len(v.areas) == len(outcome.result.setups)
+    assert all(a.removed_mm3 > 0 for a in v.areas)
+    assert v.deviation is not None and 0 < v.deviation.n_points == outcome.points.shape[0]
+    # the verdict reaches plan.json as written
+    doc = json.loads(paths["plan_json"].read_text())
+    assert doc["verification"]["status"] == "failed"
+    assert doc["artifacts"]["deviation_png"] == "deviation.png"
+
+
+def test_the_artifacts_are_the_scan_by_deviation_and_the_stock_mesh(slot_plan):
+    outcome, paths = slot_plan
+    ply = PlyData.read(str(paths["deviation_ply"]))
+    vx = ply["vertex"]
+    assert vx.count == outcome.points.shape[0]
+    assert "deviation_mm" in vx.data.dtype.names
+    dev = np.asarray(vx["deviation_mm"])
+    assert np.nanmax(dev) > 0                                # material left somewhere (the slot's floor)
+    mesh = PlyData.read(str(paths["stock_ply"]))
+    assert mesh["face"].count > 100 and mesh["vertex"].count > 100
+    assert paths["deviation_png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_cli_exits_4_when_the_verification_fails_and_0_when_it_is_off(tmp_path, capsys):
+    from scanmill.cli import main
+
+    cloud = tmp_path / "slot.ply"
+    _write_sample("slot", cloud)
+    sets = [a for s in FAST for a in ("--set", s)]
+    assert main(["plan", str(cloud), "--out", str(tmp_path / "p"), "--quiet"] + sets) == 4
+    printed = capsys.readouterr().out
+    assert "verification: FAILED" in printed and "beyond the machine's travel" in printed
+    assert main(["plan", str(cloud), "--out", str(tmp_path / "q"), "--quiet", "--set", "simulate.enabled=false"]
+                + sets) == 0
+    doc = json.loads((tmp_path / "q" / "plan.json").read_text())
+    assert doc["verification"]["status"] == "skipped"
+
+
+def test_deviation_figures_and_the_verdict_rules():
+    dev = np.array([0.0, 0.005, -0.005, 0.5, -0.2, np.nan])
+    f = deviation_figures(dev, limit_mm=0.02, gouge_mm=0.01)
+    assert f.n_points == 5 and f.finished_share == pytest.approx(3 / 5)
+    assert f.left_max_mm == pytest.approx(0.5) and f.gouge_max_mm == pytest.approx(0.2) and f.n_gouged == 1
+    clean = Verification(status="passed", message="", deviation=DeviationFigures(
+        n_points=1, finished_share=1.0, left_p50_mm=0, left_p95_mm=0, left_max_mm=0, gouge_max_mm=0, n_gouged=0))
+    assert verification_status(clean) == "passed"
+    for field in ("travel_excursions", "rapids_into_material", "holder_collisions", "fixture_collisions"):
+        bad = clean.model_copy(update={field: 1})
+        assert verification_status(bad) == "failed"
+    gouged = clean.model_copy(update={"deviation": clean.deviation.model_copy(update={"n_gouged": 1})})
+    assert verification_status(gouged) == "failed"
+    assert math.isfinite(f.left_p95_mm)

@@ -12,7 +12,12 @@ from hypothesis import strategies as st
 
 from planning.areas.assign import assign_areas
 from planning.areas.graph import neighbour_graph
-from planning.areas.labelling import LabellingEnergy, alpha_expansion, labelling_energy, per_point_labels
+from planning.areas.labelling import (
+    LabellingEnergy,
+    alpha_expansion,
+    labelling_energy,
+    per_point_labels,
+)
 from planning.areas.regions import label_regions, merge_small_regions, region_index
 from schemas.params import AreasParams
 

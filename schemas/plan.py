@@ -257,6 +257,9 @@ class AreaVerification(_Out):
     holder_collisions: int
     fixture_collisions: int
     travel_excursions: int
+    plunges_into_material: int = Field(
+        0, description="Feed moves of the roughing end mill straight down (within 10 degrees of the tool axis) that "
+                       "removed material: plunges into solid stock (reported; not part of the verdict).")
     deviation: DeviationFigures | None = None
 
 
@@ -278,6 +281,8 @@ class Verification(_Out):
     holder_collisions: int = 0
     fixture_collisions: int = 0
     travel_excursions: int = 0
+    plunges_into_material: int = 0
+    unreadable_programs: int = Field(0, description="Programs the reader refused (named in notes): not verified.")
     machining_time_s: float = 0.0
     worst: list[VerificationOffence] = Field(default_factory=list, description="The worst offences of each class.")
     notes: list[str] = Field(default_factory=list, description="What the simulation assumed.")

@@ -100,3 +100,58 @@ def test_deviation_figures_and_the_verdict_rules():
     gouged = clean.model_copy(update={"deviation": clean.deviation.model_copy(update={"n_gouged": 1})})
     assert verification_status(gouged) == "failed"
     assert math.isfinite(f.left_p95_mm)
+
+
+def test_rs274_and_our_reader_cut_the_same_stock_and_find_the_same_offences(slot_plan):
+    """LinuxCNC's interpreter is the independent reader: its canonical moves, simulated, give the
+    same final stock and the same offence counts as our reading of the program text."""
+    from planning.orientations.kinematics import load_profile
+    from planning.simulate.models import build_models
+    from planning.simulate.program import read_program
+    from planning.simulate.rs274 import run_rs274
+    from planning.simulate.run import run_moves
+    from planning.simulate.verify import _tools, stock_extent
+
+    outcome, _ = slot_plan
+    p = outcome.result.parameters
+    profile = load_profile(p.machine.profile)
+    place = np.asarray(outcome.result.visibility.placement_mm, dtype=float)
+    tools = _tools(p, p.tool.assembly())
+    name = "area_0.linuxcnc.nc"
+    text = outcome.extra["programs"][name]
+    lo, hi = stock_extent(outcome.points, p.stock)
+    figures, volumes = {}, {}
+    for reader in ("ours", "rs274"):
+        if reader == "ours":
+            motion = read_program(text, dialect="linuxcnc", program=name, area=0, profile=profile,
+                                  placement_mm=place, tools=tools)
+        else:
+            motion = run_rs274(text, program=name, area=0, profile=profile, placement_mm=place, tools=tools)
+        models = build_models(lo, hi, p, [], tools, resolution_mm=1.0)
+        run = run_moves(models.stock, models.obstacles, motion, tools)
+        volumes[reader] = models.stock.volume_mm3()
+        figures[reader] = ((run.rapid_depth_mm > 0).sum(), (run.holder_depth_mm > 0).sum(), run.removed_mm3.sum())
+    assert volumes["ours"] == pytest.approx(volumes["rs274"], rel=1e-4)
+    assert figures["ours"][2] == pytest.approx(figures["rs274"][2], rel=1e-3)
+    for a, b in zip(figures["ours"][:2], figures["rs274"][:2]):
+        assert abs(int(a) - int(b)) <= max(2, 0.01 * max(a, b))
+    assert figures["ours"][0] > 0 and figures["ours"][1] > 0          # the offences are there to agree on
+
+
+def test_a_program_the_reader_refuses_fails_the_verification_without_losing_the_plan(slot_plan):
+    from planning.geometry.fixtures import TableFixture
+    from planning.orientations.kinematics import load_profile
+    from planning.simulate.verify import verify_plan
+
+    outcome, _ = slot_plan
+    p = outcome.result.parameters
+    programs = dict(outcome.extra["programs"])
+    programs["area_0.linuxcnc.nc"] = programs["area_0.linuxcnc.nc"].replace("G21", "G20", 1)   # inches
+    sim = verify_plan(programs=programs, k=len(outcome.result.setups), config=p,
+                      profile=load_profile(p.machine.profile), placement_mm=outcome.result.visibility.placement_mm,
+                      tool=p.tool.assembly(), fixtures=[TableFixture(z_mm=-200.0)], points=outcome.points,
+                      normals=np.tile([0, 0, 1.0], (outcome.points.shape[0], 1)), input_labels=outcome.input_labels)
+    v = sim.verification
+    assert v.status == "failed" and v.unreadable_programs == 1
+    assert "could not be read" in v.message and any("area_0.linuxcnc.nc" in n for n in v.notes)
+    assert [a.area for a in v.areas] == [1]                      # the other area was still run

@@ -27,6 +27,7 @@ from planning.orientations import (
     machine_visibility,
 )
 from planning.post.programs import post_areas
+from planning.simulate.models import load_blank
 from planning.setups import SetupSelection, select_setups, zone_mask
 from planning.toolpath.area_paths import area_toolpaths
 from planning.visibility import GlobalVisibility, cone_visibility, global_visibility
@@ -335,6 +336,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     points = cloud.points
     profile = load_profile(config.machine.profile)
     tool = config.tool.assembly()          # cutter, shank and holder: visibility, paths and posts
+    blank = load_blank(config.stock, base_dir) if config.simulate.enabled else None   # a bad file stops here
 
     nrm = run.stage("normals", lambda p: _normals(cloud, config, p))
     run.warnings += _normals_warnings(nrm)
@@ -362,7 +364,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
         programs, path_summaries = run.stage("post", lambda p: post_areas(
             area_paths, setups_axes=sel_axes, rotary_deg=ori.angles_deg[selected], profile=profile,
             placement_mm=gv.placement_mm, gauge_length_mm=tool.gauge_length_mm, config=config))
-    simulation = _simulation(cloud, config, nrm, areas, programs, selected.size, profile, tool, gv, run)
+    simulation = _simulation(cloud, config, nrm, areas, programs, selected.size, profile, tool, gv, blank, run)
 
     names = _ROTARY_NAMES[profile.kinematics]
     result = _plan_result(cloud, config, name, nrm, ori, vis, sel, areas, profile, names,
@@ -379,7 +381,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
 
 
 def _simulation(cloud: Cloud, config: PlanConfig, nrm: _Normals, areas: Areas, programs: dict, k: int, profile,
-                tool, gv: GlobalVisibility, run: _Run):
+                tool, gv: GlobalVisibility, blank, run: _Run):
     """Stage 9 (issue 15): the posted programs run on the simulated machine and stock, or why not."""
     from planning.simulate.verify import skipped, verify_plan
 
@@ -390,7 +392,8 @@ def _simulation(cloud: Cloud, config: PlanConfig, nrm: _Normals, areas: Areas, p
     normals = cloud.normals if cloud.normals is not None else nrm.normals[areas.nearest_sample]
     return run.stage("simulate", lambda p: verify_plan(
         programs=programs, k=k, config=config, profile=profile, placement_mm=gv.placement_mm, tool=tool,
-        fixtures=gv.fixtures, points=cloud.points, normals=normals, input_labels=areas.input_labels, progress=p))
+        fixtures=gv.fixtures, points=cloud.points, normals=normals, input_labels=areas.input_labels, blank=blank,
+        progress=p))
 
 
 def _plan_result(cloud: Cloud, config: PlanConfig, name, nrm: _Normals, ori: _Orientations, vis: _Visibility,

@@ -322,9 +322,13 @@ class AreasParams(_Strict):
 class StockParams(_Strict):
     """The blank the programs cut, in part coordinates (mm), for the simulation (planning/simulate/)."""
 
-    type: Literal["box", "cylinder"] = Field(
+    type: Literal["box", "cylinder", "mesh"] = Field(
         "box", description="'box': the part's bounding box grown by margin_mm, or min_mm/max_mm when given; "
-                           "'cylinder': the smallest cylinder about axis through the box's centre, grown by margin_mm.")
+                           "'cylinder': the smallest cylinder about axis through the box's centre, grown by margin_mm; "
+                           "'mesh': the real blank, a closed STL/OBJ/PLY mesh at path in part coordinates (CLI only).")
+    path: str | None = Field(None, min_length=1, max_length=1000,
+                             description="Mesh file of the blank for type 'mesh' (relative to the configuration's folder).")
+    units: Literal["mm", "m", "in"] = Field("mm", description="Unit of the blank mesh's coordinates.")
     margin_mm: float = Field(2.0, ge=0, le=1000, description="Stock beyond the part's bounding box on every side, mm.")
     min_mm: Vec3 | None = Field(None, description="Lower corner of an explicit box stock (x, y, z), mm.")
     max_mm: Vec3 | None = Field(None, description="Upper corner of an explicit box stock (x, y, z), mm.")
@@ -336,6 +340,8 @@ class StockParams(_Strict):
             raise ValueError("stock.min_mm and stock.max_mm go together")
         if self.min_mm is not None and not all(a < b for a, b in zip(self.min_mm, self.max_mm)):
             raise ValueError("stock.min_mm must be below stock.max_mm on every axis")
+        if (self.type == "mesh") != (self.path is not None):
+            raise ValueError("stock.path is required with stock.type 'mesh' and only then")
         return self
 
 

@@ -136,6 +136,10 @@ def check_service_parameters(config: PlanConfig) -> PlanConfig:
         raise ParameterError(f"fixtures.items[{meshes[0]}]: mesh fixtures read a file path, which the service does not "
                              "accept; give the fixture as boxes, cylinders or points_mm, or use the CLI",
                              problems=[f"fixtures.items[{i}].type: 'mesh' is CLI only" for i in meshes])
+    if config.stock.type == "mesh":
+        raise ParameterError("stock.type = 'mesh' reads a file path, which the service does not accept; give the "
+                             "blank as a box (stock.min_mm/max_mm) or a cylinder, or use the CLI",
+                             problems=["stock.type: 'mesh' is CLI only"])
     return config
 
 

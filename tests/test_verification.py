@@ -155,3 +155,28 @@ def test_a_program_the_reader_refuses_fails_the_verification_without_losing_the_
     assert v.status == "failed" and v.unreadable_programs == 1
     assert "could not be read" in v.message and any("area_0.linuxcnc.nc" in n for n in v.notes)
     assert [a.area for a in v.areas] == [1]                      # the other area was still run
+
+
+def test_a_mesh_blank_is_the_stock_and_the_service_refuses_its_path(tmp_path):
+    import open3d as o3d
+
+    from planning.errors import InputError, ParameterError
+    from planning.simulate.models import build_models, load_blank
+    from planning.simulate.motion import ToolShape
+    from schemas.params import StockParams
+    from service.intake import check_service_parameters
+
+    box = o3d.geometry.TriangleMesh.create_box(40.0, 30.0, 20.0)
+    o3d.io.write_triangle_mesh(str(tmp_path / "blank.stl"), box.compute_triangle_normals())
+    cfg = parse_config({"stock": {"type": "mesh", "path": "blank.stl"}})
+    blank = load_blank(cfg.stock, base_dir=tmp_path)
+    tools = {1: ToolShape(1, "ball", 3.0, 3.0, 12.0, (), 100.0)}
+    models = build_models(blank.vertices.min(0), blank.vertices.max(0), cfg, [], tools, resolution_mm=0.5,
+                          blank=blank)
+    assert models.stock.volume_mm3() == pytest.approx(40 * 30 * 20, rel=0.01)
+    with pytest.raises(InputError):
+        load_blank(StockParams(type="mesh", path="missing.stl"), base_dir=tmp_path)
+    with pytest.raises(ParameterError, match="CLI"):
+        check_service_parameters(cfg)
+    with pytest.raises(ParameterError):
+        parse_config({"stock": {"type": "mesh"}})

@@ -1,8 +1,8 @@
 """The solids of a plan's simulation (part frame, mm), built with :mod:`planning.simulate.stock`:
 
 * the **stock** (``stock.*``): the box ``lo``-``hi`` the verification passes (the part's bounding box
-  grown by ``stock.margin_mm``, or ``stock.min_mm``/``max_mm``), or the smallest cylinder about
-  ``stock.axis`` through that box's centre around it;
+  grown by ``stock.margin_mm``, or ``stock.min_mm``/``max_mm``), the smallest cylinder about
+  ``stock.axis`` through that box's centre around it, or the real blank's closed mesh;
 * the **obstacles**, never to be cut or touched: the fixtures (boxes, cylinders, meshes), the riser
   (``simulate.riser_diameter_mm``, under the centre of the stock's underside, from the table top up
   to it) and the table. Their domain is the stock box grown by the tools' largest radius on the
@@ -52,13 +52,31 @@ def _fixture_top(fixtures) -> float:
     return max(tops, default=-np.inf)
 
 
-def build_models(lo, hi, config, fixtures, tools: dict, *, resolution_mm: float) -> Models:
+def load_blank(stock, base_dir=None):
+    """The blank's mesh of ``stock.type`` 'mesh' (:class:`MeshFixture`, part frame, mm), read once
+    at the start of a plan so that a bad file stops it before any work; None for other types.
+    Raises :class:`~planning.errors.InputError` for a missing, unreadable or open mesh."""
+    if stock.type != "mesh":
+        return None
+    from pathlib import Path
+
+    from planning.geometry.fixtures import load_mesh
+
+    path = Path(stock.path)
+    if base_dir is not None and not path.is_absolute():
+        path = Path(base_dir) / path
+    return load_mesh(path, units={"mm": 1.0, "m": 1000.0, "in": 25.4}[stock.units], name="blank", solid=True)
+
+
+def build_models(lo, hi, config, fixtures, tools: dict, *, resolution_mm: float, blank=None) -> Models:
     """The stock, the obstacles and the measuring bound of a plan (module docstring). ``tools``:
     the :class:`~planning.simulate.motion.ToolShape` of every T number (their largest radius sets
-    how far the obstacle domain reaches beyond the stock)."""
+    how far the obstacle domain reaches beyond the stock); ``blank``: the mesh of a 'mesh' stock."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     st = config.stock
-    if st.type == "box":
+    if blank is not None:
+        stock = TriDexel.from_mesh(blank.vertices, blank.triangles, resolution_mm)
+    elif st.type == "box":
         stock = stock_box(lo, hi, resolution_mm)
     else:
         stock = stock_cylinder(lo, hi, st.axis, 0.0, resolution_mm)

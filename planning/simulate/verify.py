@@ -73,8 +73,12 @@ def choose_dialect(programs: dict[str, str], wanted: str) -> str | None:
     return None
 
 
-def stock_extent(points: np.ndarray, stock) -> tuple[np.ndarray, np.ndarray]:
-    """The stock's bounding box (lo, hi) in the part frame, mm (``stock``: :class:`StockParams`)."""
+def stock_extent(points: np.ndarray, stock, blank=None) -> tuple[np.ndarray, np.ndarray]:
+    """The stock's bounding box (lo, hi) in the part frame, mm (``stock``: :class:`StockParams`;
+    ``blank``: the mesh of a 'mesh' stock)."""
+    if blank is not None:
+        v = np.asarray(blank.vertices, float)
+        return v.min(axis=0), v.max(axis=0)
     if stock.min_mm is not None:
         return np.asarray(stock.min_mm, float), np.asarray(stock.max_mm, float)
     lo, hi = points.min(axis=0), points.max(axis=0)
@@ -177,13 +181,14 @@ def verification_status(v: Verification) -> str:
 
 def verify_plan(*, programs: dict[str, str], k: int, config, profile, placement_mm, tool: ToolAssembly,
                 fixtures: Sequence, points: np.ndarray, normals: np.ndarray, input_labels: np.ndarray,
-                progress: Progress | None = None) -> SimulationOutcome:
+                blank=None, progress: Progress | None = None) -> SimulationOutcome:
     """Run every area's program of ``programs`` on the simulated machine and stock (module docstring).
 
     ``k`` set-ups run in their order 0..k-1; ``profile`` the machine profile; ``placement_mm`` the
     part-frame origin on the table; ``tool`` the finishing assembly; ``fixtures`` the fixture solids
     and the table (part frame); ``points`` (N,3) the scan with unit ``normals`` (N,3) and
-    ``input_labels`` (N,). Lengths in mm."""
+    ``input_labels`` (N,); ``blank`` the mesh of a 'mesh' stock
+    (:func:`planning.simulate.models.load_blank`). Lengths in mm."""
     from planning.simulate import models as stock_models
     from planning.simulate.program import check_travel, read_program
     from planning.simulate.run import run_moves, signed_deviation
@@ -194,8 +199,8 @@ def verify_plan(*, programs: dict[str, str], k: int, config, profile, placement_
     if dialect is None:
         return skipped(f"no program in the dialect {sim.dialect!r} was posted")
     tools = _tools(config, tool)
-    lo, hi = stock_extent(points, config.stock)
-    models = stock_models.build_models(lo, hi, config, fixtures, tools, resolution_mm=sim.resolution_mm)
+    lo, hi = stock_extent(points, config.stock, blank)
+    models = stock_models.build_models(lo, hi, config, fixtures, tools, resolution_mm=sim.resolution_mm, blank=blank)
     v = Verification(status="passed", message="", dialect=dialect, resolution_mm=sim.resolution_mm,
                      stock_box_mm=(tuple(map(float, lo)), tuple(map(float, hi))),
                      stock_volume_mm3=round(float(models.stock.volume_mm3()), 1),

@@ -27,8 +27,8 @@ from planning.orientations import (
     machine_visibility,
 )
 from planning.post.programs import post_areas
-from planning.simulate.models import load_blank
 from planning.setups import SetupSelection, select_setups, zone_mask
+from planning.simulate.models import load_blank
 from planning.toolpath.area_paths import area_toolpaths
 from planning.visibility import GlobalVisibility, cone_visibility, global_visibility
 from schemas.params import PlanConfig

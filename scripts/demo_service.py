@@ -159,12 +159,17 @@ def run(args) -> int:
             print(f"  set-up {s['id']}: tool axis ({s['tool_axis'][0]:+.3f}, {s['tool_axis'][1]:+.3f}, "
                   f"{s['tool_axis'][2]:+.3f})  {rot}  {s['n_points']} points")
             path = s.get("path") or {}
+            rough = path.get("roughing")
+            if rough:
+                print(f"    roughing: {rough['n_levels']} levels, {rough['length_mm'] / 1000:.1f} m, "
+                      f"{rough['machining_time_s'] / 60:.0f} min")
             fin = path.get("finishing")
             if fin:
                 print(f"    finishing: {fin['n_passes']} passes, {fin['n_cl']} moves ({fin['n_arcs']} arcs), "
                       f"min clearance {fin['min_clearance_mm']:.4f} mm"
                       f"{' (gouge free)' if fin['gouge_free'] else ' (GOUGES)'}; programs: "
                       + ", ".join(path.get("programs", {}).values()))
+        _print_verification(plan)
         for w in plan["warnings"]:
             print(f"  warning: {w}")
         print(f"results: {out_dir}/ ({', '.join(sorted(p.name for p in out_dir.iterdir()))})")
@@ -173,6 +178,20 @@ def run(args) -> int:
     finally:
         _say(t0, "stopping the service")
         stop_server(proc)
+
+
+def _print_verification(plan: dict) -> None:
+    """The verdict of the simulated machine (plan.json ``verification``), one line per area."""
+    v = plan.get("verification")
+    if not v:
+        return
+    print(f"verification: {v['status'].upper()} - {v['message']}")
+    for a in v.get("areas", []):
+        print(f"    {a['program']}: {a['travel_excursions']} beyond travel, {a['rapids_into_material']} rapids into "
+              f"material, {a['holder_collisions']} holder contacts, {a['fixture_collisions']} fixture contacts, "
+              f"{a['machining_time_s'] / 60:.0f} min simulated")
+    if v["status"] == "failed":
+        print("    do not run these programs as they are: see deviation.png and plan.json verification.worst")
 
 
 def main(argv=None) -> int:

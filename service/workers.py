@@ -79,10 +79,11 @@ THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NU
 PRELOAD = ["numpy", "planning.inputs.cloud", "planning.pipeline", "planning.report.plan_files", "schemas.params"]
 
 #: Share of the whole job each stage stands for (for ``progress`` 0..1); rough, from the benchmarks.
-# Share of a job's time per stage, from the femur-like and half-sphere plans with paths (BENCHMARKS.md):
-# the tool paths take about half of it, the collision checks of visibility a quarter.
-STAGE_WEIGHTS = {"read": 0.03, "normals": 0.07, "orientations": 0.01, "visibility": 0.22, "setups": 0.07,
-                 "areas": 0.01, "paths": 0.40, "post": 0.04, "simulate": 0.09, "write": 0.06}
+# Share of a job's time per stage, from the femur-like plan of `make run` (2026-11-25, plan.json timings:
+# visibility 25 s, setups 3, areas 2, paths 58, post 1.5, simulate 43 s on a first run whose kernels
+# compiled, about 12 s warm; BENCHMARKS.md): the tool paths take about 45 %, the simulation 15-30 %.
+STAGE_WEIGHTS = {"read": 0.02, "normals": 0.02, "orientations": 0.01, "visibility": 0.18, "setups": 0.03,
+                 "areas": 0.02, "paths": 0.44, "post": 0.02, "simulate": 0.18, "write": 0.08}
 _STAGE_START = {s: sum(STAGE_WEIGHTS[t] for t in JOB_STAGES[:i]) for i, s in enumerate(JOB_STAGES)}
 
 

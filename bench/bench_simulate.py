@@ -25,7 +25,8 @@ as the demo sends a raw scan):
    simulation runs in the planning process, on top of what the plan holds;
 3. the share of the simulation in the whole plan: simulation s / (plan s + simulation s);
 4. the verification figures, overall and per area: status, travel excursions (worst: line, axis,
-   excess), rapids into material (count, deepest), holder and fixture collisions, removed volume,
+   excess), rapids into material (count, deepest), holder and fixture collisions, straight plunges
+   of the roughing end mill into material, removed volume,
    deviation percentiles of the material left, deepest cut, finished share, gouges, simulated
    machining time.
 
@@ -287,6 +288,7 @@ def area_rows(v: dict) -> list[dict]:
             "travel_worst": f"line {tr['line']}: {tr['detail']} (+{tr['amount']:.3f})" if tr else "",
             "rapids": a["rapids_into_material"], "rapid_deepest_mm": rp["amount"] if rp else 0.0,
             "holder": a["holder_collisions"], "fixture": a["fixture_collisions"],
+            "plunges": a.get("plunges_into_material", 0),
             "removed_cm3": round(a["removed_mm3"] / 1000, 1),
             "left_p50": d.get("left_p50_mm"), "left_p95": d.get("left_p95_mm"), "left_max": d.get("left_max_mm"),
             "deepest_cut": d.get("gouge_max_mm"), "gouged": d.get("n_gouged"), "finished": d.get("finished_share"),
@@ -298,17 +300,18 @@ def print_areas(case: str, rec: dict) -> None:
     v = rec["verification"]
     print(f"\n{case} at {rec['resolution_mm']} mm: {v['status'].upper()} - {v['message']}")
     print("| area | program | moves | travel exc. (worst) | rapids into material (deepest mm) | holder | fixture "
-          "| removed cm3 | left p50 / p95 / max mm | deepest cut mm | gouged pts | finished | machining min |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| plunges | removed cm3 | left p50 / p95 / max mm | deepest cut mm | gouged pts | finished | machining min |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in area_rows(v):
         tw = f" ({r['travel_worst']})" if r["travel_worst"] else ""
         print(f"| {r['area']} | {r['program']} | {r['moves']} | {r['travel']}{tw} | {r['rapids']} "
-              f"({r['rapid_deepest_mm']:.3f}) | {r['holder']} | {r['fixture']} | {r['removed_cm3']} | "
+              f"({r['rapid_deepest_mm']:.3f}) | {r['holder']} | {r['fixture']} | {r['plunges']} | {r['removed_cm3']} | "
               f"{r['left_p50']:.3f} / {r['left_p95']:.3f} / {r['left_max']:.3f} | {r['deepest_cut']:.3f} | "
               f"{r['gouged']} | {r['finished']:.1%} | {r['time_min']} |")
     d = v["deviation"]
     print(f"| all | | {sum(a['n_moves'] for a in v['areas'])} | {v['travel_excursions']} | "
           f"{v['rapids_into_material']} | {v['holder_collisions']} | {v['fixture_collisions']} | "
+          f"{v.get('plunges_into_material', 0)} | "
           f"{round(sum(a['removed_mm3'] for a in v['areas']) / 1000, 1)} | {d['left_p50_mm']:.3f} / "
           f"{d['left_p95_mm']:.3f} / {d['left_max_mm']:.3f} | {d['gouge_max_mm']:.3f} | {d['n_gouged']} | "
           f"{d['finished_share']:.1%} | {round(v['machining_time_s'] / 60, 1)} |")

@@ -556,6 +556,12 @@ def signed_deviation(stock: TriDexel, points, normals, max_mm: float = 5.0, high
     point on a peak of the machined surface (a sparse cloud's ball drop dips between the points,
     so every scan point tops a small peak) reads low when interpolated; a cut below the point must
     show on all four rays to read negative here."""
+    out, out_hi = deviation_pair(stock, points, normals, max_mm)
+    return out_hi if highest else out
+
+
+def deviation_pair(stock: TriDexel, points, normals, max_mm: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+    """Both readings of :func:`signed_deviation` in one pass: (interpolated, highest of the 4 rays)."""
     p = np.ascontiguousarray(points, float).reshape(-1, 3)
     nr = np.ascontiguousarray(normals, float).reshape(-1, 3)
     if p.shape != nr.shape:
@@ -564,4 +570,4 @@ def signed_deviation(stock: TriDexel, points, normals, max_mm: float = 5.0, high
     out_hi = np.empty(p.shape[0])
     K.deviation(stock.lo, stock.res, stock.n, stock.base, stock.off, stock.cnt, stock.pool, p, nr,
                 float(max_mm), out, out_hi)
-    return out_hi if highest else out
+    return out, out_hi

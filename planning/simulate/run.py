@@ -9,10 +9,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planning.simulate.dexel import TriDexel, collide, signed_deviation, simulate_moves
+from planning.simulate.dexel import TriDexel, collide, deviation_pair, signed_deviation, simulate_moves
 from planning.simulate.motion import ProgramMotion
 
-__all__ = ["MoveFigures", "run_moves", "signed_deviation"]
+__all__ = ["MoveFigures", "deviation_pair", "run_moves", "signed_deviation"]
 
 
 @dataclass

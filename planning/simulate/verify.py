@@ -191,7 +191,7 @@ def verify_plan(*, programs: dict[str, str], k: int, config, profile, placement_
     (:func:`planning.simulate.models.load_blank`). Lengths in mm."""
     from planning.simulate import models as stock_models
     from planning.simulate.program import check_travel, read_program
-    from planning.simulate.run import run_moves, signed_deviation
+    from planning.simulate.run import deviation_pair, run_moves
 
     t0 = time.perf_counter()
     sim = config.simulate
@@ -241,8 +241,7 @@ def verify_plan(*, programs: dict[str, str], k: int, config, profile, placement_
                   for t in sorted(travel, key=lambda t: -t["excess"])[:WORST_PER_CLASS]]
         if progress is not None:
             progress((n_done + 1) / (len(names) + 1), f"{name}: {motion.n_moves} moves simulated")
-    dev = signed_deviation(models.stock, points, normals, max_mm=10.0)
-    dev_high = signed_deviation(models.stock, points, normals, max_mm=10.0, highest=True)
+    dev, dev_high = deviation_pair(models.stock, points, normals, max_mm=10.0)
     fp = config.paths.finishing
     limit = fp.tolerance_mm + fp.scallop_mm + models.measuring_bound_mm
     gouge = fp.tolerance_mm + models.measuring_bound_mm

@@ -352,7 +352,7 @@ class SimulateParams(_Strict):
     resolution_mm: float = Field(
         1.0, ge=0.05, le=10, description="Spacing of the dexel rays, mm: finer finds thinner contacts and measures the "
                                          "deviation closer (bound 3/4 r^2 / R), at a cost of time and memory growing "
-                                         "as about 1/r^2 (femur-like plan: 11 s at 1 mm, 25 s at 0.5 mm).")
+                                         "as about 1/r^2 (femur-like plan, BENCHMARKS.md: 23-28 s at 1 mm, 51-66 s at 0.5 mm).")
     dialect: Literal["auto", "iso", "linuxcnc"] = Field(
         "auto", description="Which posted dialect to run: 'auto' = linuxcnc when posted (explicit machine axes), "
                             "else iso.")

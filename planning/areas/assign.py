@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from planning.areas.graph import SurfaceGraph, neighbour_graph
+from planning.areas.graph import neighbour_graph
 from planning.areas.labelling import alpha_expansion, labelling_energy, per_point_labels
 from planning.areas.regions import (
     AreaFigures,
@@ -118,8 +118,3 @@ def _propagate(nearest, sample_index, labels, regions, k):
     if sample_index.shape[0] == 0 or k == 0:
         return np.full(N, -1, np.int64), np.full(N, -1, np.int64)
     return labels[nearest], regions[nearest]
-
-
-def graph_of(points: np.ndarray, normals: np.ndarray | None, params: AreasParams | None = None) -> SurfaceGraph:
-    """The neighbourhood graph :func:`assign_areas` labels on (for reports and benchmarks)."""
-    return neighbour_graph(points, normals, (params or AreasParams()).neighbours)

@@ -91,15 +91,12 @@ def _paths_table(result) -> str:
 
 
 def _print_verification(r) -> None:
-    """The verification verdict: one line per class of offence, the worst offenders, the deviation."""
+    """What the simulation found: the worst offenders and the deviation (the verdict itself is in the
+    machining summary, scanmill/summary.py)."""
     v = r.verification
-    if v is None:
+    if v is None or v.status == "skipped" or not (v.worst or v.deviation is not None):
         return
-    print(f"verification: {v.status.upper()} - {v.message}")
-    if v.status == "skipped":
-        return
-    for part in v.message.split("; ") if v.status == "failed" else []:
-        print(f"  - {part}")
+    print("verification details (simulated machine):")
     shown: dict[str, int] = {}
     for o in v.worst:
         shown[o.kind] = shown.get(o.kind, 0) + 1
@@ -119,6 +116,7 @@ def cmd_plan(args) -> int:
     from planning.inputs.cloud import read_cloud
     from planning.pipeline import run_plan
     from planning.report.plan_files import write_plan
+    from scanmill.summary import format_summary
     from schemas.params import parse_config
 
     config = parse_config(_load_config(args))
@@ -147,6 +145,7 @@ def cmd_plan(args) -> int:
     if paths_text:
         print(paths_text)
     _print_verification(r)
+    print(format_summary(r.model_dump(mode="json", by_alias=True)))
     for w in r.warnings:
         print(f"warning: {w}")
     print("timings: " + ", ".join(f"{t.stage} {t.seconds:.2f} s" for t in r.timings))
@@ -225,7 +224,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_plan)
 
     s = sub.add_parser("sample", help="write a reference cloud (docs/design.md reference cases) as PLY")
-    s.add_argument("name", help="half_sphere, femur_like, slot or post_wall")
+    s.add_argument("name", help="half_sphere, femur_like, slot, post_wall or filleted_box")
     s.add_argument("--out", required=True, help="output PLY file")
     s.add_argument("--points", type=int, help="number of points, where the sample takes one")
     s.add_argument("--seed", type=int, help="random seed")

@@ -15,18 +15,21 @@ arguments always give the same arrays (all randomness comes from ``numpy.random.
 - :func:`slot` - a block with a straight slot (or a closed pocket) cut in its top: the floor is
   reachable only by tool axes close to the slot's vertical plane.
 - :func:`post_wall` - a plate with a cylindrical post standing a known gap away from a wall.
+- :func:`filleted_box` - a 60 x 40 x 20 mm box with its top and vertical edges rounded (10 mm
+  fillets): the part a new user would bring.
 
-Frames: millimetres, z up. The femur, the slot block and the post plate stand on the table: the
-lowest point of the exact surface at z = 0 and the bounding box centred in x and y (the slot
-and the post lie on x = 0); the half sphere is centred at the origin, z >= 0.
+Frames: millimetres, z up. The femur, the slot block, the post plate and the filleted box stand on
+the table: the lowest point of the exact surface at z = 0 and the bounding box centred in x and y
+(the slot and the post lie on x = 0); the half sphere is centred at the origin, z >= 0.
 
 Modules: :mod:`~planning.inputs.samples.common` (:class:`Sample`, argument checks),
 :mod:`~planning.inputs.samples.hemisphere` (:func:`half_sphere`),
 :mod:`~planning.inputs.samples.primitives` (implicit sphere, ellipsoid, capsule, bent tube),
 :mod:`~planning.inputs.samples.femur` (:func:`femur_like`, :func:`femur_implicit`),
 :mod:`~planning.inputs.samples.scanner` (the simulated scanner views of the femur),
-:mod:`~planning.inputs.samples.prismatic` (:func:`slot`, :func:`post_wall`); this package holds
-the registry :data:`SAMPLES` and :func:`make_sample`.
+:mod:`~planning.inputs.samples.prismatic` (:func:`slot`, :func:`post_wall`),
+:mod:`~planning.inputs.samples.filleted` (:func:`filleted_box`); this package holds the registry
+:data:`SAMPLES` and :func:`make_sample`.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from planning.inputs.samples.femur import (
     femur_implicit,
     femur_like,
 )
+from planning.inputs.samples.filleted import filleted_box, filleted_box_inner_box
 from planning.inputs.samples.hemisphere import half_sphere
 from planning.inputs.samples.prismatic import post_wall, slot, slot_floor_max_tilt_deg
 
@@ -49,6 +53,8 @@ __all__ = [
     "Sample",
     "femur_implicit",
     "femur_like",
+    "filleted_box",
+    "filleted_box_inner_box",
     "half_sphere",
     "make_sample",
     "post_wall",
@@ -63,6 +69,7 @@ SAMPLES: dict[str, Callable[..., Sample]] = {
     "femur_like": femur_like,
     "slot": slot,
     "post_wall": post_wall,
+    "filleted_box": filleted_box,
 }
 
 

@@ -120,7 +120,7 @@ def plan_once(name: str, ply: Path) -> tuple[dict, dict]:
     stages = {t.stage: round(t.seconds, 2) for t in out.result.timings if t.stage != "simulate"}
     stub_s = sum(t.seconds for t in out.result.timings if t.stage == "simulate")
     plan = {"case": name, "n_points": int(cloud.points.shape[0]), "status": out.result.status,
-            "k": int(captured.get("k", 0)), "n_programs": len(captured.get("programs", {})),
+            "k": len(captured.get("order", [])), "n_programs": len(captured.get("programs", {})),
             "stages_s": stages, "plan_s": round(wall - stub_s, 2), "config": case_config(name)}
     return plan, captured
 
@@ -164,7 +164,7 @@ def _reset_peak() -> bool:
 def _read_all_s(kw: dict) -> float:
     """Seconds to read every area's program text back into moves (part of each verify_plan call)."""
     from planning.simulate.program import read_program
-    from planning.simulate.verify import _tools, choose_dialect
+    from planning.simulate.verify import choose_dialect, tool_shapes as _tools
 
     cfg = kw["config"]
     dialect = choose_dialect(kw["programs"], cfg.simulate.dialect)

@@ -255,12 +255,55 @@ def _areas_warnings(areas: Areas, nrm: _Normals) -> list[str]:
 
 
 def _paths(points: np.ndarray, areas: Areas, sel_axes: np.ndarray, tool, gv: GlobalVisibility,
-           config: PlanConfig, progress) -> list:
-    """Stage 7 (Makki §4; Sood; Popescu; Tchanchane & Bey): roughing and finishing per area and region."""
+           config: PlanConfig, progress, carried=None) -> list:
+    """Stage 7 (Makki §4; Sood; Popescu; Tchanchane & Bey): roughing and finishing per area and region,
+    on the carried stock when given (issue 16)."""
     return area_toolpaths(
         points, areas.input_labels, sel_axes, tool=tool, paths_params=config.paths, fixtures=gv.fixtures,
         forbidden=gv.forbidden_mm, max_slope_deg=min(float(config.visibility.cone_deg[1]), 87.0),
-        input_regions=areas.input_regions, progress=progress)
+        input_regions=areas.input_regions, progress=progress, carried=carried)
+
+
+def _carried(points: np.ndarray, areas: Areas, config: PlanConfig, tool, gv: GlobalVisibility, profile,
+             rotary_deg: np.ndarray, blank):
+    """The stock carried through the set-ups (issue 16 item 1): the same stock, obstacles and tools
+    as the verification (:mod:`planning.simulate.models`), the set-ups on the machine for the travel,
+    and the machining order."""
+    from planning.simulate.kinematics import MachineModel
+    from planning.simulate.models import build_models
+    from planning.simulate.verify import stock_extent, tool_shapes
+    from planning.toolpath.carried import CarriedStock, footprint, machining_order
+    from planning.toolpath.guard import SetupMachine
+
+    tools = tool_shapes(config, tool)
+    lo, hi = stock_extent(points, config.stock, blank)
+    models = build_models(lo, hi, config, gv.fixtures, tools, resolution_mm=config.simulate.resolution_mm, blank=blank)
+    model = MachineModel(profile, gv.placement_mm)
+    machines = [SetupMachine(model, np.asarray(a, dtype=np.float64)) for a in rotary_deg]
+    k = int(rotary_deg.shape[0])
+    return CarriedStock(stock=models.stock, obstacles=models.obstacles,
+                        finishing_shape=tools[config.post.finishing_tool_number],
+                        roughing_shape=tools[config.post.roughing_tool_number], machines=machines,
+                        order=machining_order(areas.input_labels, k),
+                        rapid_clearance_mm=config.simulate.rapid_clearance_mm + config.paths.guard_rapid_clearance_mm,
+                        floor_z_mm=float(points[:, 2].min()), resolution_mm=config.simulate.resolution_mm,
+                        footprint=footprint(points))
+
+
+def _unmachined(area_paths, n_points: int):
+    """The plan's unmachined scan points (issue 16 item 3), or None when no area was guarded."""
+    from schemas.plan import UnmachinedSummary
+
+    done = [ap for ap in area_paths if getattr(ap, "unmachined", None) is not None]
+    if not done:
+        return None
+    per = {int(ap.area): int(ap.unmachined.size) for ap in done}
+    n = int(sum(per.values()))
+    msg = ("every scan point is reached by a kept finishing move" if n == 0 else
+           f"{n} scan points ({n / max(n_points, 1):.1%}) are reached by no kept finishing move: their CL points "
+           "were cut out where the holder, the stock, a fixture or the travel forbids them (setups[].path.finishing."
+           "blocked_cl)")
+    return UnmachinedSummary(n_points=n, share=round(n / max(n_points, 1), 6), per_area=per, message=msg)
 
 
 def _paths_warnings(area_paths) -> list[str]:
@@ -269,6 +312,22 @@ def _paths_warnings(area_paths) -> list[str]:
         if ap.finishing is not None and not ap.gouge_free:
             warnings.append(f"area {ap.area}: the finishing path comes {ap.min_clearance_mm:.4f} mm from a cloud "
                             f"point, closer than R - tolerance: it would gouge")
+        for op, g in (("roughing", getattr(ap, "roughing_guard", None)), ("finishing", getattr(ap, "finishing_guard", None))):
+            if g is not None and g.truncated:
+                warnings.append(f"area {ap.area}: the {op} path was cut off {g.truncated} moves before its end: they "
+                                f"still met the stock, a fixture or the travel after {g.rounds} repair rounds "
+                                f"(setups[].path.{op}.guard)")
+        if getattr(ap, "blocked", None) and sum(ap.blocked.values()) and ap.finishing is None:
+            reasons = ", ".join(f"{k} {v}" for k, v in ap.blocked.items() if v)
+            warnings.append(f"set-up {ap.area} cannot finish any of its area: every finishing CL point is blocked "
+                            f"({reasons}; 'travel' = beyond the machine's travel at this set-up's rotary "
+                            f"position); its {0 if ap.unmachined is None else ap.unmachined.size} scan points are "
+                            "left unmachined")
+        elif getattr(ap, "blocked", None) and sum(ap.blocked.values()):
+            reasons = ", ".join(f"{k} {v}" for k, v in ap.blocked.items() if v)
+            warnings.append(f"area {ap.area}: finishing CL points cut out where the tool may not go ({reasons}); "
+                            f"{0 if ap.unmachined is None else ap.unmachined.size} scan points of the area are left "
+                            "unmachined (plan.json unmachined)")
         if ap.holder_collisions or ap.fixture_collisions:
             warnings.append(f"area {ap.area}: at {ap.holder_collisions} finishing CL points the shank or holder "
                             f"meets the cloud and at {ap.fixture_collisions} the tool meets a fixture or the "
@@ -336,7 +395,8 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     points = cloud.points
     profile = load_profile(config.machine.profile)
     tool = config.tool.assembly()          # cutter, shank and holder: visibility, paths and posts
-    blank = load_blank(config.stock, base_dir) if config.simulate.enabled else None   # a bad file stops here
+    carry = config.paths.carry_stock and (config.paths.finishing.enabled or config.paths.roughing.enabled)
+    blank = load_blank(config.stock, base_dir) if (config.simulate.enabled or carry) else None   # a bad file stops here
 
     nrm = run.stage("normals", lambda p: _normals(cloud, config, p))
     run.warnings += _normals_warnings(nrm)
@@ -356,20 +416,26 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     run.warnings += _areas_warnings(areas, nrm)
     area_paths = []
     pp = config.paths
+    order = list(range(int(selected.size)))
     if (pp.finishing.enabled or pp.roughing.enabled) and selected.size:
-        area_paths = run.stage("paths", lambda p: _paths(points, areas, sel_axes, tool, gv, config, p))
+        carried = _carried(points, areas, config, tool, gv, profile, ori.angles_deg[selected], blank) if carry else None
+        if carried is not None:
+            order = carried.order
+        area_paths = run.stage("paths", lambda p: _paths(points, areas, sel_axes, tool, gv, config, p, carried))
         run.warnings += _paths_warnings(area_paths)
     programs, path_summaries = ({}, {})
     if area_paths:
         programs, path_summaries = run.stage("post", lambda p: post_areas(
             area_paths, setups_axes=sel_axes, rotary_deg=ori.angles_deg[selected], profile=profile,
             placement_mm=gv.placement_mm, gauge_length_mm=tool.gauge_length_mm, config=config))
-    simulation = _simulation(cloud, config, nrm, areas, programs, selected.size, profile, tool, gv, blank, run)
+    simulation = _simulation(cloud, config, nrm, areas, programs, order, profile, tool, gv, blank, run)
 
     names = _ROTARY_NAMES[profile.kinematics]
     result = _plan_result(cloud, config, name, nrm, ori, vis, sel, areas, profile, names,
                           _setup_rows(ori, gv.visible, selected, areas, names, path_summaries), run)
     result.verification = simulation.verification
+    result.machining_order = order
+    result.unmachined = _unmachined(area_paths, points.shape[0])
     if simulation.deviation_mm is not None:
         result.artifacts.deviation_ply, result.artifacts.deviation_png = "deviation.ply", "deviation.png"
     if simulation.stock is not None:
@@ -380,8 +446,8 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
                               "simulation": simulation})
 
 
-def _simulation(cloud: Cloud, config: PlanConfig, nrm: _Normals, areas: Areas, programs: dict, k: int, profile,
-                tool, gv: GlobalVisibility, blank, run: _Run):
+def _simulation(cloud: Cloud, config: PlanConfig, nrm: _Normals, areas: Areas, programs: dict, order: list[int],
+                profile, tool, gv: GlobalVisibility, blank, run: _Run):
     """Stage 9 (issue 15): the posted programs run on the simulated machine and stock, or why not."""
     from planning.simulate.verify import skipped, verify_plan
 
@@ -391,7 +457,7 @@ def _simulation(cloud: Cloud, config: PlanConfig, nrm: _Normals, areas: Areas, p
         return skipped("no program was posted")
     normals = cloud.normals if cloud.normals is not None else nrm.normals[areas.nearest_sample]
     return run.stage("simulate", lambda p: verify_plan(
-        programs=programs, k=k, config=config, profile=profile, placement_mm=gv.placement_mm, tool=tool,
+        programs=programs, order=order, config=config, profile=profile, placement_mm=gv.placement_mm, tool=tool,
         fixtures=gv.fixtures, points=cloud.points, normals=normals, input_labels=areas.input_labels, blank=blank,
         progress=p))
 

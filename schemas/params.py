@@ -393,8 +393,10 @@ class FinishingParams(_Strict):
 
 
 class RoughingParams(_Strict):
-    """Z-level roughing of each set-up from a stock box (Popescu 2014 binary map and graph linking;
-    Tchanchane & Bey offset contours) with a flat or bull-nose end mill."""
+    """Z-level roughing of each set-up (Popescu 2014 binary map and graph linking; Tchanchane & Bey
+    offset contours) with a flat or bull-nose end mill, from the stock box or, where the caller
+    carries the stock through the set-ups, from the material left (rest roughing); entries into the
+    material by helix or ramp."""
 
     enabled: bool = Field(True, description="Compute roughing paths for every area.")
     tool_type: Literal["flat", "bull"] = Field("flat", description="End mill: 'flat' or 'bull' (bull-nose).")
@@ -410,6 +412,21 @@ class RoughingParams(_Strict):
     stepover_mm: float | None = Field(
         None, gt=0, le=100, description="Distance between clearing lines, mm; null = 60 % of the diameter.")
     pattern: Literal["zigzag", "oneway"] = Field("zigzag", description="Clearing lines alternate or run one way.")
+    entry: Literal["helix", "ramp", "plunge"] = Field(
+        "helix", description="How a level is entered where material stands under the tool: 'helix' (falls back to "
+                             "a ramp, then a plunge), 'ramp' (back and forth along the first line; falls back to a "
+                             "helix, then a plunge) or 'plunge' (straight down everywhere). Either way the tool first "
+                             "tries to come down in air beside the material and feed in; straight plunges into air or "
+                             "holes already cut stay straight.")
+    entry_angle_deg: float = Field(
+        3.0, gt=0, le=45, description="Descent angle of helix and ramp entries from the horizontal, degrees.")
+    entry_diameter_mm: float | None = Field(
+        None, gt=0, le=200, description="Diameter of the circle the tool centre follows in a helix entry, mm (less "
+                                        "than twice the cutter diameter); null = 70 % of the cutter diameter (no core "
+                                        "is left under the cutter's centre).")
+    ramp_length_mm: float | None = Field(
+        None, gt=0, le=1000, description="Longest leg of a ramp entry, mm (at least the cutter radius); null = twice "
+                                         "the cutter diameter.")
 
     @model_validator(mode="after")
     def _corner(self) -> "RoughingParams":
@@ -417,6 +434,12 @@ class RoughingParams(_Strict):
             raise ValueError(f"corner_radius_mm {self.corner_radius_mm} exceeds the cutter radius {self.diameter_mm / 2.0}")
         if self.tool_type == "flat" and self.corner_radius_mm > 0:
             raise ValueError("a flat end mill has corner_radius_mm 0; use tool_type 'bull'")
+        if self.entry_diameter_mm is not None and not self.entry_diameter_mm < 2.0 * self.diameter_mm:
+            raise ValueError(f"entry_diameter_mm {self.entry_diameter_mm} must be less than twice the cutter diameter "
+                             f"{2.0 * self.diameter_mm}")
+        if self.ramp_length_mm is not None and self.ramp_length_mm < self.diameter_mm / 2.0:
+            raise ValueError(f"ramp_length_mm {self.ramp_length_mm} must be at least the cutter radius "
+                             f"{self.diameter_mm / 2.0}")
         return self
 
 
@@ -426,8 +449,18 @@ class PathsParams(_Strict):
     finishing: FinishingParams = Field(default_factory=FinishingParams)
     roughing: RoughingParams = Field(default_factory=RoughingParams)
     safe_clearance_mm: float = Field(
-        5.0, gt=0, le=500, description="Retracts and rapids run this far above the highest point of the cloud and of "
-                                       "the fixtures under the area (tool tip), mm.")
+        5.0, gt=0, le=500, description="Retracts and rapids run this far above the highest point of the cloud, of "
+                                       "the stock left by the set-ups before and of the fixtures under the area "
+                                       "(tool tip), mm.")
+    carry_stock: bool = Field(
+        True, description="Carry one simulated stock (stock.*, at simulate.resolution_mm) through the set-ups in "
+                          "their machining order: each set-up roughs only what the ones before left (rest "
+                          "roughing), and every move is run on that stock, the fixtures and the machine's travel "
+                          "before it is posted; what would collide or leave the travel is cut out (guard). "
+                          "false: every set-up roughs from the full stock box and nothing is guarded.")
+    guard_rapid_clearance_mm: float = Field(
+        0.5, ge=0, le=50, description="The guard keeps every rapid this far from the stock it runs over, mm "
+                                      "(a margin over simulate.rapid_clearance_mm for the programs' rounding).")
 
 
 class PostParams(_Strict):
@@ -452,6 +485,11 @@ class PostParams(_Strict):
     rotary_sign: tuple[Literal[1, -1], Literal[1, -1]] = Field(
         (1, 1), description="Multiply the (tilt, rotary) angles by these signs in the LinuxCNC post, for a control "
                             "that counts an axis the other way than the planner (planning/orientations/kinematics.py).")
+    max_arc_radius_mm: float = Field(
+        500.0, gt=0, le=100_000,
+        description="Largest radius of a G2/G3 arc, mm: the posts write any arc of a larger radius as G1 chords "
+                    "within 0.002 mm of it (a single G1 where it is straighter than that), since a near-straight "
+                    "arc of metres' radius has its centre and circle far off the part.")
 
 
 class PlanConfig(_Strict):

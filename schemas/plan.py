@@ -87,6 +87,22 @@ class FrameSummary(_Out):
     z_axis: tuple[float, float, float] = Field(..., description="Frame Z = the tool axis.")
 
 
+class GuardSummary(_Out):
+    """What the guard (issue 16; planning/toolpath/guard.py) found and changed in one operation, run on
+    the carried stock, the fixtures and the machine's travel before posting."""
+
+    found: dict[str, int] = Field(
+        default_factory=dict, description="Moves that offended on the first run, per class: 'rapid' (a rapid into "
+                                          "material), 'holder' (shank or holder in material), 'fixture' (the tool "
+                                          "in a fixture, the riser or the table), 'travel' (beyond the travel).")
+    rapids_to_feed: int = Field(0, description="Rapids into material replaced by a way over the stock: up along the tool axis to the safe height, across, and down as a plunge feed.")
+    dropped: int = Field(0, description="Path points cut out (the path retracts before and comes down after).")
+    truncated: int = Field(0, description="Moves cut off at the end because they still offended after the last "
+                                          "round (0 when the guard repaired everything).")
+    rounds: int = Field(0, description="Runs on the stock.")
+    removed_mm3: float = Field(0.0, description="Material the operation removes from the carried stock, mm^3.")
+
+
 class FinishingSummary(_Out):
     """Ball-end finishing of one area (frame units: mm)."""
 
@@ -108,10 +124,18 @@ class FinishingSummary(_Out):
     fixture_collisions: int = Field(
         ..., description="CL points where the tool assembly meets a fixture or the table.")
     machining_time_s: float = Field(..., description="At the post's feeds and rapid rate, no acceleration, s.")
+    blocked_cl: dict[str, int] = Field(
+        default_factory=dict, description="CL points cut out of the passes before reduction, per reason: 'cloud' "
+                                          "(cutter above the ball, shank or holder meets the scan), 'stock' (shank or "
+                                          "holder in the carried stock), 'fixture', 'travel', 'underside' (ball below "
+                                          "the part's underside); a point may count under several.")
+    unmachined_points: int = Field(0, description="Scan points of the area that no kept finishing move reaches.")
+    guard: GuardSummary | None = None
 
 
 class RoughingSummary(_Out):
-    """Z-level roughing of one area from a stock box."""
+    """Z-level roughing of one area: from a stock box, or (paths.carry_stock) from the stock the set-ups
+    before left."""
 
     n_levels: int
     length_mm: float = Field(..., description="Cutting length, mm.")
@@ -123,6 +147,11 @@ class RoughingSummary(_Out):
     stock_box_mm: tuple[tuple[float, float, float], tuple[float, float, float]] = Field(
         ..., description="Stock box (min corner, max corner) in the area frame, mm.")
     machining_time_s: float
+    rest: bool = Field(False, description="Rest roughing: only the material the set-ups before left was cut.")
+    n_helix: int = Field(0, description="Entries into material by a helix.")
+    n_ramps: int = Field(0, description="Entries into material by a ramp.")
+    n_plunges_into_material: int = Field(0, description="Straight plunges into material (no helix or ramp fitted).")
+    guard: GuardSummary | None = None
 
 
 class AreaPathSummary(_Out):
@@ -240,9 +269,15 @@ class DeviationFigures(_Out):
     left_p50_mm: float
     left_p95_mm: float
     left_max_mm: float
-    gouge_max_mm: float = Field(..., description="Deepest cut below a scan point, mm (0: none), read as the highest of "
-                                                "the four rays around it (a cut must show on all four).")
-    n_gouged: int = Field(..., description="Points cut below the scan by more than the tolerance and the bound.")
+    gouge_max_mm: float = Field(..., description="Deepest cut below a scan point, mm (0: none): read as the highest of "
+                                                "the four rays around it (a cut must show on all four), and for the "
+                                                "points read as gouged, measured exactly against the tools of the "
+                                                "moves that ran (planning/simulate/gouge.py).")
+    n_gouged: int = Field(..., description="Points cut below the scan by more than the tolerance: read so on the stock "
+                                           "model (beyond the tolerance and the measuring bound) and confirmed by the "
+                                           "exact depth inside a tool of a move that ran.")
+    n_suspected: int = Field(0, description="Points the stock model read as gouged; those the exact measure did not "
+                                            "confirm are resolution artefacts (cusps and seams finer than the rays).")
 
 
 class AreaVerification(_Out):
@@ -289,6 +324,15 @@ class Verification(_Out):
     seconds: float = 0.0
 
 
+class UnmachinedSummary(_Out):
+    """Scan points no kept finishing move reaches (issue 16 item 3)."""
+
+    n_points: int = Field(..., description="Input points not finished by any area's kept finishing moves.")
+    share: float = Field(..., description="n_points / input points.")
+    per_area: dict[int, int] = Field(default_factory=dict, description="Unmachined points per area.")
+    message: str = Field("", description="Why, in one sentence.")
+
+
 class PlanResult(_Out):
     """Everything ``scanmill plan`` and a finished job report about a plan."""
 
@@ -311,6 +355,11 @@ class PlanResult(_Out):
     n_integrated: int = Field(..., description="Sampled points attached to an area by distance.")
     areas: AreasSummary | None = Field(None, description="Regions and seams of the areas together.")
     verification: Verification | None = Field(None, description="The programs run on a simulated machine and stock.")
+    machining_order: list[int] = Field(
+        default_factory=list, description="Set-up (area) ids in the order they are machined (paths.carry_stock: the "
+                                          "stock is carried in this order; the programs run in it).")
+    unmachined: UnmachinedSummary | None = Field(
+        None, description="Scan points that no kept finishing move reaches (cut out for collisions or travel).")
     timings: list[Timing]
     warnings: list[str]
     artifacts: Artifacts = Field(default_factory=Artifacts)

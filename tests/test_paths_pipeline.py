@@ -104,7 +104,9 @@ def test_programs_read_back_onto_the_cl_points(plan):
     cfg = out.result.parameters
     profile = load_profile(cfg.machine.profile)
     placement = out.result.visibility.placement_mm
-    for st, ap in zip(out.result.setups, out.extra["area_paths"]):
+    by_id = {st.id: st for st in out.result.setups}
+    for ap in out.extra["area_paths"]:                    # in the machining order
+        st = by_id[ap.area]
         axis = np.asarray(st.tool_axis)
         tips = out.arrays[f"cl_{ap.area}"] - R * axis
         machine = Machine(kinematics=profile.kinematics, placement_mm=tuple(placement),

@@ -245,11 +245,15 @@ def test_levels_step_down_to_the_floor():
     rp2 = roughing_paths(pts, tool_radius_mm=RT, step_down_mm=3.0, floor_z_mm=-5.3)
     np.testing.assert_allclose(rp2.levels_mm, [-1.0, -4.0, -5.3])
     assert rp2.levels_mm[-1] == -5.3
-    # cuts happen only at the levels, and every level reached in the stock is entered by a plunge
+    # cuts happen only at the levels, and every level reached in the stock is entered by a plunge,
+    # a helix or a ramp: every run of plunge-feed moves ends at a level (all of it with entry='plunge')
     tp = rp.toolpath
     cut_z = np.unique(tp.xyz_mm[tp.use == USE_CUT, 2])
     assert np.all(np.isin(cut_z, lv))
-    assert set(np.unique(tp.xyz_mm[tp.use == USE_PLUNGE, 2])) <= set(lv)
+    pl = tp.use == USE_PLUNGE
+    assert set(np.unique(tp.xyz_mm[pl & ~np.append(pl[1:], False), 2])) <= set(lv)
+    tpp = roughing_paths(pts, tool_radius_mm=RT, step_down_mm=2.0, entry="plunge").toolpath
+    assert set(np.unique(tpp.xyz_mm[tpp.use == USE_PLUNGE, 2])) <= set(lv)
 
 
 def test_same_input_same_path_progress_and_no_contour():

@@ -316,7 +316,8 @@ def test_posted_operations_read_back_onto_the_planned_paths(case):
            Operation("finishing", toolpath(case + 50, 3.0), 2, 6.0, "ball", 12000, 1500.0, 400.0,
                      gauge_length_mm=110.0)]
     sign = (-1, 1) if case % 2 else (1, -1)
-    texts = {"iso": iso_program(ops, frame, tool_axis=t, options=PostOptions(line_numbers=case % 3 == 0)),
+    texts = {"iso": iso_program(ops, frame, tool_axis=t, rotary_deg=ang, profile=prof,
+                                options=PostOptions(line_numbers=case % 3 == 0)),
              "linuxcnc": linuxcnc_program(ops, frame, tool_axis=t, rotary_deg=ang, profile=prof, placement_mm=place,
                                           options=PostOptions(rotary_sign=sign, line_numbers=case % 3 == 0))}
     got = {d: read_program(x, dialect=d, program=d, area=0, profile=prof, placement_mm=place, tools=tools)
@@ -336,7 +337,9 @@ def test_posted_operations_read_back_onto_the_planned_paths(case):
     io, it = line_ends(got["linuxcnc"]), line_ends(got["rs274"])
     assert np.array_equal(got["linuxcnc"].line[io], got["rs274"].line[it])
     assert np.abs(got["linuxcnc"].end_mm[io] - got["rs274"].end_mm[it]).max() < 1e-3
-    assert np.abs(got["linuxcnc"].rotary_deg[-1] - ang).max() < 1e-6
+    # every cutting move at the planned angles; the programs end with the rotary axes home (at 0)
+    assert np.abs(got["linuxcnc"].rotary_deg[got["linuxcnc"].kind == FEED] - ang).max() < 1e-6
+    assert all(np.abs(m.rotary_deg[-1]).max() < 1e-9 for m in got.values())
 
 
 # ----------------------------------------------------------------------------------------------

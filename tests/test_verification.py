@@ -1,6 +1,7 @@
 """The verification stage (issue 15) in the plan: the posted programs run on the simulated machine and
 stock, the verdict in plan.json, the CLI's exit status and the artifacts; it finds today's defects
-(it must be able to fail) and passes a program that is clean."""
+(it must be able to fail: the unguarded programs, paths.carry_stock=false) and passes the guarded
+programs of a default plan (issue 16)."""
 
 import json
 import math
@@ -37,25 +38,48 @@ def slot_plan(tmp_path_factory):
     return outcome, paths
 
 
-def test_todays_slot_programs_fail_verification_with_the_defects_on_their_lines(slot_plan):
+@pytest.fixture(scope="module")
+def unguarded_slot_plan(tmp_path_factory):
+    """The slot planned as before issue 16: every set-up roughs its full stock box and nothing is
+    guarded (paths.carry_stock=false): the programs have real defects for the verification to find."""
+    out = tmp_path_factory.mktemp("slot_unguarded")
+    cloud_path = out / "slot.ply"
+    _write_sample("slot", cloud_path)
+    outcome = run_plan(read_cloud(cloud_path), parse_config(apply_overrides({}, FAST + ["paths.carry_stock=false"])),
+                       name="slot.ply")
+    return outcome, write_plan(outcome, out / "plan")
+
+
+def test_the_guarded_slot_programs_pass_verification(slot_plan):
+    """Issue 16 acceptance on the slot: the programs of a default plan run clean on the simulated
+    machine and stock (no rapid into material, no shank, holder or fixture contact, nothing beyond
+    the travel, no gouge), every set-up cuts, and the verdict reaches plan.json as written."""
     outcome, paths = slot_plan
     v = outcome.result.verification
-    assert v is not None and v.status == "failed"
+    assert v is not None and v.status == "passed", v.message
     assert v.dialect == "linuxcnc" and v.resolution_mm == 1.0
-    # the approach height from the top of a large arc's circle lies beyond the Z travel
-    assert v.travel_excursions > 0
-    travel = [o for o in v.worst if o.kind == "travel"]
-    assert travel and travel[0].amount > 100.0
-    text = outcome.extra["programs"][travel[0].program].splitlines()
-    assert text[travel[0].line - 1].lstrip().startswith(("G0", "Z", "X", "G53"))
-    assert v.rapids_into_material + v.holder_collisions + v.fixture_collisions > 0
+    assert (v.travel_excursions, v.rapids_into_material, v.holder_collisions, v.fixture_collisions,
+            v.unreadable_programs, v.deviation.n_gouged) == (0, 0, 0, 0, 0, 0)
     assert len(v.areas) == len(outcome.result.setups)
+    assert [a.area for a in v.areas] == outcome.result.machining_order
     assert all(a.removed_mm3 > 0 for a in v.areas)
     assert v.deviation is not None and 0 < v.deviation.n_points == outcome.points.shape[0]
-    # the verdict reaches plan.json as written
+    assert v.deviation.finished_share > 0.7
     doc = json.loads(paths["plan_json"].read_text())
-    assert doc["verification"]["status"] == "failed"
+    assert doc["verification"]["status"] == "passed"
     assert doc["artifacts"]["deviation_png"] == "deviation.png"
+
+
+def test_the_unguarded_slot_programs_fail_verification_with_the_defects_on_their_lines(unguarded_slot_plan):
+    outcome, paths = unguarded_slot_plan
+    v = outcome.result.verification
+    assert v is not None and v.status == "failed"
+    assert v.rapids_into_material + v.holder_collisions + v.fixture_collisions > 0
+    worst = [o for o in v.worst if o.kind in ("rapid_into_material", "holder_collision", "fixture_collision")]
+    assert worst
+    text = outcome.extra["programs"][worst[0].program].splitlines()
+    assert text[worst[0].line - 1].lstrip().startswith(("G0", "G1", "G2", "G3", "X", "Y", "Z"))
+    assert json.loads(paths["plan_json"].read_text())["verification"]["status"] == "failed"
 
 
 def test_the_artifacts_are_the_scan_by_deviation_and_the_stock_mesh(slot_plan):
@@ -76,10 +100,10 @@ def test_cli_exits_4_when_the_verification_fails_and_0_when_it_is_off(tmp_path, 
 
     cloud = tmp_path / "slot.ply"
     _write_sample("slot", cloud)
-    sets = [a for s in FAST for a in ("--set", s)]
+    sets = [a for s in FAST + ["paths.carry_stock=false"] for a in ("--set", s)]
     assert main(["plan", str(cloud), "--out", str(tmp_path / "p"), "--quiet"] + sets) == 4
     printed = capsys.readouterr().out
-    assert "verification: FAILED" in printed and "beyond the machine's travel" in printed
+    assert "verification: FAILED" in printed
     assert main(["plan", str(cloud), "--out", str(tmp_path / "q"), "--quiet", "--set", "simulate.enabled=false"]
                 + sets) == 0
     doc = json.loads((tmp_path / "q" / "plan.json").read_text())
@@ -91,6 +115,13 @@ def test_deviation_figures_and_the_verdict_rules():
     f = deviation_figures(dev, limit_mm=0.02, gouge_mm=0.01)
     assert f.n_points == 5 and f.finished_share == pytest.approx(3 / 5)
     assert f.left_max_mm == pytest.approx(0.5) and f.gouge_max_mm == pytest.approx(0.2) and f.n_gouged == 1
+    # the exact depth decides: a reading the tools never cut that deep is an artefact, not a gouge
+    exact = np.array([np.nan, np.nan, np.nan, np.nan, 0.005, np.nan])
+    g = deviation_figures(dev, limit_mm=0.02, gouge_mm=0.01, exact_depth=exact, exact_limit_mm=0.011)
+    assert g.n_suspected == 1 and g.n_gouged == 0 and g.gouge_max_mm == pytest.approx(0.005)
+    exact[4] = 0.15
+    g = deviation_figures(dev, limit_mm=0.02, gouge_mm=0.01, exact_depth=exact, exact_limit_mm=0.011)
+    assert g.n_suspected == 1 and g.n_gouged == 1 and g.gouge_max_mm == pytest.approx(0.15)
     clean = Verification(status="passed", message="", deviation=DeviationFigures(
         n_points=1, finished_share=1.0, left_p50_mm=0, left_p95_mm=0, left_max_mm=0, gouge_max_mm=0, n_gouged=0))
     assert verification_status(clean) == "passed"
@@ -102,7 +133,7 @@ def test_deviation_figures_and_the_verdict_rules():
     assert math.isfinite(f.left_p95_mm)
 
 
-def test_rs274_and_our_reader_cut_the_same_stock_and_find_the_same_offences(slot_plan):
+def test_rs274_and_our_reader_cut_the_same_stock_and_find_the_same_offences(unguarded_slot_plan):
     """LinuxCNC's interpreter is the independent reader: its canonical moves, simulated, give the
     same final stock and the same offence counts as our reading of the program text."""
     from planning.orientations.kinematics import load_profile
@@ -110,9 +141,9 @@ def test_rs274_and_our_reader_cut_the_same_stock_and_find_the_same_offences(slot
     from planning.simulate.program import read_program
     from planning.simulate.rs274 import run_rs274
     from planning.simulate.run import run_moves
-    from planning.simulate.verify import _tools, stock_extent
+    from planning.simulate.verify import stock_extent, tool_shapes as _tools
 
-    outcome, _ = slot_plan
+    outcome, _ = unguarded_slot_plan
     p = outcome.result.parameters
     profile = load_profile(p.machine.profile)
     place = np.asarray(outcome.result.visibility.placement_mm, dtype=float)
@@ -147,7 +178,7 @@ def test_a_program_the_reader_refuses_fails_the_verification_without_losing_the_
     p = outcome.result.parameters
     programs = dict(outcome.extra["programs"])
     programs["area_0.linuxcnc.nc"] = programs["area_0.linuxcnc.nc"].replace("G21", "G20", 1)   # inches
-    sim = verify_plan(programs=programs, k=len(outcome.result.setups), config=p,
+    sim = verify_plan(programs=programs, order=outcome.result.machining_order or len(outcome.result.setups), config=p,
                       profile=load_profile(p.machine.profile), placement_mm=outcome.result.visibility.placement_mm,
                       tool=p.tool.assembly(), fixtures=[TableFixture(z_mm=-200.0)], points=outcome.points,
                       normals=np.tile([0, 0, 1.0], (outcome.points.shape[0], 1)), input_labels=outcome.input_labels)

@@ -1,8 +1,9 @@
 """Arc geometry of the posts (docs/design.md stage 8, post-processing), area or program frame, mm and
 radians: the principal plane an arc's normal lands on in a program frame (:func:`principal_plane`),
 the chord points of a linearised arc (:func:`arc_chord_points`, and :func:`_chord_points` for many
-arcs at once in the whole-array motion blocks), and the safe height of an operation
-(:func:`safe_height_mm`: its highest tip, arcs that bulge above their end points counted).
+arcs at once in the whole-array motion blocks), the radius that ``PostOptions.max_arc_radius_mm``
+bounds (:func:`arc_radius_mm`), and the safe height of an operation (:func:`safe_height_mm`: its
+highest tip, an arc that passes over the top of its circle counted there).
 
 Approach and retract (safe height)
 ----------------------------------
@@ -32,7 +33,7 @@ from planning.toolpath.moves import (
 
 from .options import Operation, PostOptions
 
-__all__ = ["ARC_PLANE_TOL", "arc_chord_points", "principal_plane", "safe_height_mm"]
+__all__ = ["ARC_PLANE_TOL", "arc_chord_points", "arc_radius_mm", "principal_plane", "safe_height_mm"]
 
 #: An arc is emitted as G2/G3 only when its plane's normal, mapped into the program frame, lies
 #: within this distance (per component, unit vector) of a principal axis.
@@ -47,23 +48,44 @@ del _p, _a, _b, _n
 
 
 def safe_height_mm(op: Operation, options: PostOptions) -> float:
-    """Approach / retract height in the area frame, mm: ``max(safe_z_mm, highest tip z)``, where an
-    arc in G18 / G19 counts the top of its circle (it may bulge above its end points)."""
+    """Approach / retract height in the area frame, mm: ``max(safe_z_mm, highest tip z)``, where a
+    ``G18`` / ``G19`` arc counts the top of its circle (centre z + the larger of its start and end
+    radii) only when its swept angle contains that top (:func:`_arc_top_mm`); otherwise its end
+    points are its highest points and are counted with the other tips.
+
+    Whole arrays: a bound from above of every arc's top (numpy's arctan2 / hypot, with margins for
+    their last bits) picks the arcs that may raise the height; those are settled, highest bound first,
+    by the scalar :func:`_arc_top_mm`, so the result is exactly :func:`_reference_safe_height_mm`'s."""
     tp = op.toolpath
     top = float(tp.tip_mm()[:, 2].max())
     arcs = np.flatnonzero(np.isin(tp.kind, (ARC_CW, ARC_CCW)) & (tp.plane != PLANE_XY))
     if arcs.size:
-        # circle top = centre z + the larger of the start and end radii; np.hypot may differ from
-        # math.hypot in the last bit, so the candidates for the highest are settled with math.hypot
         a, b = _AX_A[tp.plane[arcs]], _AX_B[tp.plane[arcs]]
         c = tp.centre_mm[arcs]
         rows = np.arange(arcs.size)
         d = [(tp.xyz_mm[j, a] - c[rows, a], tp.xyz_mm[j, b] - c[rows, b]) for j in (arcs - 1, arcs)]
-        val = (c[:, 2] - tp.tip_offset_mm) + np.maximum(np.hypot(*d[0]), np.hypot(*d[1]))
-        best = float(val.max())
-        for k in np.flatnonzero(val >= best - 1e-9 * (abs(best) + 1.0)):
-            r = max(math.hypot(du[k], dv[k]) for du, dv in d)
-            top = max(top, float(c[k, 2] - tp.tip_offset_mm + r))
+        ccw = tp.kind[arcs] == ARC_CCW
+        two_pi = 2 * math.pi
+        t0 = np.arctan2(d[0][1], d[0][0])
+        t1 = np.arctan2(d[1][1], d[1][0])
+        sw = np.abs(np.where(ccw, np.mod(t1 - t0, two_pi), np.mod(t0 - t1, two_pi)))
+        sw[sw == 0.0] = two_pi
+        t_top = np.where(a == 2, 0.0, math.pi / 2)            # G18: (Z, X), z = r cos t; G19: (Y, Z), z = r sin t
+        ang = np.where(ccw, np.mod(t_top - t0, two_pi), np.mod(t0 - t_top, two_pi))
+        # the top may be swept (a superset of the scalar decision: angles within 1e-9 of a wrap or an end)
+        maybe = (ang <= sw + 1e-9) | (ang >= two_pi - 1e-9) | (np.minimum(sw, two_pi - sw) < 1e-9)
+        k = np.flatnonzero(maybe)
+        bound = (c[k, 2] - tp.tip_offset_mm) + np.maximum(np.hypot(d[0][0][k], d[0][1][k]),
+                                                          np.hypot(d[1][0][k], d[1][1][k]))
+        bound += 1e-9 * (np.abs(bound) + 1.0)
+        for j in np.argsort(-bound, kind="stable"):
+            if not bound[j] > top:
+                break
+            i = int(arcs[k[j]])
+            v = _arc_top_mm(tp.xyz_mm[i - 1], tp.xyz_mm[i], tp.centre_mm[i], int(tp.plane[i]),
+                            bool(tp.kind[i] == ARC_CCW), tp.tip_offset_mm)
+            if v is not None:
+                top = max(top, v)
     return max(float(options.safe_z_mm), top)
 
 
@@ -72,11 +94,53 @@ def _reference_safe_height_mm(op: Operation, options: PostOptions) -> float:
     tp = op.toolpath
     top = float(tp.tip_mm()[:, 2].max())
     for i in np.flatnonzero(np.isin(tp.kind, (ARC_CW, ARC_CCW)) & (tp.plane != PLANE_XY)):
-        a, b, _ = PLANE_AXES[int(tp.plane[i])]
-        c = tp.centre_mm[i]
-        r = max(math.hypot(*(tp.xyz_mm[j, [a, b]] - c[[a, b]])) for j in (i - 1, i))
-        top = max(top, float(c[2] - tp.tip_offset_mm + r))
+        v = _arc_top_mm(tp.xyz_mm[i - 1], tp.xyz_mm[i], tp.centre_mm[i], int(tp.plane[i]),
+                        bool(tp.kind[i] == ARC_CCW), tp.tip_offset_mm)
+        if v is not None:
+            top = max(top, v)
     return max(float(options.safe_z_mm), top)
+
+
+def _arc_top_mm(start, end, centre, plane: int, ccw: bool, tip_offset_mm: float = 0.0) -> float | None:
+    """The tip height of the highest point of one ``G18`` / ``G19`` arc's circle, ``centre z -
+    tip_offset_mm + max(start radius, end radius)`` (mm, area frame), when the arc's swept angle
+    (:func:`~planning.toolpath.moves.arc_sweep_rad`, in the direction of travel from the start)
+    contains the circle's highest point; None otherwise (and for ``G17``, whose z varies linearly):
+    the arc then rises nowhere above its end points. (A spiral, whose start and end radii differ by
+    the fitting tolerance, may rise above its end points by at most that difference.)"""
+    a, b, _ = PLANE_AXES[int(plane)]
+    if a != 2 and b != 2:
+        return None
+    s, e, c = (np.asarray(v, dtype=np.float64) for v in (start, end, centre))
+    t0, sw, r0 = arc_sweep_rad(s, e, c, plane, ccw)
+    t_top = 0.0 if a == 2 else math.pi / 2
+    ang = (t_top - t0) % (2 * math.pi) if ccw else (t0 - t_top) % (2 * math.pi)
+    if ang > abs(sw):
+        return None
+    r1 = math.hypot(e[a] - c[a], e[b] - c[b])
+    return float(c[2] - tip_offset_mm + max(r0, r1))
+
+
+def arc_radius_mm(start, end, centre, plane: int) -> float:
+    """The larger of an arc's start and end radii in its plane (area frame, mm): what
+    ``PostOptions.max_arc_radius_mm`` bounds."""
+    a, b, _ = PLANE_AXES[int(plane)]
+    return max(math.hypot(start[a] - centre[a], start[b] - centre[b]),
+               math.hypot(end[a] - centre[a], end[b] - centre[b]))
+
+
+def _large_arcs(s: np.ndarray, e: np.ndarray, c: np.ndarray, plane: np.ndarray, limit_mm: float) -> np.ndarray:
+    """:func:`arc_radius_mm` ``> limit_mm`` for k arcs at once (start, end, centre (k,3), plane codes):
+    bool (k,), exactly the scalar decision (np.hypot may differ from math.hypot in the last bit,
+    so the radii near the limit are settled with :func:`arc_radius_mm`)."""
+    rows = np.arange(s.shape[0])
+    a, b = _AX_A[plane], _AX_B[plane]
+    r = np.maximum(np.hypot(s[rows, a] - c[rows, a], s[rows, b] - c[rows, b]),
+                   np.hypot(e[rows, a] - c[rows, a], e[rows, b] - c[rows, b]))
+    big = r > limit_mm
+    for j in np.flatnonzero(np.abs(r - limit_mm) <= 1e-9 * limit_mm):
+        big[j] = arc_radius_mm(s[j], e[j], c[j], int(plane[j])) > limit_mm
+    return big
 
 
 def arc_chord_points(start, end, centre, plane: int, ccw: bool, chord_tol_mm: float) -> np.ndarray:

@@ -31,12 +31,16 @@ Rounding: the program's ``X Y Z`` are computed in the frame that the PRINTED G68
 tool axis by at most about ``0.5 * 10^-angle_decimals`` degrees per angle.
 
 Program layout: ``%``, ``O<program>``, header comments (scanmill version, area, set-up, tool axis,
-rotary angles), the safe block ``G21 G90 G94 G17 G40 G49 G80``, ``G69``, Z home
-(``G91 G28 Z0.`` / ``G90``), ``G54``; per operation: ``T M6``, ``S M3``, ``M8`` (coolant option),
-``G68.2``, ``G53.1``, ``G0 G43 H X Y Z`` straight to the point above the first one at the safe
-height, the moves, ``G0 Z`` back to the safe height, ``M9``, ``G69``, ``G91 G28 Z0.`` / ``G90 G49``
-(the length offset is cancelled only once Z is home: a control that executes G49 as a move would
-drive the tip down by the tool length at the safe height), ``M5``; then ``M30`` and ``%``.
+rotary angles, the home the program ends at), the safe block ``G21 G90 G94 G17 G40 G49 G80``,
+``G69``, Z home (``G91 G28 Z0.`` / ``G90``), ``G54``; per operation: ``T M6``, ``G68.2``,
+``G53.1`` (the table or head tilts with Z home and the spindle stopped), ``S M3``, ``M8`` (coolant
+option), ``G0 G43 H X Y Z`` straight to the point above the first one at the safe height, the
+moves, ``G0 Z`` back to the safe height, ``M9``, ``G69``, ``G91 G28 Z0.`` / ``G90 G49`` (the
+length offset is cancelled only once Z is home: a control that executes G49 as a move would drive
+the tip down by the tool length at the safe height), ``M5``; then the rotary axes home
+(``G91 G28 B0. C0.`` / ``G90`` with the profile's axis names: the program ends at machine zero
+with the rotary axes at 0, the reference position of every axis; without a profile the names are
+unknown and a comment says so), ``M30`` and ``%``.
 """
 
 from __future__ import annotations
@@ -116,12 +120,13 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
     in the part frame, which must be the frame's +Z. ``setup_id`` / ``area_id``: for the header.
     ``rotary_deg`` ``(tilt_deg, rotary_deg)`` and ``profile`` (name, path or MachineProfile),
     optional: the plan's rotary angles, printed in the header with the profile's axis names and
-    checked against the tool axis when both are given (the control's G53.1 picks its own).
+    checked against the tool axis when both are given (the control's G53.1 picks its own); the
+    profile's axis names also name the rotary axes returned to 0 at the end.
     ``placement_mm`` and ``gauge_length_mm`` are accepted so that every post takes the same
     arguments, and are not used: G54 is the part frame and G43 takes the tool length from the
     control's tool table. ``options``: :class:`~planning.post.options.PostOptions`
-    (``chord_tol_mm`` and ``rotary_sign`` do not apply). X Y Z are tool-tip positions in the area
-    frame, mm; feeds mm/min.
+    (``rotary_sign`` does not apply; ``chord_tol_mm`` only to the arcs printed as chords). X Y Z
+    are tool-tip positions in the area frame, mm; feeds mm/min.
     """
     o = check_options(options)
     ops = check_operations(operations)
@@ -138,8 +143,7 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
     _program_start(w, o, t, rot, axis_names, setup_id=setup_id, area_id=area_id)
     for k, op in enumerate(ops):
         _operation_blocks(w, o, k, op, g682, A, b)
-    w.block("M30")
-    w.raw("%")
+    _program_end(w, axis_names)
     return w.text()
 
 
@@ -192,7 +196,8 @@ def _program_start(w: BlockWriter, o: PostOptions, t: np.ndarray, rot, axis_name
             extra=["units mm, mm/min, G54 = part frame origin",
                    "X Y Z = tool tip in the tilted plane = area frame",
                    "G68.2 Euler angles, rotating Z-X-Z: R = Rz[I] * Rx[J] * Rz[K], columns = plane axes in G54",
-                   "G53.1 orients the tool along the plane +Z, the control picks the rotary solution"]):
+                   "G53.1 orients the tool along the plane +Z, the control picks the rotary solution",
+                   _home_line(axis_names)]):
         w.raw(line)
     w.block("G21", "G90", "G94", "G17", "G40", "G49", "G80")
     w.block("G69")
@@ -201,18 +206,28 @@ def _program_start(w: BlockWriter, o: PostOptions, t: np.ndarray, rot, axis_name
     w.block("G54")
 
 
+def _home_line(axis_names) -> str:
+    """The header comment on the home the program ends at."""
+    if axis_names is None:
+        return ("the program ends with Z at its reference position, the rotary axes where the last G53.1 turned "
+                "them: no machine profile, so their names are unknown")
+    return (f"the program ends at home: Z, then {axis_names[0]} and {axis_names[1]} to their reference position "
+            f"[G28], machine zero with the rotary axes at 0")
+
+
 def _operation_blocks(w: BlockWriter, o: PostOptions, k: int, op: Operation, g682: list[str], A: np.ndarray,
                       b: np.ndarray) -> None:
-    """Operation ``k``: tool change, spindle, coolant, tilted plane, the motion (program frame
-    ``X = A a + b``), and back to Z home with the plane and the length offset cancelled."""
+    """Operation ``k``: tool change, tilted plane (the rotary axes turn with Z home and the spindle
+    stopped), spindle, coolant, the motion (program frame ``X = A a + b``), and back to Z home with
+    the plane and the length offset cancelled."""
     w.raw(operation_comment(k, op, upper=True))
     tool = int(op.tool_number)
     w.block(f"T{tool}", "M6")
+    w.block(*g682)
+    w.block("G53.1")
     w.block(spindle_word(op.spindle_rpm), "M3")
     if o.coolant:
         w.block("M8")
-    w.block(*g682)
-    w.block("G53.1")
     emit_motion(w, o, A, b, "frame", op, safe_height_mm(op, o), approach_prefix=("G43", f"H{tool}"))
     if o.coolant:
         w.block("M9")
@@ -220,3 +235,16 @@ def _operation_blocks(w: BlockWriter, o: PostOptions, k: int, op: Operation, g68
     w.block("G91", "G28", "Z0.")
     w.block("G90", "G49")
     w.block("M5")
+
+
+def _program_end(w: BlockWriter, axis_names) -> None:
+    """After the last operation (Z home, G69, G49, M5): the rotary axes to their reference position,
+    0 (``G91 G28 <tilt>0. C0.`` / ``G90``; a comment instead without the profile's axis names), then
+    ``M30`` and ``%``."""
+    if axis_names is not None:
+        w.block("G91", "G28", f"{axis_names[0]}0.", f"{axis_names[1]}0.")
+        w.block("G90")
+    else:
+        w.raw(comment("no machine profile: return the rotary axes to 0 before the next program", upper=True))
+    w.block("M30")
+    w.raw("%")

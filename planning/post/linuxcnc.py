@@ -55,10 +55,12 @@ equal angle steps with every point on the arc and no chord farther than
 with that tolerance keeps LinuxCNC's path blending within it too.
 
 Program layout: header comments (program number, scanmill version, area, set-up, tool axis,
-angles), the safe block ``G21 G90 G94 G17 G40 G49 G80``, ``G64 P``, ``G54``; per operation:
-``G53 G0 Z0``, ``T M6``, ``G0 A/B C``, ``S M3``, ``M8`` (coolant option), ``G43 H`` or ``G49``,
-``G0 X Y Z`` straight to the point above the first one at the safe height, the moves, ``G0`` back to
-the safe height along the tool axis, ``M9``, ``G53 G0 Z0``, ``G49``, ``M5``; then ``M30``.
+angles, the home the program ends at), the safe block ``G21 G90 G94 G17 G40 G49 G80``, ``G64 P``,
+``G54``; per operation: ``G53 G0 Z0``, ``T M6``, ``G0 A/B C``, ``S M3``, ``M8`` (coolant option),
+``G43 H`` or ``G49``, ``G0 X Y Z`` straight to the point above the first one at the safe height, the
+moves, ``G0`` back to the safe height along the tool axis, ``M9``, ``G53 G0 Z0``, ``G49``, ``M5``;
+then the rotary axes home, ``G53 G0 A0 C0`` (``B0 C0`` for B/C; Z already at machine Z0, the
+spindle stopped: the program ends at machine zero with the rotary axes at 0), and ``M30``.
 """
 
 from __future__ import annotations
@@ -135,6 +137,8 @@ def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_
     _program_start(w, o, p, t, rot, place, ang, setup_id=setup_id, area_id=area_id)
     for k, op in enumerate(ops):
         _operation_blocks(w, o, k, op, frame, p, place, gauge, ang)
+    # the rotary axes home, Z at machine Z0 and the spindle stopped since the last operation's end
+    w.block("G53", "G0", f"{p.axis_names[0]}0", f"{p.axis_names[1]}0")
     w.block("M30")
     return w.text()
 
@@ -193,7 +197,9 @@ def _program_start(w: BlockWriter, o: PostOptions, p, t: np.ndarray, rot: np.nda
                    (f"rotary words {tilt_name}{fmt(ang.words[0], ad)} {rot_name}{fmt(ang.words[1], ad)}"
                     f", signs: {tilt_name} {'flipped' if st < 0 else 'as planned'}, "
                     f"{rot_name} {'flipped' if sr < 0 else 'as planned'}, planned = planning.orientations.kinematics: "
-                    f"right-hand rule, the {'table' if table else 'head'} turns")]):
+                    f"right-hand rule, the {'table' if table else 'head'} turns"),
+                   (f"the program ends at home: G53 Z0, then G53 {tilt_name}0 {rot_name}0, machine zero with the "
+                    f"rotary axes at 0")]):
         w.raw(line)
     w.block("G21", "G90", "G94", "G17", "G40", "G49", "G80")
     w.block("G64", "P" + fmt(o.chord_tol_mm, max(d, 3)))

@@ -1,6 +1,7 @@
 """The motion blocks of one operation (docs/design.md stage 8, post-processing): ``G0``/``G1``/``G2``/``G3``
 with modal words, ``X Y Z`` tool tips in a program frame ``X = A a + b`` (mm), arcs kept as
-``G2``/``G3`` or linearised, feeds in mm/min (:func:`~planning.post.options.feed_for`). The posts
+``G2``/``G3`` or linearised (off a principal plane, degenerate after rounding, or of a radius beyond
+``PostOptions.max_arc_radius_mm``), feeds in mm/min (:func:`~planning.post.options.feed_for`). The posts
 (:mod:`planning.post.iso`, :mod:`planning.post.linuxcnc`) print every operation through
 :func:`emit_motion`.
 
@@ -48,7 +49,15 @@ from planning.toolpath.moves import (
     arc_sweep_rad,
 )
 
-from .arcs import _AX_A, _AX_B, _chord_points, arc_chord_points, principal_plane
+from .arcs import (
+    _AX_A,
+    _AX_B,
+    _chord_points,
+    _large_arcs,
+    arc_chord_points,
+    arc_radius_mm,
+    principal_plane,
+)
 from .blocks import BlockWriter, fmt, rounded
 from .bulk_text import _quantise, _Rows
 from .options import Operation, PostOptions, feed_for
@@ -77,7 +86,9 @@ class MotionEmitter:
     program frame is the area frame up to the rounding of the G68.2 words); ``"principal"`` maps the
     plane's normal by ``A`` and prints G2/G3 only when it lies on a principal axis within
     :data:`~planning.post.arcs.ARC_PLANE_TOL` (the direction flips when it maps onto a negative
-    axis), linearising the arc within ``chord_tol_mm`` otherwise (LinuxCNC).
+    axis), linearising the arc within ``chord_tol_mm`` otherwise (LinuxCNC). In both modes an arc
+    whose radius (:func:`~planning.post.arcs.arc_radius_mm`) exceeds ``max_arc_radius_mm`` is
+    linearised within ``chord_tol_mm`` (one G1 where its sagitta is within the tolerance).
 
     One move at a time: the posts print through :func:`emit_motion`, which gives this class's text
     with whole arrays; this class is its reference and its fallback for huge coordinates.
@@ -142,6 +153,9 @@ class MotionEmitter:
 
     def arc(self, start_a, end_a, centre_a, plane: int, ccw: bool, feed: float) -> None:
         self.n_arcs += 1
+        if arc_radius_mm(start_a, end_a, centre_a, plane) > float(self.o.max_arc_radius_mm):
+            self._linearise(start_a, end_a, centre_a, plane, ccw, feed)
+            return
         if self.arc_mode == "frame":
             pp = (int(plane), 1)
         else:
@@ -252,7 +266,8 @@ def _bulk_motion(w: BlockWriter, o: PostOptions, A, b, arc_mode: str, op: Operat
     last chord of a linearised arc ends on it exactly).
 
     The steps: the rounded program coordinates of the approach, the moves and the retract; the arcs'
-    planes in the program frame (:func:`_arc_planes`); the arcs that degenerate after rounding
+    planes in the program frame (:func:`_arc_planes`), less the arcs beyond ``max_arc_radius_mm``
+    (:func:`~planning.post.arcs._large_arcs`: linearised); the arcs that degenerate after rounding
     (:func:`_degenerate_arcs`); the chords of the linearised arcs (:func:`_chords`); the printed
     points in order (:func:`_events`); their modal words (:func:`_modal_words`); the text
     (:func:`_write_blocks`)."""
@@ -272,6 +287,9 @@ def _bulk_motion(w: BlockWriter, o: PostOptions, A, b, arc_mode: str, op: Operat
 
     arcs = np.flatnonzero((kind == ARC_CW) | (kind == ARC_CCW))
     kept, out_plane, flip = _arc_planes(f.A, tp.plane[arcs], arc_mode)
+    if arcs.size:
+        kept &= ~_large_arcs(tip[arcs - 1], tip[arcs], centre[arcs], tp.plane[arcs].astype(np.int64),
+                             float(o.max_arc_radius_mm))
     out_ccw = (kind[arcs] == ARC_CCW) ^ flip
     block, lin, q_off = _degenerate_arcs(f, d, tp, tip, centre, arcs, kept, out_plane, q_mv)
     if q_off is None:

@@ -115,10 +115,16 @@ class PostOptions:
     * ``chord_tol_mm``: largest distance between a chord and the true arc where an arc is linearised,
       mm (default 0.002): LinuxCNC arcs off the machine's principal planes, and in both posts an arc
       longer than 90 degrees whose start and end coincide after rounding (a G2/G3 would be a full
-      circle); LinuxCNC also gets ``G64 P`` with it.
+      circle) and every arc of a radius beyond ``max_arc_radius_mm``; LinuxCNC also gets ``G64 P``
+      with it.
     * ``rotary_sign``: LinuxCNC only: ``(tilt_sign, rotary_sign)``, each +1 or -1: the printed A/B
       and C words are these times the planned angles (planning.orientations.kinematics signs); -1 for a control
       that counts that axis the other way.
+    * ``max_arc_radius_mm``: largest radius of an arc printed as G2/G3, mm (> 0, default 500): an
+      arc whose start or end radius (in its plane) is larger is printed as ``G1`` chords within
+      ``chord_tol_mm`` (one ``G1`` to its end where its sagitta is within the tolerance), in both
+      posts (a near-straight arc of metres' radius is a straight stretch for the control, and its
+      centre and circle lie far off the part).
     """
 
     program_number: int = 1000
@@ -130,6 +136,7 @@ class PostOptions:
     safe_z_mm: float = 10.0
     chord_tol_mm: float = 0.002
     rotary_sign: tuple[int, int] = (1, 1)
+    max_arc_radius_mm: float = 500.0
 
 
 def check_options(options: PostOptions | None) -> PostOptions:
@@ -149,7 +156,7 @@ def check_options(options: PostOptions | None) -> PostOptions:
     if o.angle_decimals is not None:
         _int("angle_decimals", 0, 12)
     _int("line_number_step", 1, 1000)
-    for name in ("safe_z_mm", "chord_tol_mm"):
+    for name in ("safe_z_mm", "chord_tol_mm", "max_arc_radius_mm"):
         v = getattr(o, name)
         if not isinstance(v, (int, float, np.floating, np.integer)) or not (math.isfinite(v) and v > 0):
             raise ParameterError(f"post option {name} = {v!r} mm: must be a finite number > 0",

@@ -20,6 +20,7 @@ from schemas.plan import (
     AreaPathSummary,
     FinishingSummary,
     FrameSummary,
+    GuardSummary,
     RoughingSummary,
 )
 
@@ -59,7 +60,8 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
             # retracts and rapids: the tip at the area's safe height (the posts never go lower)
             options = PostOptions(program_number=post.program_number + i, coolant=post.coolant,
                                   decimals=post.decimals, rotary_sign=tuple(post.rotary_sign),
-                                  safe_z_mm=float(ap.safe_z_mm - R))
+                                  safe_z_mm=float(ap.safe_z_mm - R),
+                                  max_arc_radius_mm=float(post.max_arc_radius_mm))
             for dialect in post.dialects:
                 name = f"area_{i}.{dialect}.nc"
                 files[name] = _POSTS[dialect](ops, ap.frame, setup_id=i, area_id=i, tool_axis=setups_axes[i],
@@ -80,6 +82,9 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
                 tolerance_mm=float(fp.tolerance_mm), min_clearance_mm=round(float(ap.min_clearance_mm), 6),
                 gouge_free=ap.gouge_free,
                 holder_collisions=int(ap.holder_collisions), fixture_collisions=int(ap.fixture_collisions),
+                blocked_cl=dict(getattr(ap, "blocked", {}) or {}),
+                unmachined_points=int(0 if getattr(ap, "unmachined", None) is None else ap.unmachined.size),
+                guard=_guard_summary(getattr(ap, "finishing_guard", None)),
                 machining_time_s=round(machining_time_s(ap.finishing, feed_mm_min=post.feed_mm_min,
                                                         plunge_mm_min=post.plunge_mm_min,
                                                         rapid_mm_min=post.rapid_mm_min), 1))
@@ -91,6 +96,10 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
                 min_clearance_mm=round(float(info.min_clearance_mm), 6) if np.isfinite(info.min_clearance_mm)
                 else None,
                 stock_box_mm=tuple(tuple(float(v) for v in c) for c in np.asarray(info.stock_box_mm).reshape(2, 3)),
+                rest=bool(getattr(info, "rest", False)), n_helix=int(getattr(info, "n_helix", 0)),
+                n_ramps=int(getattr(info, "n_ramps", 0)),
+                n_plunges_into_material=int(getattr(info, "n_plunges_into_material", 0)),
+                guard=_guard_summary(getattr(ap, "roughing_guard", None)),
                 machining_time_s=round(machining_time_s(ap.roughing, feed_mm_min=post.roughing_feed_mm_min,
                                                         plunge_mm_min=post.plunge_mm_min,
                                                         rapid_mm_min=post.rapid_mm_min), 1))
@@ -101,6 +110,14 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
             safe_z_mm=round(float(ap.safe_z_mm), 4), finishing=fin, roughing=rough, programs=names,
             moves=f"area_{i}.moves.json" if ops else None, seconds=ap.seconds)
     return files, summaries
+
+
+def _guard_summary(g):
+    """plan.json's figures of a :class:`planning.toolpath.guard.GuardOutcome` (None: not guarded)."""
+    if g is None:
+        return None
+    return GuardSummary(found=dict(g.found), rapids_to_feed=int(g.rapids_to_feed), dropped=int(g.dropped),
+                        truncated=int(g.truncated), rounds=int(g.rounds), removed_mm3=round(float(g.removed_mm3), 1))
 
 
 def _cut_length(tp) -> float:

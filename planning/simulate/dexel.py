@@ -248,6 +248,26 @@ class TriDexel:
         return (self.lo[ua] + (np.arange(self.n[ua]) + 0.5) * self.res,
                 self.lo[va] + (np.arange(self.n[va]) + 0.5) * self.res)
 
+    def boundary_points(self) -> np.ndarray:
+        """(M,3) points on the material's boundary, mm: both ends of every material interval of
+        every ray of the three families (spacing ``resolution_mm`` across the rays of a family;
+        a face parallel to a family's rays is sampled by the other two). What the tool paths of
+        the next set-up read the remaining stock from (rest roughing)."""
+        out = []
+        for f in range(3):
+            ptr, iv = self.csr(f)
+            if iv.shape[0] == 0:
+                continue
+            ua, va = (f + 1) % 3, (f + 2) % 3
+            u, v = self.ray_coordinates(f)
+            ray = np.repeat(np.arange(ptr.shape[0] - 1), np.diff(ptr))
+            pts = np.empty((2 * iv.shape[0], 3))
+            pts[:, ua] = np.tile(u[ray % self.n[ua]], 2)
+            pts[:, va] = np.tile(v[ray // self.n[ua]], 2)
+            pts[:, f] = np.concatenate([iv[:, 0], iv[:, 1]])
+            out.append(pts)
+        return np.concatenate(out) if out else np.zeros((0, 3))
+
     def ray_intervals(self, family: int, i: int, j: int) -> np.ndarray:
         """The material intervals (k,2) of ray ``(i, j)`` of family ``family``."""
         r = int(self.base[family] + j * self.n[(family + 1) % 3] + i)

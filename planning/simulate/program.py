@@ -24,7 +24,9 @@ path is followed).
 :mod:`planning.simulate.kinematics` (:data:`~planning.simulate.kinematics.HOME_NOTE`): ``G53 X0 Y0
 Z0`` is the controlled point at the centre of the X/Y limits and the TOP of the Z travel
 (``z_limits_mm[1]``), whatever tool offset is active; a program starts there with the rotary axes
-at 0. A G53 move is a real (straight, machine-frame) move.
+at 0. A G53 move is a real (straight, machine-frame) move; rotary words in it (the profile's
+letters, printed signs as below) put those axes at that machine angle, all axes moving together
+(``G53 G0 B0 C0``: the rotary axes home, as the LinuxCNC programs end).
 
 ISO / Fanuc (``dialect="iso"``)
 -------------------------------
@@ -37,8 +39,10 @@ degrees; omitted words are 0); ``G53.1`` turns the rotary axes so that the tool 
 feature +Z, the linear axes standing still (the rotary solution: the planner's rule,
 :meth:`~planning.simulate.kinematics.MachineModel.orient`); ``G69`` cancels the feature frame (the
 rotary axes stay). With ``G43 H`` active, ``X Y Z`` are the tool tip in the feature frame (in G54
-when no G68.2 is active, which needs the rotary axes at 0). ``G91 G28 X0 / Y0 / Z0``: rapid of
-the named axes to the reference point (= machine home). Rotary words are not in this subset.
+when no G68.2 is active, which needs the rotary axes at 0). ``G91 G28 X0 / Y0 / Z0`` and the
+profile's rotary letters (``G91 G28 B0. C0.``, as the ISO programs end): rapid of the named axes to
+the reference point (= machine home; the rotary axes at 0). Other rotary words are not in this
+subset.
 
 LinuxCNC (``dialect="linuxcnc"``)
 ---------------------------------
@@ -578,32 +582,44 @@ class _Reader:
                          xyz[None, :], ijk[None, :])
 
     def _reference_return(self, line: int, vals: dict) -> None:
-        """ISO ``G91 G28 X0 Y0 Z0``: the named axes rapid to the reference point (machine home)."""
+        """ISO ``G91 G28 X0 Y0 Z0`` and ``G91 G28 B0 C0`` (the profile's rotary names): the named
+        axes rapid to the reference point (machine home; rotary axes at 0), all together."""
         if self.st.absolute:
             raise self.fail(line, "G28 is read with G91 only (G91 G28 Z0.)")
+        names = self.model.profile.axis_names
         axes = [i for i, k in enumerate("XYZ") if k in vals]
-        if not axes or any(k in vals for k in "IJKABC"):
-            raise self.fail(line, "G28 needs X, Y or Z words only")
-        if any(vals.pop(k) != 0.0 for k in "XYZ" if k in vals):
+        rot = [j for j, k in enumerate(names) if k in vals]
+        if not (axes or rot) or any(k in vals for k in "IJK") or any(k in vals and k not in names for k in "ABC"):
+            raise self.fail(line, f"G28 needs X, Y, Z, {names[0]} or {names[1]} words only")
+        if any(vals.pop(k) != 0.0 for k in "XYZ" + "".join(names) if k in vals):
             raise self.fail(line, "G28 through an intermediate point is not in the subset (use G91 G28 Z0.)")
         p1 = self.st.mpos.copy()
         p1[axes] = self.model.home[axes]
-        self._machine_move(line, RAPID, p1, self.st.ang)
+        a1 = self.st.ang.copy()
+        a1[rot] = 0.0
+        self._machine_move(line, RAPID, p1, a1)
 
     def _machine_coordinates(self, line: int, vals: dict) -> None:
-        """``G53 G0/G1 X Y Z``: the controlled point to home + (X, Y, Z) on the named axes."""
+        """``G53 G0/G1 X Y Z`` and rotary words: the controlled point to home + (X, Y, Z) on the
+        named axes, the named rotary axes to their machine position (the word times the sign, as
+        a rotary positioning; 0 is the rotary zero), all together."""
         st = self.st
         if st.motion not in (0.0, 1.0):
             raise self.fail(line, "G53 needs G0 or G1")
+        names = self.model.profile.axis_names
         axes = [i for i, k in enumerate("XYZ") if k in vals]
-        if not axes or any(k in vals for k in "IJKABC"):
-            raise self.fail(line, "G53 needs X, Y or Z words only")
+        rot = [j for j, k in enumerate(names) if k in vals]
+        if not (axes or rot) or any(k in vals for k in "IJK") or any(k in vals and k not in names for k in "ABC"):
+            raise self.fail(line, f"G53 needs X, Y, Z, {names[0]} or {names[1]} words only")
         if st.motion == 1.0 and not st.feed > 0:
             raise self.fail(line, "feed move without a feed rate F")
         p1 = st.mpos.copy()
         for i in axes:
             p1[i] = self.model.home[i] + vals.pop("XYZ"[i])
-        self._machine_move(line, RAPID if st.motion == 0.0 else FEED, p1, st.ang)
+        a1 = st.ang.copy()
+        for j in rot:
+            a1[j] = vals.pop(names[j]) * self.sign[j]
+        self._machine_move(line, RAPID if st.motion == 0.0 else FEED, p1, a1)
 
     def _rotary(self, line: int, vals: dict) -> None:
         """LinuxCNC ``G0``/``G1`` with rotary words (and optionally X Y Z): all axes move together."""

@@ -12,7 +12,9 @@
    tool meeting a fixture, the riser or the table is a fixture collision; the machine's axes at
    the end of every move are checked against the profile's travel
    (:func:`planning.simulate.program.check_travel`);
-4. the signed deviation of every scan point from the final surface (positive: material left);
+4. the signed deviation of every scan point from the final surface (positive: material left); a
+   point read as cut below the surface is measured again exactly against the tools of the moves
+   that ran (:mod:`planning.simulate.gouge`), and only a confirmed cut counts as a gouge;
 5. the verdict: ``passed`` only when there are no collisions, no rapids into material, no travel
    excursions and no gouge beyond the tolerance.
 
@@ -85,7 +87,8 @@ def stock_extent(points: np.ndarray, stock, blank=None) -> tuple[np.ndarray, np.
     return lo - stock.margin_mm, hi + stock.margin_mm
 
 
-def _tools(config, tool: ToolAssembly) -> dict:
+def tool_shapes(config, tool: ToolAssembly) -> dict:
+    """The plan's tools as the simulation sees them, by T number (:mod:`planning.simulate.tools`)."""
     post = config.post
     return {post.finishing_tool_number: finishing_shape(tool, post.finishing_tool_number, config.tool.flute_length_mm),
             post.roughing_tool_number: roughing_shape(tool, post.roughing_tool_number, config.paths.roughing,
@@ -106,6 +109,10 @@ def _machining_time_s(motion: ProgramMotion, config) -> float:
     t += float((length[~rapid] / np.maximum(feeds[~rapid], 1e-9)).sum())
     return 60.0 * t
 
+
+#: The chord tolerance the program reader splits arcs with (mm): a gouge is confirmed only deeper
+#: than the finishing tolerance plus this and the programs' last decimal.
+READER_CHORD_TOL_MM = 0.005
 
 #: A feed move within this angle of straight down the tool axis is a plunge (degrees).
 PLUNGE_DEG = 10.0
@@ -130,10 +137,14 @@ def _offences(kind: str, motion: ProgramMotion, amount: np.ndarray, detail: str)
 
 
 def deviation_figures(dev: np.ndarray, limit_mm: float, gouge_mm: float,
-                      dev_high: np.ndarray | None = None) -> DeviationFigures:
+                      dev_high: np.ndarray | None = None, exact_depth: np.ndarray | None = None,
+                      exact_limit_mm: float = 0.0) -> DeviationFigures:
     """Figures of the signed deviations ``dev`` (mm; NaN = not measured): within ``limit_mm`` on
     both sides counts as finished; a cut deeper than ``gouge_mm`` is a gouge, judged on
-    ``dev_high`` (the highest reading around each point, default ``dev``)."""
+    ``dev_high`` (the highest reading around each point, default ``dev``). With ``exact_depth``
+    (per point, mm: how deep it lies inside a tool that ran, :func:`planning.simulate.gouge.penetration_mm`;
+    NaN where not measured) a point read as gouged counts only when its exact depth exceeds
+    ``exact_limit_mm`` (``n_suspected`` counts the readings), and the deepest cut is the exact one."""
     high = dev if dev_high is None else dev_high
     ok = np.isfinite(dev) & np.isfinite(high)
     d, h = dev[ok], high[ok]
@@ -141,11 +152,19 @@ def deviation_figures(dev: np.ndarray, limit_mm: float, gouge_mm: float,
         return DeviationFigures(n_points=0, finished_share=0.0, left_p50_mm=0.0, left_p95_mm=0.0, left_max_mm=0.0,
                                 gouge_max_mm=0.0, n_gouged=0)
     left = np.maximum(d, 0.0)
+    suspected = h < -gouge_mm
+    gouged, deepest = suspected, float(max(0.0, -h.min()))
+    if exact_depth is not None:
+        ex = np.asarray(exact_depth, dtype=np.float64)[ok]
+        gouged = suspected & (ex > exact_limit_mm)
+        deepest = float(max(0.0, np.nanmax(np.where(suspected, ex, np.nan), initial=0.0)))
+        if not suspected.any():
+            deepest = float(max(0.0, min(-h.min(), gouge_mm)))
     return DeviationFigures(
         n_points=int(d.size), finished_share=round(float((np.abs(d) <= limit_mm).mean()), 6),
         left_p50_mm=round(float(np.percentile(left, 50)), 4), left_p95_mm=round(float(np.percentile(left, 95)), 4),
-        left_max_mm=round(float(left.max()), 4), gouge_max_mm=round(float(max(0.0, -h.min())), 4),
-        n_gouged=int((h < -gouge_mm).sum()))
+        left_max_mm=round(float(left.max()), 4), gouge_max_mm=round(deepest, 4),
+        n_gouged=int(gouged.sum()), n_suspected=int(suspected.sum()))
 
 
 def _message(v: Verification) -> str:
@@ -179,12 +198,13 @@ def verification_status(v: Verification) -> str:
     return "passed" if bad == 0 else "failed"
 
 
-def verify_plan(*, programs: dict[str, str], k: int, config, profile, placement_mm, tool: ToolAssembly,
+def verify_plan(*, programs: dict[str, str], order, config, profile, placement_mm, tool: ToolAssembly,
                 fixtures: Sequence, points: np.ndarray, normals: np.ndarray, input_labels: np.ndarray,
                 blank=None, progress: Progress | None = None) -> SimulationOutcome:
     """Run every area's program of ``programs`` on the simulated machine and stock (module docstring).
 
-    ``k`` set-ups run in their order 0..k-1; ``profile`` the machine profile; ``placement_mm`` the
+    ``order``: the areas in their machining order (``plan.json machining_order``; an int ``k``
+    means 0..k-1); ``profile`` the machine profile; ``placement_mm`` the
     part-frame origin on the table; ``tool`` the finishing assembly; ``fixtures`` the fixture solids
     and the table (part frame); ``points`` (N,3) the scan with unit ``normals`` (N,3) and
     ``input_labels`` (N,); ``blank`` the mesh of a 'mesh' stock
@@ -198,7 +218,7 @@ def verify_plan(*, programs: dict[str, str], k: int, config, profile, placement_
     dialect = choose_dialect(programs, sim.dialect)
     if dialect is None:
         return skipped(f"no program in the dialect {sim.dialect!r} was posted")
-    tools = _tools(config, tool)
+    tools = tool_shapes(config, tool)
     lo, hi = stock_extent(points, config.stock, blank)
     models = stock_models.build_models(lo, hi, config, fixtures, tools, resolution_mm=sim.resolution_mm, blank=blank)
     v = Verification(status="passed", message="", dialect=dialect, resolution_mm=sim.resolution_mm,
@@ -206,7 +226,9 @@ def verify_plan(*, programs: dict[str, str], k: int, config, profile, placement_
                      stock_volume_mm3=round(float(models.stock.volume_mm3()), 1),
                      measuring_bound_mm=float(models.measuring_bound_mm), notes=list(models.notes))
     worst: list[VerificationOffence] = []
-    names = [f"area_{i}.{dialect}.nc" for i in range(k) if f"area_{i}.{dialect}.nc" in programs]
+    motions = []
+    order = list(range(order)) if isinstance(order, (int, np.integer)) else [int(i) for i in order]
+    names = [f"area_{i}.{dialect}.nc" for i in order if f"area_{i}.{dialect}.nc" in programs]
     for n_done, name in enumerate(names):
         area = int(name.split("_")[1].split(".")[0])
         try:
@@ -217,6 +239,7 @@ def verify_plan(*, programs: dict[str, str], k: int, config, profile, placement_
             v.notes.append(f"{name} could not be read: {exc}")
             continue
         v.notes += [n for n in motion.notes if n not in v.notes]
+        motions.append(motion)
         travel = check_travel(motion, profile)
         run = run_moves(models.stock, models.obstacles, motion, tools,
                               rapid_clearance_mm=sim.rapid_clearance_mm)
@@ -245,10 +268,18 @@ def verify_plan(*, programs: dict[str, str], k: int, config, profile, placement_
     fp = config.paths.finishing
     limit = fp.tolerance_mm + fp.scallop_mm + models.measuring_bound_mm
     gouge = fp.tolerance_mm + models.measuring_bound_mm
-    v.deviation = deviation_figures(dev, limit, gouge, dev_high)
+    # the points read as gouged, measured exactly against the tools of the moves that ran
+    exact = np.full(dev.shape, np.nan)
+    suspect = np.flatnonzero(np.isfinite(dev_high) & (dev_high < -gouge))
+    if suspect.size:
+        from planning.simulate.gouge import penetration_mm
+
+        exact[suspect] = penetration_mm(points[suspect], motions, tools)
+    exact_limit = fp.tolerance_mm + READER_CHORD_TOL_MM + 10.0 ** -config.post.decimals
+    v.deviation = deviation_figures(dev, limit, gouge, dev_high, exact, exact_limit)
     for av in v.areas:
         mine = input_labels == av.area
-        av.deviation = deviation_figures(dev[mine], limit, gouge, dev_high[mine])
+        av.deviation = deviation_figures(dev[mine], limit, gouge, dev_high[mine], exact[mine], exact_limit)
     for field in ("rapids_into_material", "holder_collisions", "fixture_collisions", "travel_excursions",
                   "plunges_into_material"):
         setattr(v, field, sum(getattr(a, field) for a in v.areas))

@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -47,9 +47,11 @@ from planning.geometry.tool import ToolAssembly
 from planning.toolpath.balldrop import DropSurface
 from planning.toolpath.finishing import FinishingPath, finishing_passes
 from planning.toolpath.frames import AreaFrame, area_frame
+from planning.toolpath.guard import guard_toolpath
 from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath, concatenate
 from planning.toolpath.reduce import fit_arcs, reduce_cl
 from planning.toolpath.roughing import roughing_paths
+from planning.toolpath.safety import guard_finishing
 from planning.toolpath.verify import BinnedCloud, move_clearance
 
 Progress = Callable[[float, str], None]
@@ -75,6 +77,11 @@ class AreaPaths:
     holder_collisions: int = 0
     fixture_collisions: int = 0
     seconds: dict = field(default_factory=dict)
+    roughing_guard: object = None
+    finishing_guard: object = None
+    blocked: dict = field(default_factory=dict)
+    blocked_figures: object = None
+    unmachined: np.ndarray | None = None       # input point indices of the area no kept finishing move reaches
 
     @property
     def gouge_free(self) -> bool:
@@ -149,7 +156,7 @@ def _count_arcs(tp: Toolpath) -> int:
 def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarray, *, tool: ToolAssembly,
                    paths_params, fixtures: Sequence = (), forbidden: np.ndarray | None = None,
                    max_slope_deg: float = 87.0, input_regions: np.ndarray | None = None,
-                   progress: Progress | None = None) -> list[AreaPaths]:
+                   progress: Progress | None = None, carried=None) -> list[AreaPaths]:
     """Tool paths for every area (see the module docstring).
 
     ``points`` (N,3) mm: the whole cloud (part frame); ``input_labels`` (N,): the area of every
@@ -159,7 +166,13 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     ``max_slope_deg``: the steepest surface an area holds (the tool cone's upper angle), which
     bounds how short the adaptive side step gets; ``input_regions`` (N,) int: the connected region
     of every point within its area (0 the largest, 1 the next, ...; any value where the label is
-    -1), each finished on its own; None: every area is one region.
+    -1), each finished on its own; None: every area is one region. ``carried``: a
+    :class:`planning.toolpath.carried.CarriedStock` (issue 16): the areas are done in its order on
+    its stock (rest roughing from what the set-ups before left; every operation guarded by
+    :func:`planning.toolpath.guard.guard_toolpath`; finishing CL points where the assembly would
+    touch the cloud, the stock, a fixture, go below the part's underside or leave the travel cut
+    out); None: every area on its own from a stock box, nothing guarded (the collisions only counted).
+    The result lists the areas in the order they were done.
     """
     fp = paths_params.finishing
     R = float(tool.radius_mm)
@@ -170,29 +183,51 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     reach = max([s.radius_mm for s in tool.segments] + [R])
     k = axes.shape[0]
     out: list[AreaPaths] = []
-    for i in range(k):
+    order = list(range(k)) if carried is None else list(carried.order)
+    for n_done, i in enumerate(order):
         sec: dict[str, float] = {}
         t0 = time.perf_counter()
         mine = input_labels == i
         if not mine.any():
             continue
         frame, cloud_f, area_f, top = _frame_and_top(points, mine, axes[i], obstacles, fixtures, fp, R, reach)
+        stock_f = None
+        if carried is not None:
+            # the stock left by the set-ups before, in this frame: its top raises the safe height
+            stock_f = frame.to_frame(carried.stock.boundary_points())
+            if stock_f.shape[0]:
+                top = max(top, float(stock_f[:, 2].max()))
         safe = top + paths_params.safe_clearance_mm + R
         sec["frame"] = time.perf_counter() - t0
         ap = AreaPaths(area=i, frame=frame, safe_z_mm=safe, finishing=None, finishing_info=None, radius_mm=R,
                        tolerance_mm=tol)
-        _add_roughing(ap, cloud_f, area_f, top, paths_params, sec, roughing_window_reach_mm(paths_params, tool))
+        _add_roughing(ap, cloud_f, area_f, top, paths_params, sec, roughing_window_reach_mm(paths_params, tool),
+                      stock_f=stock_f, carried=carried)
+        if ap.roughing is not None and ap.roughing.n_moves == 0:
+            ap.roughing = None                 # rest roughing: nothing left above this area
+        if carried is not None and ap.roughing is not None:
+            t0 = time.perf_counter()
+            _guard_roughing(ap, carried, top + paths_params.roughing.stock_margin_mm + paths_params.safe_clearance_mm)
+            sec["guard_roughing"] = time.perf_counter() - t0
         if fp.enabled:
             masks = _region_masks(mine, regions, cloud_f.shape[0])
-            _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec)
+            _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec,
+                           blocked=None if carried is None else
+                           (lambda fin: _cut_blocked(ap, fin, carried, obstacles, axes[i], tool, fixtures, area_f, fp)))
             # cutter, shank and holder above the ball at every CL point of the cut
             t0 = time.perf_counter()
             _count_collisions(ap, obstacles, axes[i], tool, fixtures)
             sec["collisions"] = time.perf_counter() - t0
+            if carried is not None and ap.finishing is not None:
+                t0 = time.perf_counter()
+                _guard_finishing(ap, carried, area_f, fp)
+                sec["guard_finishing"] = time.perf_counter() - t0
+            if carried is not None and ap.unmachined is not None:
+                ap.unmachined = np.flatnonzero(mine)[ap.unmachined]       # input point indices
         ap.seconds = {k2: round(v, 4) for k2, v in sec.items()}
         out.append(ap)
         if progress is not None:
-            progress((i + 1) / k, f"area {i}: paths done")
+            progress((n_done + 1) / k, f"area {i}: paths done")
     return out
 
 
@@ -249,33 +284,101 @@ def _frame_and_top(points, mine, axis, obstacles, fixtures, fp, R: float, reach:
     return frame, cloud_f, area_f, top
 
 
-def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec: dict, window_reach: float) -> None:
+def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec: dict, window_reach: float,
+                  stock_f=None, carried=None) -> None:
     """Step 3: roughing (when enabled and there is stock above the area's floor) into ``ap``, the
-    tool centre within ``window_reach`` mm of the area's points (:func:`roughing_window_reach_mm`)."""
+    tool centre within ``window_reach`` mm of the area's points (:func:`roughing_window_reach_mm`).
+    With ``carried``, rest roughing: only the material of the carried stock (its boundary points
+    ``stock_f`` in the area frame) is cut."""
     rp = paths_params.roughing
     floor = float(area_f[:, 2].min()) + rp.stock_allowance_mm
-    if rp.enabled and floor < float(cloud_f[:, 2].max()) + rp.stock_margin_mm:
+    stock_top = float(cloud_f[:, 2].max()) + rp.stock_margin_mm
+    if stock_f is not None:
+        stock_top = float(stock_f[:, 2].max()) if stock_f.shape[0] else -math.inf
+    if rp.enabled and floor < stock_top:
         t0 = time.perf_counter()
+        rest = {} if carried is None else {"stock_points_mm": stock_f, "stock_spacing_mm": carried.resolution_mm}
         rr = roughing_paths(cloud_f, tool_radius_mm=rp.diameter_mm / 2.0,
                             corner_radius_mm=rp.corner_radius_mm, step_down_mm=rp.step_down_mm,
                             stock_allowance_mm=rp.stock_allowance_mm, stock_margin_mm=rp.stock_margin_mm,
                             stepover_mm=rp.stepover_mm, pattern=rp.pattern, floor_z_mm=floor,
                             safe_z_mm=top + rp.stock_margin_mm + paths_params.safe_clearance_mm,
-                            window_xy_mm=area_f[:, :2], window_reach_mm=window_reach)
+                            window_xy_mm=area_f[:, :2], window_reach_mm=window_reach, **rest,
+                            **_entry_args(rp))
         ap.roughing, ap.roughing_info = rr.toolpath, rr
         sec["roughing"] = time.perf_counter() - t0
 
 
+def _entry_args(rp) -> dict:
+    """The roughing entry parameters (helix / ramp; issue 16 item 2) as :func:`roughing_paths` takes them."""
+    return {"entry": rp.entry, "entry_angle_deg": rp.entry_angle_deg, "entry_diameter_mm": rp.entry_diameter_mm,
+            "ramp_length_mm": rp.ramp_length_mm}
+
+
+def _guard_roughing(ap: AreaPaths, carried, safe_tip_z: float) -> None:
+    """The roughing of ``ap`` run on the carried stock (:func:`planning.toolpath.guard.guard_toolpath`);
+    the stock it leaves is carried on."""
+    g = guard_toolpath(ap.roughing, ap.frame, carried.roughing_shape, carried.stock, carried.obstacles,
+                       None if carried.machines is None else carried.machines[ap.area], safe_z_mm=safe_tip_z,
+                       rapid_clearance_mm=carried.rapid_clearance_mm)
+    ap.roughing, ap.roughing_guard = (g.toolpath if g.toolpath.n_moves else None), g
+    carried.stock = g.stock
+
+
+def _guard_finishing(ap: AreaPaths, carried, area_f, fp) -> None:
+    """The final finishing moves of ``ap`` run on the carried stock (the safety net after the CL
+    cut of :func:`_cut_blocked`); the stock they leave is carried on, and the area's points that no
+    kept finishing move reaches are the unmachined ones."""
+    g = guard_toolpath(ap.finishing, ap.frame, carried.finishing_shape, carried.stock, carried.obstacles,
+                       None if carried.machines is None else carried.machines[ap.area], safe_z_mm=ap.safe_z_mm,
+                       rapid_clearance_mm=carried.rapid_clearance_mm)
+    ap.finishing, ap.finishing_guard = (g.toolpath if g.toolpath.n_moves else None), g
+    carried.stock = g.stock
+
+
+def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, tool: ToolAssembly, fixtures,
+                 area_f, fp) -> FinishingPath:
+    """Issue 16 item 3 on the dense finishing CL points, before reduction
+    (:func:`planning.toolpath.safety.guard_finishing`): the points (and the insides of the moves)
+    where the cutter, shank or holder would meet the cloud, the carried stock, a fixture or the
+    table, where the ball would cut below the part's underside inside its footprint, or that the
+    machine cannot reach are cut out of the passes, which are linked again through the safe height;
+    the area's points only they finished are the unmachined ones."""
+    machine = None if carried.machines is None else carried.machines[ap.area]
+    travel = None
+    if machine is not None:
+        gauge = carried.finishing_shape.gauge_length_mm
+        travel = lambda tips: machine.travel_ok(tips, gauge)      # noqa: E731
+    out, figs = guard_finishing(fin, ap.frame, axis, tool=tool, obstacles_part=obstacles, area_points_frame=area_f,
+                                safe_z_mm=ap.safe_z_mm, fixtures=fixtures, stock=carried.stock,
+                                stock_shape=carried.finishing_shape, travel_ok=travel,
+                                floor_z_part_mm=carried.footprint, tol_mm=fp.tolerance_mm, scallop_mm=fp.scallop_mm,
+                                step_mm=fp.step_mm)
+    ap.blocked = dict(figs.blocked)
+    ap.blocked_figures = figs
+    ap.unmachined = figs.unmachined
+    if out is None:                            # the set-up cannot finish any of its area
+        ap.unmachined = np.ones(area_f.shape[0], dtype=bool)
+    return out
+
+
 def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, max_slope_deg: float,
-                   sec: dict) -> None:
+                   sec: dict, blocked=None) -> None:
     """Step 4 and the gouge check of step 5 into ``ap``: finishing passes per region
-    (:func:`_region_finishing`), arc fitting or CL reduction of the joined path, and the minimal
+    (:func:`_region_finishing`), the blocked CL points cut out (``blocked``: FinishingPath ->
+    FinishingPath, or None), arc fitting or CL reduction of the joined path, and the minimal
     clearance of the final moves (capped at R)."""
     R, tol = ap.radius_mm, ap.tolerance_mm
     t0 = time.perf_counter()
     binned = BinnedCloud(cloud_f, R / 4.0)
     fin = _region_finishing(cloud_f, region_masks, binned, fp, R, tol, ap.safe_z_mm, max_slope_deg)
     sec["finishing"] = time.perf_counter() - t0
+    if blocked is not None:
+        t0 = time.perf_counter()
+        fin = blocked(fin)
+        sec["cut_blocked"] = time.perf_counter() - t0
+        if fin is None:                        # nothing of the area can be finished from this set-up
+            return
     tp = fin.toolpath
     t0 = time.perf_counter()
     # arc fitting also reduces the straight stretches it leaves, against the ORIGINAL CL
@@ -352,6 +455,8 @@ def _count_collisions(ap: AreaPaths, obstacles, axis, tool: ToolAssembly, fixtur
     """The rest of step 5 into ``ap``: the finishing CL points (feed and arc moves) at which the
     cutter, shank or holder meets an obstacle point, and at which the tool meets a fixture."""
     tp = ap.finishing
+    if tp is None:
+        return
     cut = np.flatnonzero(np.isin(tp.kind, [FEED, ARC_CW, ARC_CCW]))
     centres = ap.frame.to_part(tp.xyz_mm[cut])
     ap.holder_collisions = _holder_collisions(obstacles, centres, axis, tool)

@@ -31,8 +31,9 @@ const, the plane of a pass along X) are joined by circular arcs through the run'
 least-squares fit, refined by a few Gauss-Newton steps on the geometric residuals of the
 interior points) when every CL point in between lies within tol of the arc and in order along
 it, the arc turns at most 180 degrees (minor arcs only), its radius is within
-[``min_radius_mm``, ``max_radius_mm``] (default 0.5 mm .. 10 m: tighter arcs are lines, flatter
-ones straight moves) and it keeps R - tol from the cloud. Arcs are preferred to straight moves
+[``min_radius_mm``, ``max_radius_mm``] (default 0.5 mm .. 500 mm, ``post.max_arc_radius_mm``:
+tighter arcs are lines; no flatter arc is fitted, so such a stretch stays straight moves, reduced
+and gouge-checked as any other) and it keeps R - tol from the cloud. Arcs are preferred to straight moves
 only when they reach farther.
 
 Everything runs in numba, parallel over runs; the cloud is binned once
@@ -362,7 +363,7 @@ def reduce_cl(tp: Toolpath, points, radius_mm: float, *, tol_mm: float, uses=(US
 
 
 def fit_arcs(tp: Toolpath, points, radius_mm: float, *, tol_mm: float, plane: int = PLANE_ZX,
-             min_points: int = 4, min_radius_mm: float = 0.5, max_radius_mm: float = 1.0e4,
+             min_points: int = 4, min_radius_mm: float = 0.5, max_radius_mm: float = 500.0,
              plane_tol_mm: float = 1e-6, reduce_lines: bool = True, uses=(USE_CUT,),
              pass_index: np.ndarray | None = None, cell_mm: float | None = None) -> Toolpath:
     """Replace runs of consecutive FEED moves of ``tp`` (ball centres, area frame, mm) that lie in
@@ -370,7 +371,9 @@ def fit_arcs(tp: Toolpath, points, radius_mm: float, *, tol_mm: float, plane: in
     ``plane_tol_mm`` of the run start's plane) by circular arcs (ARC_CW / ARC_CCW, centre, that
     plane) through at least ``min_points`` CL points (ends included): every CL point of the run
     within ``tol_mm`` of the arc and in order along it, at most 180 degrees per move, radius in
-    [``min_radius_mm``, ``max_radius_mm``], clearance >= R - tol from ``points`` (module docstring).
+    [``min_radius_mm``, ``max_radius_mm``] (mm; the default maximum, 500 mm, is the posts'
+    ``PostOptions.max_arc_radius_mm``: a larger arc would be printed as chords anyway), clearance
+    >= R - tol from ``points`` (module docstring).
     With ``reduce_lines`` the points not taken by arcs are reduced as :func:`reduce_cl` does, with
     the same tolerance against the same original points (an arc is taken where it reaches farther
     than the straight move); else they stay as they were. ``uses``, ``pass_index``: as in

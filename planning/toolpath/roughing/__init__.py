@@ -14,16 +14,33 @@ shank and holder are this cylinder continued upwards without end (conservative f
 wider than the cutter; the holder is not modelled). A cloud point's *clearance* is its distance
 to that solid (0 or below: inside the tool).
 
-**Stock.** The cloud's bounding box grown by ``stock_margin_mm`` on the four sides and on the top:
-the stock top is the highest cloud z + ``stock_margin_mm`` (so ``stock_margin_mm`` in a set-up
-frame). Each set-up starts from this full box: material removed by earlier set-ups is NOT
-modelled, so some lines may cut air. With a window (``window_xy_mm``, ``window_reach_mm``) the tool
-centre cuts only within the given reach of the window's points (the area being machined); the
-stock outside it is left to the other set-ups.
+**Stock.** Either the box or the material that is there now. *Box* (default): the cloud's
+bounding box grown by ``stock_margin_mm`` on the four sides and on the top: the stock top is the
+highest cloud z + ``stock_margin_mm`` (so ``stock_margin_mm`` in a set-up frame); material removed
+by earlier set-ups is not modelled, so lines may cut air. *Rest roughing* (``stock_points_mm``,
+``stock_spacing_mm``): the caller carries a simulated (tri-dexel) stock through the set-ups and
+passes points sampling the boundary of what is left, in the area frame; their highest point per
+raster cell, taken as a maximum over a disc of the spacing + one cell (hole-free, never too low),
+is the stock top per cell (-inf where there is none). Each level then cuts only tool-centre cells
+within Rt + one cell of stock above the level (no air over empty cells), the levels start one step
+below the highest top the window's tool centres reach, and the remaining-material map (lifts,
+links, rapids) starts from that top instead of the box's
+(:mod:`~planning.toolpath.roughing.levels`). Either way nothing comes within ``stock_allowance_mm``
+of the cloud (the forbidden map is the same). With a window (``window_xy_mm``,
+``window_reach_mm``) the tool centre cuts only within the given reach of the window's points (the
+area being machined); the stock outside it is left to the other set-ups.
 
 **Levels.** Tip heights from the stock top down every ``step_down_mm``, the last exactly at the
 floor (``floor_z_mm``, default the lowest cloud z + allowance; the caller passes the area's
-lowest point + allowance); a level within 1e-6 mm above the floor is dropped.
+lowest point + allowance); a level within 1e-6 mm above the floor is dropped. Rest roughing with no
+stock above the floor gives no level and an empty path.
+
+**Entries** (:mod:`~planning.toolpath.roughing.entries`, ``entry``): where a piece of a level starts
+after a lift, the tool comes straight down only into air or a hole already cut (by the
+remaining-material map); into material it comes down in air beside it and feeds in, or descends by
+a helix (default) or a ramp at ``entry_angle_deg`` inside the level's allowed cells; a straight
+plunge into material is left only where none fits, and counted (``entry="plunge"``: straight
+plunges everywhere, as before).
 
 **Modules**, one per concern (the entry first, in the order the stages run):
 
@@ -39,22 +56,32 @@ lowest point + allowance); a level within 1e-6 mm above the floor is dropped.
   boustrophedon zones, contours).
 - :mod:`~planning.toolpath.roughing.links`: feed links at the level (Popescu: shortest paths on a
   graph) and lifts over the remaining material.
+- :mod:`~planning.toolpath.roughing.entries`: how a piece is entered after a lift (straight, from
+  the side, helix, ramp).
 - :mod:`~planning.toolpath.roughing.clearance`: the verification, :func:`min_tool_clearance`.
 - :mod:`~planning.toolpath.roughing.common`: argument checks and small kernels they share.
 
 **Cost.** Per set-up: one pass over the cloud for the cells' highest points and one disc maximum
 per sub-band; per level: one pass over the raster (the region and its runs), the boundary from
 the runs (only the 2 x 2 blocks that can be mixed), the links' grid searches (in a window, scratch
-arrays reused), the coarse material map; then one counting sort of the cloud for the
-verification. The default raster of the femur-like case is about 1300 x 650 cells.
+arrays reused), the coarse material map; per entry into material a few disc queries of the map and
+the chords of the candidate helices (numba); then one counting sort of the cloud for the
+verification. Rest roughing adds one pass over the stock points and two disc maxima per set-up.
+The default raster of the femur-like case is about 1300 x 650 cells.
 
-Simplified: no trochoidal or adaptive clearing, no ramped entries (plunges are straight down), no
-holder or fixture collisions, no material model of earlier set-ups, no rest machining of the
-corners a cutter of radius Rt cannot enter.
+Simplified: no trochoidal or adaptive clearing; helices and ramps are straight chords (24 per
+helix turn), not arcs; no holder or fixture collisions; the material of earlier set-ups is known
+only through the stock the caller passes (its top per cell: an overhang of stock over air counts as
+solid down to the floor), and the box otherwise; the remaining-material map is conservative (a cell
+is lowered only when wholly swept), so lifts and rapid descents may stop higher than needed, and
+its stock top is grown by the sampling spacing + one cell, so up to that much air is cut beside the
+stock's edges; no rest machining of the corners a cutter of radius Rt cannot enter.
 """
 
 from planning.toolpath.roughing.clearance import ToolClearance, min_tool_clearance
-from planning.toolpath.roughing.levels import REMOVED_NOTE, RoughingPath, roughing_paths
+from planning.toolpath.roughing.entries import ENTRY_KINDS
+from planning.toolpath.roughing.levels import REMOVED_NOTE, REST_NOTE, RoughingPath, roughing_paths
 from planning.toolpath.roughing.links import GAP_MM
 
-__all__ = ["GAP_MM", "REMOVED_NOTE", "RoughingPath", "ToolClearance", "min_tool_clearance", "roughing_paths"]
+__all__ = ["ENTRY_KINDS", "GAP_MM", "REMOVED_NOTE", "REST_NOTE", "RoughingPath", "ToolClearance", "min_tool_clearance",
+           "roughing_paths"]

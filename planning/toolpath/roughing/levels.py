@@ -7,6 +7,25 @@ the whole method (Popescu et al. 2014; Tchanchane & Bey) are described in the pa
 With ``window_xy_mm`` the clearing region of every level is also limited to the raster cells within
 ``window_reach_mm`` of the window's points (:func:`_window_cells`: the caller's area footprint).
 
+**Rest roughing** (``stock_points_mm``, ``stock_spacing_mm``): the stock is the material that is
+there now, given by points sampling its boundary (the caller's tri-dexel stock carried through the
+set-ups). Its top per raster cell (:func:`~planning.toolpath.roughing.maps._stock_tops`: the highest
+point per cell, then the largest over a disc of ``spacing + h``, hole-free and never too low; at
+least the cloud's highest point per cell) gives: the first level, one step below the highest top
+that a tool centre of the window can reach (the largest over the disc of ``Rt + h``); each level's
+clearing region, limited to the tool-centre cells within ``Rt + h`` of a cell whose top is above
+the level (no air is cut where there is no stock; the forbidden map, hence the allowance, is
+unchanged); the remaining-material map's start (its coarse maxima instead of the box top, over a
+raster grown by ``2 Rt + 3 h`` so that it holds the material under every tool disc, side entries
+included), so lifts, links and rapids stay clear of the real material. The safe height is still
+the cap of every move, but is raised to GAP_MM above the highest material of the map where the
+stock rises above it (reported in ``RoughingPath.safe_z_mm``). Stock-free windows give an empty
+path with no level.
+
+**Entries** (``entry``, :mod:`planning.toolpath.roughing.entries`): where a piece starts after a
+lift, the tool comes straight down only into air or a hole already cut; into material it enters
+from the side, by a helix or by a ramp, and plunges (counted) only when none fits.
+
 A level is cut (:func:`_cut_level`) by taking its pieces (:mod:`planning.toolpath.roughing.clearing`)
 in their order (:mod:`planning.toolpath.roughing.ordering`), each joined to the one before by a
 feed link at the level or a lift (:mod:`planning.toolpath.roughing.links`); the remaining-material
@@ -45,9 +64,10 @@ from planning.toolpath.roughing.common import (
     _check_tool,
     _finite,
 )
+from planning.toolpath.roughing.entries import _Entries, _entry_cfg
 from planning.toolpath.roughing.links import (
+    GAP_MM,
     _Level,
-    _lift,
     _lift_cost,
     _retract,
     _Scratch,
@@ -55,10 +75,14 @@ from planning.toolpath.roughing.links import (
 )
 from planning.toolpath.roughing.maps import (
     Z_TOL_MM,
+    _air_length,
+    _coarse_max,
+    _disc_max,
     _ForbiddenMap,
     _MaterialMap,
     _Raster,
     _raster,
+    _stock_tops,
 )
 from planning.toolpath.roughing.ordering import _order
 from planning.toolpath.roughing.regions import _region_runs
@@ -67,6 +91,9 @@ MAX_LEVELS = 10_000     #: most Z levels
 
 REMOVED_NOTE = ("Each set-up is roughed from the full stock box (the cloud's box in the set-up frame grown by the "
                 "stock margin): material removed by earlier set-ups is not modelled, so lines may cut air.")
+REST_NOTE = ("Rest roughing: the stock is the material left by the earlier set-ups (the caller's points on its "
+             "boundary, its top per cell made hole-free by a disc of their spacing + one cell); lines are cut "
+             "only within the tool radius + one cell of stock above each level.")
 
 
 @dataclass(frozen=True)
@@ -84,7 +111,21 @@ class RoughingPath:
     remaining-material map at each level, mm^3 (cells wholly swept; the sum over the levels is a
     lower bound of the material removed); ``stock_box_mm`` (2,3): the stock box's lower and upper
     corners (the lower z is the lowest cloud point); ``cell_mm``: the raster cell used;
-    ``stepover_mm``: the line spacing used; ``removed_note``: what the stock model leaves out."""
+    ``stepover_mm``: the line spacing used; ``removed_note``: what the stock model leaves out.
+
+    Rest roughing and entries: ``rest``: the stock was given (``stock_points_mm``) rather than the
+    box; ``air_cut_mm``: length of the feed moves at a level (clearing, contours, feed links) along
+    which the tool disc (radius Rt) meets no stock above the level, the stock as it was given (box or
+    points; what this roughing cut before is not subtracted), mm; a lower bound: the disc must clear
+    the stock by about 1.5 raster cells to count;
+    ``stock_before_mm3`` / ``stock_after_mm3``: the volume of the remaining-material map above the
+    floor over the coarse cells of the window's tool-centre cells, at the start and at the end (the
+    map is an upper bound of the material, lowered only where a cell was wholly swept), mm^3;
+    ``safe_z_mm``: the retract height cap used; ``entry``: the entry setting; ``n_helix``,
+    ``n_ramps``, ``n_side_entries``: pieces entered by a helix, a ramp, or from the side (a plunge
+    beside the material, then a feed in at the level); ``n_plunges_into_material``: straight
+    plunges with remaining material above the level under the tool disc
+    (:mod:`planning.toolpath.roughing.entries`)."""
 
     toolpath: Toolpath
     levels_mm: np.ndarray
@@ -99,6 +140,16 @@ class RoughingPath:
     stock_box_mm: np.ndarray = field(default_factory=lambda: np.zeros((2, 3)))
     cell_mm: float = 0.0
     stepover_mm: float = 0.0
+    rest: bool = False
+    air_cut_mm: float = 0.0
+    stock_before_mm3: float = 0.0
+    stock_after_mm3: float = 0.0
+    safe_z_mm: float = 0.0
+    entry: str = "plunge"
+    n_helix: int = 0
+    n_ramps: int = 0
+    n_side_entries: int = 0
+    n_plunges_into_material: int = 0
 
 
 def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: float = 0.0, step_down_mm: float = 2.0,
@@ -106,8 +157,12 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
                    stepover_mm: float | None = None, pattern: str = "zigzag", contour: bool = True,
                    floor_z_mm: float | None = None, cell_mm: float | None = None,
                    safe_z_mm: float | None = None, window_xy_mm=None, window_reach_mm: float = 0.0,
+                   stock_points_mm=None, stock_spacing_mm: float | None = None, entry: str = "helix",
+                   entry_angle_deg: float = 3.0, entry_diameter_mm: float | None = None,
+                   ramp_length_mm: float | None = None,
                    progress: Callable[[int, int], None] | None = None) -> RoughingPath:
-    """Z-level roughing of one set-up from a stock box (mm, area frame; see :mod:`planning.toolpath.roughing`).
+    """Z-level roughing of one set-up from a stock box or the stock left (mm, area frame; see
+    :mod:`planning.toolpath.roughing`).
 
     ``cloud_frame`` (N,3): the whole cloud in the area frame (every point is an obstacle);
     ``tool_radius_mm`` Rt; ``corner_radius_mm`` rc (0: flat end mill, 0 < rc <= Rt: bull-nose);
@@ -123,21 +178,59 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     (mm, >= 0) of one of them (:func:`_window_cells`; the stock box, levels and retract heights
     are unchanged; the material outside is left for other set-ups); None (default): the whole
     stock box; ``progress(levels_done, n_levels)``.
+
+    Rest roughing (module docstring): ``stock_points_mm`` (M,3): points in the area frame (mm)
+    sampling the boundary of the material that is there now (e.g. the end points of a tri-dexel
+    stock's material intervals), ``stock_spacing_mm`` (> 0, required with them): their sampling
+    spacing, mm; None (default): the stock box, as before. Entries
+    (:mod:`planning.toolpath.roughing.entries`): ``entry`` ``"helix"`` (default), ``"ramp"`` or
+    ``"plunge"`` (straight plunges everywhere, the former behaviour); ``entry_angle_deg``: descent
+    angle of helices and ramps from the horizontal, in (0, 45] degrees; ``entry_diameter_mm``: the
+    diameter of the circle the tool centre runs on in a helix, in (0, 2 x cutter diameter) mm (None:
+    70 % of the cutter diameter); ``ramp_length_mm``: the longest ramp leg, >= Rt, mm (None: twice
+    the cutter diameter).
     """
     pts, Rt, rc, step, a, margin, s, h = _check_args(cloud_frame, tool_radius_mm, corner_radius_mm, step_down_mm,
                                                       stock_allowance_mm, stock_margin_mm, stepover_mm, pattern,
                                                       cell_mm)
-    stock = _stock(pts, a, margin, floor_z_mm, safe_z_mm)
-    levels = _levels(stock.z_top, stock.floor, step, step_down_mm)
-    grid = _raster(pts, stock.box_lo, stock.box_hi, Rt, h)
+    cfg = _entry_cfg(entry, entry_angle_deg, entry_diameter_mm, ramp_length_mm, Rt)
+    rest = stock_points_mm is not None
+    if rest:
+        spts, spacing = _check_stock(stock_points_mm, stock_spacing_mm)
+    elif stock_spacing_mm is not None:
+        raise ParameterError("stock_spacing_mm is given without stock_points_mm")
+    stock = _stock(pts, a, margin, floor_z_mm, safe_z_mm, rest)
+    grid = _raster(pts, stock.box_lo, stock.box_hi, Rt, h, extra_mm=2 * Rt + 3 * h if rest else 0.0)
+    h = grid.h
+    win = None
     if window_xy_mm is not None:
-        grid = replace(grid, inbox=grid.inbox & _window_cells(grid, window_xy_mm, window_reach_mm))
-    mat = _MaterialMap(grid, stock.box_lo, stock.box_hi, stock.z_top, Rt)
+        win = _window_cells(grid, window_xy_mm, window_reach_mm)
+        grid = replace(grid, inbox=grid.inbox & win)
+    if rest:
+        fine = _stock_tops(spts, grid, spacing, floor_map=grid.cmax)
+        near = _disc_max(fine, h, Rt + h)              # material above z within Rt + h of a tool centre
+        reach = near[grid.inbox]
+        z_top = float(reach.max()) if reach.size else -math.inf
+        lo_r = np.array([grid.x0, grid.y0])
+        hi_r = lo_r + h * np.array([grid.nx, grid.ny])
+        mat = _MaterialMap(grid, lo_r, hi_r, None, Rt, top0=_coarse_max(fine))
+        stock = _rest_stock(stock, z_top, mat, safe_z_mm)
+        levels = _levels(stock.z_top, stock.floor, step, step_down_mm) if stock.z_top > stock.floor + Z_TOL_MM \
+            else np.zeros(0)
+    else:
+        fine = near = None
+        mat = _MaterialMap(grid, stock.box_lo, stock.box_hi, stock.z_top, Rt)
+        levels = _levels(stock.z_top, stock.floor, step, step_down_mm)
     ys = _line_ys(stock.box_lo, stock.box_hi, grid.h, Rt, rc, s)
     forb = _ForbiddenMap(grid.cmax, grid.h, Rt, rc, a, stock.big)
+    ent = _Entries(cfg, mat, fine, forb.G, Rt, rc, edge=(Rt + h) if rest else h, win=win)
+    wmask = _coarse_max(grid.inbox.astype(np.float64)) > 0      # coarse cells of the window's tool centres
+    before = mat.volume_above(stock.floor, wmask)
     w, cur, level_retracts, removed = _cut_levels(levels, grid, forb, mat, ys, pattern == "oneway", contour,
-                                                  stock.safe, Rt, rc, progress)
-    return _result(pts, w, cur, levels, level_retracts, removed, stock, Rt, rc, grid.h, s)
+                                                  stock.safe, Rt, rc, progress, ent, near, stock.z_top)
+    air_top = fine if rest else _box_tops(grid, stock)
+    return _result(pts, w, cur, levels, level_retracts, removed, stock, Rt, rc, grid.h, s,
+                   rest=rest, ent=ent, air_top=air_top, before=before, after=mat.volume_above(stock.floor, wmask))
 
 
 def _check_args(cloud_frame, tool_radius_mm, corner_radius_mm, step_down_mm, stock_allowance_mm, stock_margin_mm,
@@ -201,11 +294,27 @@ def _window_cells(grid: _Raster, window_xy_mm, window_reach_mm: float) -> np.nda
     return inside
 
 
+def _check_stock(stock_points_mm, stock_spacing_mm):
+    """The checked rest-roughing stock: (points (M,3) mm, spacing mm)."""
+    p = np.asarray(stock_points_mm, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ParameterError(f"stock_points_mm must be an (M,3) array of points in mm (got shape {p.shape})")
+    if not np.all(np.isfinite(p)):
+        raise ParameterError("stock_points_mm holds NaN or infinite coordinates")
+    if stock_spacing_mm is None:
+        raise ParameterError("stock_spacing_mm (the spacing of stock_points_mm, mm) is required with stock_points_mm")
+    sp = _finite("stock_spacing_mm", stock_spacing_mm)
+    if not sp > 0:
+        raise ParameterError(f"stock_spacing_mm = {stock_spacing_mm}: must be > 0 mm")
+    return np.ascontiguousarray(p), sp
+
+
 @dataclass(frozen=True)
 class _Stock:
     """The stock of one set-up (mm): ``lo`` (3,) the cloud's lowest coordinates, ``big`` its
-    largest |coordinate|; ``z_top`` the stock top, ``floor`` the lowest tip height, ``safe`` the
-    retract height cap; ``box_lo``, ``box_hi`` (2,) the stock box's XY corners."""
+    largest |coordinate|; ``z_top`` the stock top (rest roughing: the highest the window's tool
+    centres reach, where the levels start), ``floor`` the lowest tip height, ``safe`` the retract
+    height cap; ``box_lo``, ``box_hi`` (2,) the stock box's XY corners."""
 
     lo: np.ndarray
     big: float
@@ -216,12 +325,16 @@ class _Stock:
     box_hi: np.ndarray
 
 
-def _stock(pts, a, margin, floor_z_mm, safe_z_mm) -> _Stock:
+def _stock(pts, a, margin, floor_z_mm, safe_z_mm, rest=False) -> _Stock:
     """The stock box (the cloud's box grown by ``margin`` on the sides and the top), the floor and
-    the safe height, checked."""
+    the safe height, checked (rest roughing: the top and the safe height are set by
+    :func:`_rest_stock`)."""
     lo, hi, big = _bounds(pts)
     z_top = float(hi[2]) + margin
     floor = float(lo[2]) + a if floor_z_mm is None else _finite("floor_z_mm", floor_z_mm)
+    if rest:
+        safe = math.inf if safe_z_mm is None else _finite("safe_z_mm", safe_z_mm)
+        return _Stock(lo, big, z_top, floor, safe, lo[:2] - margin, hi[:2] + margin)
     if not floor < z_top:
         raise ParameterError(f"floor_z_mm = {floor}: must be below the stock top {z_top} mm")
     safe = z_top + 5.0 if safe_z_mm is None else _finite("safe_z_mm", safe_z_mm)
@@ -231,6 +344,33 @@ def _stock(pts, a, margin, floor_z_mm, safe_z_mm) -> _Stock:
     box_lo = lo[:2] - margin
     box_hi = hi[:2] + margin
     return _Stock(lo, big, z_top, floor, safe, box_lo, box_hi)
+
+
+def _rest_stock(stock: _Stock, z_top, mat: _MaterialMap, safe_z_mm) -> _Stock:
+    """Rest roughing: the stock with ``z_top`` (where the levels start: the highest stock top the
+    window's tool centres reach) and the safe height: the given one (default the highest material
+    of the map + 5 mm), raised to GAP_MM above the highest material of the map where that is
+    higher (so that every rapid at it is clear)."""
+    fin = mat.top[np.isfinite(mat.top)]
+    top_all = float(fin.max()) if fin.size else z_top
+    if not math.isfinite(top_all):
+        top_all = stock.floor
+    safe = top_all + 5.0 if safe_z_mm is None else stock.safe
+    if not safe > stock.floor:
+        raise ParameterError(f"safe_z_mm = {safe_z_mm}: must be above the floor {stock.floor} mm")
+    safe = max(safe, top_all + GAP_MM)
+    z_top = float(z_top) if math.isfinite(z_top) else stock.floor     # no stock: no level
+    return replace(stock, z_top=z_top, safe=float(safe))
+
+
+def _box_tops(grid: _Raster, stock: _Stock) -> np.ndarray:
+    """The stock box's top per raster cell (``z_top`` where the cell overlaps the box's XY, -inf
+    elsewhere), for the air measure."""
+    ex = grid.x0 + np.arange(grid.nx + 1) * grid.h                 # cell edges
+    ey = grid.y0 + np.arange(grid.ny + 1) * grid.h
+    inx = (ex[1:] > stock.box_lo[0]) & (ex[:-1] < stock.box_hi[0])
+    iny = (ey[1:] > stock.box_lo[1]) & (ey[:-1] < stock.box_hi[1])
+    return np.where(inx[:, None] & iny[None, :], stock.z_top, -np.inf)
 
 
 def _levels(z_top, floor, step, step_down_mm) -> np.ndarray:
@@ -249,12 +389,12 @@ def _levels(z_top, floor, step, step_down_mm) -> np.ndarray:
 
 
 def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, ys, oneway, contour, safe, Rt, rc,
-                progress):
-    """Cut every level from the top down: its region, pieces, order and links, then lower the
+                progress, ent: _Entries, near=None, z_top=math.inf):
+    """Cut every level from the top down: its region (rest roughing, ``near`` not None: only the
+    cells whose ``near`` is above the level), pieces, order, links and entries, lowering the
     remaining material along the cut. Returns (the moves, the last tip (None when nothing was
     cut), lifts within each level, the volume removed at each level)."""
     x0, y0, h, nx, ny = grid.x0, grid.y0, grid.h, grid.nx, grid.ny
-    Rf = Rt - rc
     w = _Writer()
     cur = None                    # current tip (x, y, z)
     level_retracts = np.zeros(levels.size, np.int64)
@@ -264,7 +404,8 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     scratch = _Scratch(nx * ny)
     for li, z in enumerate(levels):
         thr = forb.threshold(z)
-        runs = _region_runs(forb.G, thr, grid.inbox, region)
+        limit = grid.inbox if near is None else grid.inbox & (near > z + Z_TOL_MM)
+        runs = _region_runs(forb.G, thr, limit, region)
         if top_dil is None:
             top_dil = mat.dilated()
         if runs[1].size:
@@ -272,20 +413,25 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
             pieces = _line_pieces(region, runs, ys, x0, y0, h, ny, oneway)
             if contour:
                 pieces += _contour_pieces(region, forb.G, thr, runs, x0, y0, h)
-            cur, swept = _cut_level(w, lv, pieces, cur, safe, oneway, level_retracts, li)
-            # remaining material: cells the flat bottom (or the corner) surely swept
-            if swept:
-                removed[li] = mat.sweep(swept, z, Rf, Rt, rc, 0.25 * h)
+            ent.thr = thr
+            ent.z_prev = float(levels[li - 1]) if li else float(z_top)
+            cur, removed[li], any_swept = _cut_level(w, lv, pieces, cur, safe, oneway, level_retracts, li, ent, mat,
+                                                     Rt, rc)
+            if any_swept:             # the dilated map is redone at the next level
                 top_dil = None
         if progress is not None:
             progress(li + 1, int(levels.size))
     return w, cur, level_retracts, removed
 
 
-def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock, Rt, rc, h, s) -> RoughingPath:
+def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock, Rt, rc, h, s, *, rest, ent,
+            air_top, before, after) -> RoughingPath:
     """The last retract to the safe height, the toolpath, its verified clearance
-    (:func:`~planning.toolpath.roughing.clearance.min_tool_clearance`) and the
-    :class:`RoughingPath`."""
+    (:func:`~planning.toolpath.roughing.clearance.min_tool_clearance`), the air cut (feed moves
+    at a level whose disc meets no stock of ``air_top`` above it, :func:`_air_length` on the map's
+    maximum over the cells whose centre is closer than Rt + 1.5 h: a stock cell within Rt of a
+    point of the move is that close to the centre of the point's cell, so no move that touches
+    stock counts) and the :class:`RoughingPath`."""
     box_lo, box_hi, lo, z_top = stock.box_lo, stock.box_hi, stock.lo, stock.z_top
     if cur is not None:
         _retract(w, cur, stock.safe)
@@ -301,22 +447,34 @@ def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock
         near = pts[pts[:, 2] >= float(xyz[:, 2].min()) - Rt]
         if near.shape[0]:
             clear = min_tool_clearance(xyz, near, tool_radius_mm=Rt, corner_radius_mm=rc, reach_mm=Rt).min_mm
+    air_cut = 0.0
+    if xyz.shape[0] > 1:
+        air_cut = float(_air_length(xyz, use, _disc_max(air_top, h, Rt + 1.5 * h), ent.mat.x0, ent.mat.y0, h, USE_CUT))
     return RoughingPath(
         toolpath=tp, levels_mm=levels, n_levels=int(levels.size),
         length_mm=path_length_mm(tp, kinds=(FEED,)), air_mm=path_length_mm(tp, kinds=(RAPID,)),
-        n_retracts=int(w.n_retracts), min_clearance_mm=float(clear), removed_note=REMOVED_NOTE,
+        n_retracts=int(w.n_retracts), min_clearance_mm=float(clear), removed_note=REST_NOTE if rest else REMOVED_NOTE,
         level_retracts=level_retracts, removed_mm3=removed,
         stock_box_mm=np.array([[box_lo[0], box_lo[1], float(lo[2])], [box_hi[0], box_hi[1], z_top]]),
-        cell_mm=float(h), stepover_mm=float(s))
+        cell_mm=float(h), stepover_mm=float(s), rest=bool(rest), air_cut_mm=air_cut,
+        stock_before_mm3=float(before), stock_after_mm3=float(after), safe_z_mm=float(stock.safe),
+        entry=ent.cfg.kind, n_helix=int(ent.n_helix), n_ramps=int(ent.n_ramps), n_side_entries=int(ent.n_side),
+        n_plunges_into_material=int(ent.n_plunges))
 
 
-def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, level_retracts, li):
+def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, level_retracts, li, ent: _Entries,
+               mat: _MaterialMap, Rt, rc):
     """Cut the pieces of one level in the order of
-    :func:`~planning.toolpath.roughing.ordering._order`, linked at the level or by lifts; returns
-    the new current tip and the polylines cut at the level."""
+    :func:`~planning.toolpath.roughing.ordering._order`, linked at the level or by lifts and
+    entries (:class:`~planning.toolpath.roughing.entries._Entries`); the remaining-material map is
+    lowered along what was cut (cells the flat bottom, or the corner, surely swept) before each
+    entry and at the end. Returns the new current tip, the volume removed (mm^3) and whether
+    anything was cut at the level."""
     z = lv.z
     here = None                  # (xy, cell, component) where the tool is at this level
     swept = []
+    vol = 0.0
+    any_swept = False
     prev_line = False
     for piece, xy, cells in _order(pieces, None if cur is None else np.asarray(cur[:2]), oneway):
         q = xy[0]
@@ -337,10 +495,17 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
         if not linked:
             if here is not None:
                 level_retracts[li] += 1
-            _lift(w, lv, cur, q, z, safe)
+            if swept:
+                vol += mat.sweep(swept, z, Rt - rc, Rt, rc, 0.25 * lv.h)
+                any_swept = True
+                swept = []
+            swept += ent.enter(w, lv, cur, xy, cells[0], z, safe)
         w.add(np.column_stack([xy[1:], np.full(xy.shape[0] - 1, z)]), USE_CUT)
         prev_line = piece.is_line
         swept.append(xy)
         cur = (float(xy[-1, 0]), float(xy[-1, 1]), z)
         here = (xy[-1].copy(), cells[-1], piece.comp)
-    return cur, swept
+    if swept:
+        vol += mat.sweep(swept, z, Rt - rc, Rt, rc, 0.25 * lv.h)
+        any_swept = True
+    return cur, vol, any_swept

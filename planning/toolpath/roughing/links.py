@@ -16,11 +16,13 @@ counted as feed, the rapid across as 1 / RAPID_RATIO of its length). Otherwise (
 component, a one-way return, a new level, a long link) the tool lifts: retract GAP_MM (1 mm) at
 feed (``USE_RETRACT``), rapid up to the link height (straight up from a safe position is safe),
 rapid across, rapid down to GAP_MM above the remaining material under the tool disc, and plunge
-(feed, ``USE_PLUNGE``) to the level. The link height is GAP_MM above the highest remaining
-material under the disc along the way (:class:`planning.toolpath.roughing.maps._MaterialMap`), at
-most ``safe_z_mm`` (default stock top + 5 mm; the first approach comes down from it, the last move
-returns to it). Feed links at a level may cut uncut stock (full width, at most one step down).
-Fixtures and the holder are not obstacles here. Cost: the grid searches run in a window, their
+(feed, ``USE_PLUNGE``) to the level, where that is in air; into material the way down is chosen by
+:mod:`planning.toolpath.roughing.entries` (side entry, helix, ramp), which uses these moves. The
+link height is GAP_MM above the highest remaining material under the disc along the way
+(:class:`planning.toolpath.roughing.maps._MaterialMap`), at most ``safe_z_mm`` (default stock top +
+5 mm; the first approach comes down from it, the last move returns to it). Feed links at a level
+may cut uncut stock (full width, at most one step down). Fixtures and the holder are not obstacles
+here. Cost: the grid searches run in a window, their
 scratch arrays reused.
 """
 
@@ -386,9 +388,11 @@ def _retract(w: _Writer, cur, zl):
         w.add([cur[0], cur[1], zl], USE_RAPID)
 
 
-def _lift(w: _Writer, lv: _Level, cur, q, z, safe):
+def _lift(w: _Writer, lv: _Level, cur, q, z, safe, top_q=None):
     """Lift from ``cur`` (or from nowhere: first approach at the safe height), rapid over, rapid down to
-    GAP_MM above the remaining material under the disc at q, plunge to z."""
+    GAP_MM above the remaining material under the disc at q (``top_q``: that height, mm, when the
+    caller knows it more closely than the dilated map's :meth:`_Level.top_at`; never below the
+    material), plunge to z."""
     if cur is None:
         zl = safe
         w.add([q[0], q[1], safe], USE_RAPID)
@@ -397,7 +401,7 @@ def _lift(w: _Writer, lv: _Level, cur, q, z, safe):
         zl = _link_height(lv, a, q, cur[2], z, safe)
         _retract(w, cur, zl)
         w.add([q[0], q[1], zl], USE_RAPID)
-    zd = min(zl, max(lv.top_at(q), z) + GAP_MM)
+    zd = min(zl, max(lv.top_at(q) if top_q is None else top_q, z) + GAP_MM)
     if zd < zl:
         w.add([q[0], q[1], zd], USE_RAPID)
     w.add([q[0], q[1], z], USE_PLUNGE)

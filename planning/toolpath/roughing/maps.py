@@ -39,8 +39,18 @@ material under the disc about a point is read from the map's maximum over the sq
 ``ceil((Rt + H / 4) / H)`` cells about the point's cell (H the coarse cell; links are sampled
 every H / 4).
 
+**Rest roughing.** With the stock given as points on its boundary (:func:`_stock_tops`), the
+raster grows by ``extra_mm`` (whole coarse cells) so that it holds the material under every tool
+disc; the stock top per raster cell is the highest point per cell made hole-free by a disc maximum
+(radius the sampling spacing + one cell), at least the cloud's highest point; the material map
+starts from its maxima over the coarse cells (:func:`_coarse_max`) instead of the box top. Reading
+the map under a disc exactly (:meth:`_MaterialMap.disc_top`, :func:`_disc_top`,
+:func:`_fine_disc_top`: cells whose square comes closer than the radius) serves the entries;
+:func:`_air_length` measures the feed at a level that meets no stock.
+
 Cost per set-up: one pass over the cloud for the cells' highest points and one disc maximum per
-sub-band; per level: the coarse material map's square maximum and its lowering along the moves.
+sub-band (rest roughing: one pass over the stock points and two disc maxima more); per level: the
+coarse material map's square maximum and its lowering along the moves.
 """
 
 from __future__ import annotations
@@ -80,9 +90,12 @@ class _Raster:
     inbox: np.ndarray
 
 
-def _raster(pts, box_lo, box_hi, Rt, h) -> _Raster:
+def _raster(pts, box_lo, box_hi, Rt, h, extra_mm: float = 0.0) -> _Raster:
     """The raster over the stock box (XY corners ``box_lo``, ``box_hi``) grown by g = Rt - h (tool
-    centres) and a border of 3 cells; the cell grows beyond ``h`` to stay under MAX_CELLS cells."""
+    centres) and a border of 3 cells; the cell grows beyond ``h`` to stay under MAX_CELLS cells.
+    ``extra_mm`` > 0 (rest roughing: the material beside the box under the tool disc) grows it by
+    that much more on every side, in whole multiples of TOP_CELLS cells, so that the cells (and
+    the material map's coarse cells) of the box and its border keep their place."""
     g = Rt - h
     ext = float(max(box_hi[0] - box_lo[0], box_hi[1] - box_lo[1])) + 2 * (g + 3 * h)
     h = max(h, ext / math.sqrt(MAX_CELLS))
@@ -90,10 +103,11 @@ def _raster(pts, box_lo, box_hi, Rt, h) -> _Raster:
         raise ParameterError(f"the stock ({ext:.0f} mm across) is too large for a {2 * Rt} mm cutter: the map would "
                              f"need more than {MAX_CELLS} cells; use a larger tool or rough a smaller area")
     g = Rt - h
-    x0 = float(box_lo[0]) - g - 3 * h
-    y0 = float(box_lo[1]) - g - 3 * h
-    nx = int(math.ceil((box_hi[0] + g + 3 * h - x0) / h))
-    ny = int(math.ceil((box_hi[1] + g + 3 * h - y0) / h))
+    k = TOP_CELLS * int(math.ceil(extra_mm / (TOP_CELLS * h))) if extra_mm > 0 else 0
+    x0 = float(box_lo[0]) - g - 3 * h - k * h
+    y0 = float(box_lo[1]) - g - 3 * h - k * h
+    nx = int(math.ceil((box_hi[0] + g + 3 * h - (x0 + k * h)) / h)) + 2 * k
+    ny = int(math.ceil((box_hi[1] + g + 3 * h - (y0 + k * h)) / h)) + 2 * k
     cmax = _cell_max(pts, x0, y0, h, nx, ny)
     cx = x0 + (np.arange(nx) + 0.5) * h
     cy = y0 + (np.arange(ny) + 0.5) * h
@@ -281,7 +295,10 @@ class _MaterialMap:
     ``hd[i, j]`` and area ``area[i, j]``; ``full_x[i]``, ``full_y[j]``: the column / row lies wholly
     in the stock. ``kdil``: the half width, in cells, of the square read about a point."""
 
-    def __init__(self, grid: _Raster, box_lo, box_hi, z_top, Rt):
+    def __init__(self, grid: _Raster, box_lo, box_hi, z_top, Rt, top0=None):
+        """``top0`` (ncx, ncy) or None: the initial heights per coarse cell (rest roughing:
+        :func:`_stock_tops`, with ``box_lo``, ``box_hi`` the raster's own corners so that no cell
+        is clipped); None: ``z_top`` over the stock box."""
         x0, y0, h, nx, ny = grid.x0, grid.y0, grid.h, grid.nx, grid.ny
         self.x0, self.y0 = x0, y0
         H = TOP_CELLS * h
@@ -298,11 +315,30 @@ class _MaterialMap:
         tfy = (y0 + np.arange(ncy) * H >= box_lo[1]) & (y0 + (np.arange(ncy) + 1) * H <= box_hi[1])   # not clipped
         thd = np.hypot(thx[:, None], thy[None, :])            # half diagonal of the part in the stock
         tarea = 4.0 * thx[:, None] * thy[None, :]
-        top = np.where(inx[:, None] & iny[None, :], z_top, -np.inf)
+        inside = inx[:, None] & iny[None, :]
+        if top0 is None:
+            top = np.where(inside, z_top, -np.inf)
+        else:
+            top = np.where(inside, np.asarray(top0, dtype=np.float64), -np.inf)
         # a square >= the disc about any point within H / 8 of a cell
         kdil = int(math.ceil((Rt + 0.25 * H) / H))
         self.H, self.kdil, self.top = H, kdil, top
         self.cx, self.cy, self.hd, self.area, self.full_x, self.full_y = tcx, tcy, thd, tarea, tfx, tfy
+        self.hx, self.hy = thx, thy                             # half sizes of the parts in the stock
+
+    def disc_top(self, x, y, r) -> float:
+        """Highest remaining material (``top``) over the coarse cells whose part in the stock comes
+        closer than ``r`` (mm) to (x, y) (exact square-to-point distance; -inf when none): the
+        material under a tool disc of radius r about (x, y), never below it."""
+        return float(_disc_top(self.top, self.cx, self.cy, self.hx, self.hy, self.x0, self.y0, self.H,
+                               float(x), float(y), float(r)))
+
+    def volume_above(self, z, mask=None) -> float:
+        """The volume of the map above height z (mm^3), over the coarse cells where ``mask``
+        (ncx, ncy) is True (all when None)."""
+        v = np.maximum(self.top - z, 0.0) * self.area
+        v[~np.isfinite(self.top)] = 0.0
+        return float(v.sum() if mask is None else v[mask].sum())
 
     def dilated(self):
         """The maximum of ``top`` over the square of ``kdil`` cells each way about each cell."""
@@ -457,3 +493,114 @@ def _sweep_top(top, cx, cy, hd, area, full_x, full_y, xy, starts, x0, y0, H, z, 
             s = e
     return removed
 
+
+
+@njit(cache=True, nogil=True)
+def _disc_top(top, cx, cy, hx, hy, x0, y0, H, px, py, r):
+    """Largest ``top[i, j]`` over the coarse cells (side H from (x0, y0); the part of cell (i, j) in
+    the stock: centre (cx[i], cy[j]), half sizes hx[i], hy[j]) whose part is closer than r to
+    (px, py); -inf when none."""
+    ncx, ncy = top.shape
+    best = -np.inf
+    i0 = max(int(math.floor((px - r - x0) / H)) - 1, 0)
+    i1 = min(int(math.floor((px + r - x0) / H)) + 1, ncx - 1)
+    j0 = max(int(math.floor((py - r - y0) / H)) - 1, 0)
+    j1 = min(int(math.floor((py + r - y0) / H)) + 1, ncy - 1)
+    r2 = r * r
+    for i in range(i0, i1 + 1):
+        dx = max(abs(px - cx[i]) - hx[i], 0.0)
+        for j in range(j0, j1 + 1):
+            t = top[i, j]
+            if not (t > best):
+                continue
+            dy = max(abs(py - cy[j]) - hy[j], 0.0)
+            if dx * dx + dy * dy < r2:
+                best = t
+    return best
+
+
+@njit(cache=True, nogil=True)
+def _fine_disc_top(v, x0, y0, h, px, py, r):
+    """Largest ``v[i, j]`` over the raster cells (side h from (x0, y0)) whose square is closer than
+    r to (px, py); -inf when none."""
+    nx, ny = v.shape
+    best = -np.inf
+    i0 = max(int(math.floor((px - r - x0) / h)) - 1, 0)
+    i1 = min(int(math.floor((px + r - x0) / h)) + 1, nx - 1)
+    j0 = max(int(math.floor((py - r - y0) / h)) - 1, 0)
+    j1 = min(int(math.floor((py + r - y0) / h)) + 1, ny - 1)
+    r2 = r * r
+    for i in range(i0, i1 + 1):
+        dx = max(abs(px - (x0 + (i + 0.5) * h)) - 0.5 * h, 0.0)
+        for j in range(j0, j1 + 1):
+            t = v[i, j]
+            if not (t > best):
+                continue
+            dy = max(abs(py - (y0 + (j + 0.5) * h)) - 0.5 * h, 0.0)
+            if dx * dx + dy * dy < r2:
+                best = t
+    return best
+
+
+# ----------------------------------------------------------------------------------------------
+# The stock of rest roughing
+# ----------------------------------------------------------------------------------------------
+
+def _stock_tops(stock_pts, grid: _Raster, spacing, floor_map=None):
+    """The stock top per raster cell from points sampling the boundary of the material that is
+    there now (rest roughing; mm, area frame): the highest point per cell (points off the raster
+    are left out: nothing beyond it is under a tool disc), then the largest of these over the cells
+    whose centre is closer than ``spacing + h`` (:func:`_disc_max`), so the sampling leaves no hole
+    (the boundary's samples, projected on the frame's XY, lie within ``spacing / sqrt 2`` of every
+    point of a top the rays along Z sample, within about ``spacing`` where rays oblique to the
+    frame's Z do, and a cell's centre within ``h / sqrt 2`` of its points; a top too high costs air
+    only, one too low would let the tool rapid into material). ``floor_map``
+    (nx, ny) or None: raised to at least this (the cloud's highest point per cell: the part is
+    material whatever the stock model says). Returns (nx, ny), -inf where no stock is near."""
+    p = np.asarray(stock_pts, dtype=np.float64)
+    h, nx, ny = grid.h, grid.nx, grid.ny
+    on = ((p[:, 0] >= grid.x0) & (p[:, 0] < grid.x0 + nx * h) & (p[:, 1] >= grid.y0) & (p[:, 1] < grid.y0 + ny * h))
+    fine = _cell_max(np.ascontiguousarray(p[on]), grid.x0, grid.y0, h, nx, ny)
+    top = _disc_max(fine, h, spacing + h)
+    if floor_map is not None:
+        np.maximum(top, floor_map, out=top)
+    return top
+
+
+def _coarse_max(fine, k=TOP_CELLS):
+    """The maximum over blocks of k x k cells (the last blocks clipped): the material map's coarse
+    cells from raster cells, (ceil(nx / k), ceil(ny / k))."""
+    nx, ny = fine.shape
+    ncx, ncy = -(-nx // k), -(-ny // k)
+    pad = np.full((ncx * k, ncy * k), -np.inf)
+    pad[:nx, :ny] = fine
+    return pad.reshape(ncx, k, ncy, k).max(axis=(1, 3))
+
+
+@njit(cache=True, nogil=True)
+def _air_length(xyz, use, D, x0, y0, h, use_cut):
+    """Length (mm) of the moves ``i`` with ``use[i] == use_cut`` at one height (both ends at the
+    same z) along which ``D`` (the stock top's maximum over the disc of the tool radius about each
+    raster cell) is not above that height: no stock under the tool disc (to within one cell);
+    pieces of h / 2 at most, each judged at its middle (off the raster: air)."""
+    nx, ny = D.shape
+    total = 0.0
+    for i in range(1, xyz.shape[0]):
+        if use[i] != use_cut:
+            continue
+        z = xyz[i, 2]
+        if xyz[i - 1, 2] != z:
+            continue
+        ax, ay = xyz[i - 1, 0], xyz[i - 1, 1]
+        bx, by = xyz[i, 0], xyz[i, 1]
+        L = math.hypot(bx - ax, by - ay)
+        if L <= 0.0:
+            continue
+        m = max(1, int(math.ceil(L / (0.5 * h))))
+        for k in range(m):
+            t = (k + 0.5) / m
+            ix = int(math.floor((ax + (bx - ax) * t - x0) / h))
+            iy = int(math.floor((ay + (by - ay) * t - y0) / h))
+            if ix < 0 or iy < 0 or ix >= nx or iy >= ny or not D[ix, iy] > z + Z_TOL_MM:
+                total += L / m
+    return total

@@ -1,0 +1,603 @@
+"""Entries into the material where a piece of a level starts (Z-level roughing,
+:mod:`planning.toolpath.roughing`; mm, degrees, area frame, tool tip). Stage: per level, where
+:func:`planning.toolpath.roughing.levels._cut_level` must come down to a piece's first point after a
+lift (or the first approach); reads the level's clearing region
+(:mod:`planning.toolpath.roughing.regions`), the forbidden map and the remaining-material map
+(:mod:`planning.toolpath.roughing.maps`) and writes its moves with the lifts of
+:mod:`planning.toolpath.roughing.links`.
+
+**Rule** (``entry``: ``"helix"`` default, ``"ramp"`` or ``"plunge"``). The material under the tool
+at the piece's first point q is the highest remaining material whose cell comes closer than Rt to q
+(:meth:`_Entries.material`: the remaining-material map, and in rest roughing also the stock top
+per raster cell, both upper bounds of what is there, so their smaller maximum is one too; the map
+is first lowered along what this level has cut so far). At or below the level (air, or a hole
+already cut): the tool comes straight down as the lifts always did (rapid to GAP_MM above the
+material, plunge at feed). Otherwise, in this order:
+
+1. *side entry*: q moved by d (h / 2 steps, d <= Rt + 4 h, h the raster cell) back along the
+   piece's first segment, or square to it, or ahead along it (the least d of the four, back first
+   on a tie) to a point q' where the disc is clear of material: the tool plunges there in air and
+   feeds to q at the level; every position of that move (sampled h / 4 apart) lies in a
+   cell the forbidden map allows at the level and in the window (the allowance is kept; outside
+   the region it may cut at most that short way beyond the region's limits: at the stock box's
+   sides, where the clearing lines start with the disc h into the stock, it is the way in from
+   outside).
+2. ``"helix"``: a helix (Tchanchane & Bey's roughing enters the stock by helix or ramp where
+   Popescu's slices start inside it) of the tool centre on a circle of radius ``entry_diameter / 2``
+   (default 70 % of the cutter diameter, so no core is left under a cutter that does not cut at its
+   centre), turning counter-clockwise seen from +Z (climb milling of the hole's wall with an M3
+   spindle), from its start height zs (below) down to the level, every chord descending at
+   ``entry_angle_deg`` from the horizontal exactly (HELIX_CHORDS chords per turn, the first one
+   shorter). It ends at q (the circle passes through q), or at the circle's point e nearest q and
+   the tool then feeds on to q at the level. Near q: centres at the radius from q, then that + 2 h,
+   + Rt / 2 and + Rt, each in the piece's first direction and then 30, 60, ..., 180 degrees off it
+   (:func:`_helix_centres`; e -> q straight in the region). The cheapest (descent + link length)
+   whose every chord lies in the level's clearing region (cells the forbidden map allows, inside
+   the region's limits: sampled h / 4 apart like the links; :func:`_helix_in`) is taken, with the
+   configured diameter, then half of it. Where that helix must start higher than GAP_MM above the
+   previous level (+ rc) (the map keeps the part's height in the cells beside its walls, which it
+   never lowers, so a helix there would start above the part's top), centres farther away are
+   tried too: region cells within FAR_RADII x Rt of q (:func:`_helix_sites`), cheapest first, the
+   tool feeding from e to q along a shortest path in the region (Popescu's graph,
+   :meth:`~planning.toolpath.roughing.links._Level.grid_path`). Since the forbidden map only grows
+   downwards, a position allowed at the level is allowed above it: the descent is gouge-free.
+3. ``"ramp"`` (and the helix's fallback): back and forth along the piece's first straight segment
+   (its first ``ramp_length`` mm, at least Rt long, in the region), from zs (the material within Rt
+   of the segment) at the entry angle, ending at q (the first leg shorter). With ``"ramp"`` the
+   ramp comes first; where it must start higher than GAP_MM above the previous level (+ rc), a
+   cheaper helix is taken instead, and where no ramp fits, a helix.
+4. else a straight plunge, counted in ``n_plunges_into_material``.
+
+**Start height** zs of a helix or ramp: GAP_MM above the highest material under it (the helix's
+circle grown by Rt, or within Rt of the ramp's segment; :meth:`_Entries.material`), at most the
+safe height; the rapid down to it is therefore clear of the map's material.
+
+In air (the first case and side entries) the rapid down stops GAP_MM above that material under
+the disc rather than above the coarser dilated map the lifts read. With ``"plunge"`` every start is
+the former straight plunge, unchanged (the counts still say which went into material). Helix and
+ramp moves are feed moves at plunge feed (``USE_PLUNGE``), straight lines, never above the safe
+height. They are not added to the level's swept area (only the feed to q at the level is), so the
+remaining-material map stays an upper bound. Cost: one disc query per entry (a few hundred cells),
+and per candidate helix a check of its chords.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from planning.errors import ParameterError
+from planning.toolpath.moves import USE_CUT, USE_PLUNGE, USE_RAPID
+from planning.toolpath.roughing.common import _finite
+from planning.toolpath.roughing.links import (
+    GAP_MM,
+    _Level,
+    _lift,
+    _link_height,
+    _retract,
+    _seg_in,
+    _Writer,
+)
+from planning.toolpath.roughing.maps import Z_TOL_MM, _MaterialMap
+
+ENTRY_KINDS = ("helix", "ramp", "plunge")
+HELIX_CHORDS = 24       #: straight chords per helix turn
+HELIX_DIAMETER = 0.7    #: default helix diameter (tool centre path) / cutter diameter
+RAMP_DIAMETERS = 2.0    #: default longest ramp leg / cutter diameter
+FAR_RADII = 8.0        #: helices away from the piece's start are sought within this many tool radii of it
+FAR_TRIES = 32         #: of those, the cheapest this many are tried
+_DIRS_DEG = (0.0, 30.0, -30.0, 60.0, -60.0, 90.0, -90.0, 120.0, -120.0, 150.0, -150.0, 180.0)
+
+
+@dataclass(frozen=True)
+class _EntryCfg:
+    """The checked entry settings: ``kind``, ``tan`` the tangent of the descent angle, ``radius``
+    the helix radius (tool centre, mm), ``ramp`` the longest ramp leg and ``min_ramp`` the shortest
+    (mm)."""
+
+    kind: str
+    angle_deg: float
+    tan: float
+    radius: float
+    ramp: float
+    min_ramp: float
+
+
+def _entry_cfg(entry, entry_angle_deg, entry_diameter_mm, ramp_length_mm, Rt) -> _EntryCfg:
+    """The entry settings of :func:`planning.toolpath.roughing.levels.roughing_paths`, checked
+    (:class:`~planning.errors.ParameterError`): ``entry`` one of ENTRY_KINDS; ``entry_angle_deg`` in
+    (0, 45]; ``entry_diameter_mm`` in (0, 4 Rt) (None: HELIX_DIAMETER x 2 Rt); ``ramp_length_mm`` >=
+    Rt (None: RAMP_DIAMETERS x 2 Rt)."""
+    if entry not in ENTRY_KINDS:
+        raise ParameterError(f"entry = {entry!r}: must be one of {', '.join(ENTRY_KINDS)}")
+    ang = _finite("entry_angle_deg", entry_angle_deg)
+    if not 0 < ang <= 45:
+        raise ParameterError(f"entry_angle_deg = {entry_angle_deg}: the descent angle must be in (0, 45] degrees")
+    d = HELIX_DIAMETER * 2 * Rt if entry_diameter_mm is None else _finite("entry_diameter_mm", entry_diameter_mm)
+    if not 0 < d < 4 * Rt:
+        raise ParameterError(f"entry_diameter_mm = {entry_diameter_mm}: the helix diameter must be in (0, {4 * Rt}) mm "
+                             f"(less than twice the cutter diameter)")
+    L = RAMP_DIAMETERS * 2 * Rt if ramp_length_mm is None else _finite("ramp_length_mm", ramp_length_mm)
+    if not L >= Rt:
+        raise ParameterError(f"ramp_length_mm = {ramp_length_mm}: must be at least the cutter radius {Rt} mm")
+    return _EntryCfg(str(entry), ang, math.tan(math.radians(ang)), 0.5 * d, L, Rt)
+
+
+# ----------------------------------------------------------------------------------------------
+# Kernels (numba)
+# ----------------------------------------------------------------------------------------------
+
+@njit(cache=True, nogil=True)
+def _material_at(top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h, px, py, r):
+    """Highest remaining material under the disc of radius r about (px, py): the largest ``top``
+    over the coarse cells whose part comes closer than r (as
+    :func:`planning.toolpath.roughing.maps._disc_top`), and with ``use_fine`` the smaller of that
+    and the largest ``fine`` (the raster's stock top) over the raster cells closer than r."""
+    ncx, ncy = top.shape
+    best = -np.inf
+    r2 = r * r
+    i0 = max(int(math.floor((px - r - X0) / H)) - 1, 0)
+    i1 = min(int(math.floor((px + r - X0) / H)) + 1, ncx - 1)
+    j0 = max(int(math.floor((py - r - Y0) / H)) - 1, 0)
+    j1 = min(int(math.floor((py + r - Y0) / H)) + 1, ncy - 1)
+    for i in range(i0, i1 + 1):
+        dx = max(abs(px - cx[i]) - hx[i], 0.0)
+        for j in range(j0, j1 + 1):
+            t = top[i, j]
+            if not (t > best):
+                continue
+            dy = max(abs(py - cy[j]) - hy[j], 0.0)
+            if dx * dx + dy * dy < r2:
+                best = t
+    if not use_fine or best == -np.inf:
+        return best
+    nx, ny = fine.shape
+    bf = -np.inf
+    i0 = max(int(math.floor((px - r - x0) / h)) - 1, 0)
+    i1 = min(int(math.floor((px + r - x0) / h)) + 1, nx - 1)
+    j0 = max(int(math.floor((py - r - y0) / h)) - 1, 0)
+    j1 = min(int(math.floor((py + r - y0) / h)) + 1, ny - 1)
+    for i in range(i0, i1 + 1):
+        dx = max(abs(px - (x0 + (i + 0.5) * h)) - 0.5 * h, 0.0)
+        for j in range(j0, j1 + 1):
+            t = fine[i, j]
+            if not (t > bf):
+                continue
+            dy = max(abs(py - (y0 + (j + 0.5) * h)) - 0.5 * h, 0.0)
+            if dx * dx + dy * dy < r2:
+                bf = t
+    return min(best, bf)
+
+
+@njit(cache=True, nogil=True)
+def _seg_material(top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h, ax, ay, bx, by, r):
+    """Highest remaining material within r of the segment a -> b (:func:`_material_at` at samples
+    at most H / 2 apart, with r grown by a quarter of the spacing: every point of the segment is
+    within that of a sample)."""
+    L = math.hypot(bx - ax, by - ay)
+    n = max(1, int(math.ceil(L / (0.5 * H))))
+    grow = 0.5 * L / n
+    best = -np.inf
+    for k in range(n + 1):
+        t = k / n
+        v = _material_at(top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h,
+                         ax + (bx - ax) * t, ay + (by - ay) * t, r + grow)
+        best = max(best, v)
+    return best
+
+
+@njit(cache=True, nogil=True)
+def _side_start(region, G, thr, win, use_win, nx, ny, qx, qy, ux, uy, dmax, z, Rt, edge,
+                top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h):
+    """The side entry (module docstring): the least d (a multiple of h / 2, at most ``dmax``) such
+    that at q' = q - d u the disc of radius Rt is clear of material above z and every sample of
+    q' -> q (h / 4 apart) lies in a ``region`` cell or in a cell the forbidden map allows
+    (``G <= thr``) and, with ``use_win``, in the window (``win``); q' at least ``edge`` inside the
+    raster's edge; -1 when none."""
+    lim = z + 1e-6
+    kmax = int(math.floor(dmax / (0.5 * h)))
+    for k in range(1, kmax + 1):
+        d = 0.5 * h * k
+        px = qx - d * ux
+        py = qy - d * uy
+        if not (x0 + edge <= px <= x0 + nx * h - edge and y0 + edge <= py <= y0 + ny * h - edge):
+            return -1.0
+        if _material_at(top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h, px, py, Rt) > lim:
+            continue
+        n = max(1, int(math.ceil(d / (0.25 * h))))
+        ok = True
+        for s in range(n + 1):
+            t = s / n
+            sx = px + (qx - px) * t
+            sy = py + (qy - py) * t
+            ix = min(max(int(math.floor((sx - x0) / h)), 0), nx - 1)
+            iy = min(max(int(math.floor((sy - y0) / h)), 0), ny - 1)
+            c = ix * ny + iy
+            if region[c]:
+                continue
+            if G[c] > thr or (use_win and not win[c]):
+                ok = False
+                break
+        if ok:
+            return d
+    return -1.0
+
+
+@njit(cache=True, nogil=True)
+def _helix_sites(region, nx, ny, qx, qy, dmax, stride, R, z, gap, safe, tan, cap,
+                 top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h):
+    """Candidate helix centres away from q: the region cells every ``stride`` cells within ``dmax``
+    of q whose lower bound of cost (the helix's descent length from GAP above the material within R
+    of the centre, plus the straight distance to q) is below ``cap``: rows (x, y, material top,
+    cost bound)."""
+    iq = int(math.floor((qx - x0) / h))
+    jq = int(math.floor((qy - y0) / h))
+    k = int(math.ceil(dmax / h))
+    cap_n = 1024
+    out = np.empty((cap_n, 4))
+    n = 0
+    for i in range(max(iq - k, 0), min(iq + k, nx - 1) + 1, stride):
+        px = x0 + (i + 0.5) * h
+        for j in range(max(jq - k, 0), min(jq + k, ny - 1) + 1, stride):
+            if not region[i * ny + j]:
+                continue
+            py = y0 + (j + 0.5) * h
+            d = math.hypot(px - qx, py - qy)
+            if d > dmax or d >= cap:
+                continue
+            T = _material_at(top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h, px, py, R)
+            zs = min(max(T, z) + gap, safe)
+            cost = (zs - z) / tan + max(d - R, 0.0)
+            if cost >= cap:
+                continue
+            if n == cap_n:
+                cap_n *= 2
+                o2 = np.empty((cap_n, 4))
+                o2[:n] = out[:n]
+                out = o2
+            out[n, 0] = px
+            out[n, 1] = py
+            out[n, 2] = T
+            out[n, 3] = cost
+            n += 1
+    return out[:n]
+
+
+@njit(cache=True, nogil=True)
+def _helix_in(flat, x0, y0, h, nx, ny, cx, cy, r, phi_end, L, ex, ey):
+    """Whether the helix of :func:`_helix_xyz` (centre (cx, cy), radius r, ending at angle
+    ``phi_end`` at (ex, ey), horizontal chordal length L) lies in cells where ``flat`` is True
+    (:func:`planning.toolpath.roughing.links._seg_in` per chord), without building it: its first
+    (shorter) chord and its last full turn, which every other chord repeats."""
+    delta = 2.0 * math.pi / HELIX_CHORDS
+    cl = 2.0 * r * math.sin(0.5 * delta)
+    nf = int(math.floor(L / cl + 1e-9))
+    rem = L - nf * cl
+    ax = ex
+    ay = ey
+    for k in range(min(nf, HELIX_CHORDS)):
+        a = phi_end - (k + 1) * delta
+        bx = cx + r * math.cos(a)
+        by = cy + r * math.sin(a)
+        if not _seg_in(flat, x0, y0, h, nx, ny, bx, by, ax, ay):
+            return False
+        ax = bx
+        ay = by
+    if rem > 1e-9 * (1.0 + L):
+        a0 = phi_end - nf * delta
+        a = a0 - 2.0 * math.asin(min(rem / (2.0 * r), 1.0))
+        if not _seg_in(flat, x0, y0, h, nx, ny, cx + r * math.cos(a), cy + r * math.sin(a),
+                       cx + r * math.cos(a0), cy + r * math.sin(a0)):
+            return False
+    return True
+
+
+# ----------------------------------------------------------------------------------------------
+# Geometry of helices and ramps
+# ----------------------------------------------------------------------------------------------
+
+def _helix_xyz(c, r, phi_end, zs, z, tan) -> np.ndarray:
+    """The vertices (k, 3) of a counter-clockwise helix about ``c`` of radius ``r`` ending at angle
+    ``phi_end`` at height z, starting at zs: HELIX_CHORDS chords per turn, the first shorter, each
+    chord descending ``tan`` x its length (so its angle from the horizontal is exactly the entry
+    angle)."""
+    delta = 2.0 * math.pi / HELIX_CHORDS
+    cl = 2.0 * r * math.sin(0.5 * delta)
+    L = max(zs - z, 0.0) / tan                           # horizontal (chordal) length
+    nf = int(math.floor(L / cl + 1e-9))
+    rem = L - nf * cl
+    lens = [cl] * nf
+    dang = [delta] * nf
+    if rem > 1e-9 * (1.0 + L):
+        lens.insert(0, rem)
+        dang.insert(0, 2.0 * math.asin(min(rem / (2.0 * r), 1.0)))
+    if not lens:
+        lens, dang = [0.0], [0.0]
+    dang = np.array(dang)
+    ang = phi_end - dang.sum() + np.concatenate([[0.0], np.cumsum(dang)])
+    drop = np.concatenate([np.cumsum(np.array(lens)[::-1])[::-1], [0.0]]) * tan
+    out = np.column_stack([c[0] + r * np.cos(ang), c[1] + r * np.sin(ang), z + drop])
+    out[-1, :2] = c + r * np.array([math.cos(phi_end), math.sin(phi_end)])
+    return out
+
+
+def _ramp_xyz(q, p, zs, z, tan) -> np.ndarray:
+    """The vertices (k, 3) of a ramp back and forth between q and p ending at q at height z, from
+    zs: every leg descends ``tan`` x its length, the first one shorter."""
+    Lr = float(np.hypot(*(p - q)))
+    L = max(zs - z, 0.0) / tan
+    n = max(1, int(math.ceil(L / Lr - 1e-9)))
+    first = L - (n - 1) * Lr
+    ends = [q if (n - k) % 2 == 0 else p for k in range(n + 1)]     # ends[n] = q
+    v = np.array(ends, dtype=np.float64)
+    v[0] = v[1] + (v[0] - v[1]) * (first / Lr)
+    lens = np.hypot(*(np.diff(v, axis=0).T))
+    drop = np.concatenate([np.cumsum(lens[::-1])[::-1], [0.0]]) * tan
+    return np.column_stack([v, z + drop])
+
+
+# ----------------------------------------------------------------------------------------------
+# The entries of a roughing
+# ----------------------------------------------------------------------------------------------
+
+@dataclass
+class _Plan:
+    """A helix or ramp entry found: ``xyz`` its vertices (the first is where the approach ends),
+    ``zs`` its start height, ``link`` (k, 2) or None: the feed path at the level from its end to
+    the piece's first point, ``cost`` its length (horizontal, mm: the descent and the link)."""
+
+    kind: str
+    xyz: np.ndarray
+    zs: float
+    link: np.ndarray | None
+    cost: float
+
+
+class _Entries:
+    """Chooses and writes the entries (module docstring) and counts them: ``n_helix``,
+    ``n_ramps``, ``n_side`` (side entries), ``n_plunges`` (straight plunges into material).
+    ``fine``: the stock top per raster cell (rest roughing) or None; ``G``: the forbidden map;
+    ``edge``: side entries start at least this far inside the raster's edge (mm: the tool radius and
+    a cell where material may lie beyond the stock box, one cell otherwise); ``win`` (nx, ny) or
+    None: the window's cells, which side entries keep to (the tool centre stays in the window,
+    beyond the stock box's reach or not). Per level the caller
+    sets ``thr`` (the forbidden map's threshold) and ``z_prev`` (the level above, or the stock
+    top)."""
+
+    def __init__(self, cfg: _EntryCfg, mat: _MaterialMap, fine, G, Rt, rc, edge, win=None):
+        self.cfg, self.mat, self.Rt, self.rc, self.edge = cfg, mat, Rt, rc, float(edge)
+        self.use_win = win is not None
+        self.win = np.ascontiguousarray(win if win is not None else np.ones((1, 1), bool)).ravel()
+        self.use_fine = fine is not None
+        self.fine = np.ascontiguousarray(fine if fine is not None else np.full((1, 1), np.inf))
+        self.G = np.ascontiguousarray(G).ravel()
+        self.thr = math.inf
+        self.z_prev = math.inf
+        self.n_helix = self.n_ramps = self.n_side = self.n_plunges = 0
+
+    def _margs(self, lv: _Level):
+        m = self.mat
+        return (m.top, m.cx, m.cy, m.hx, m.hy, m.x0, m.y0, m.H, self.fine, self.use_fine, lv.x0, lv.y0, lv.h)
+
+    def material(self, lv: _Level, xy, r) -> float:
+        """Highest remaining material under the disc of radius r (mm) about xy (module docstring)."""
+        return float(_material_at(*self._margs(lv), float(xy[0]), float(xy[1]), float(r)))
+
+    def enter(self, w: _Writer, lv: _Level, cur, xy, cell, z, safe) -> list[np.ndarray]:
+        """Come down from ``cur`` (None: the first approach from the safe height) to the first point
+        of the piece ``xy`` (k, 2; ``cell`` its region cell) at level z; returns the polylines cut at
+        the level on the way (for the remaining-material map)."""
+        q = np.asarray(xy[0], dtype=np.float64)
+        top_q = self.material(lv, q, self.Rt)
+        if not top_q > z + Z_TOL_MM:
+            _lift(w, lv, cur, q, z, safe, None if self.cfg.kind == "plunge" else top_q)
+            return []
+        if self.cfg.kind != "plunge":
+            u, seg = _first_dir(xy)
+            if u is not None:
+                best_d, q2 = math.inf, None
+                for v in (u, np.array([-u[1], u[0]]), np.array([u[1], -u[0]]), -u):     # back, aside, ahead
+                    d = float(_side_start(lv.flat, self.G, self.thr, self.win, self.use_win, lv.nx, lv.ny,
+                                          float(q[0]), float(q[1]), float(v[0]), float(v[1]),
+                                          min(best_d - 0.25 * lv.h, self.Rt + 4.0 * lv.h), float(z), self.Rt,
+                                          self.edge, *self._margs(lv)))
+                    if d > 0:
+                        best_d, q2 = d, q - d * v
+                if q2 is not None:
+                    _lift(w, lv, cur, q2, z, safe, self.material(lv, q2, self.Rt))
+                    w.add([q[0], q[1], z], USE_CUT)
+                    self.n_side += 1
+                    return [np.array([q2, q])]
+            plan = None
+            if self.cfg.kind == "ramp":
+                plan = self._ramp(lv, q, u, seg, z, safe)
+                if plan is not None and plan.zs > self._good(z) + 1e-9:
+                    hp = self._helix(lv, q, int(cell), u, z, safe, plan.cost)
+                    plan = hp if hp is not None else plan
+                if plan is None:
+                    plan = self._helix(lv, q, int(cell), u, z, safe, math.inf)
+            else:
+                plan = self._helix(lv, q, int(cell), u, z, safe, math.inf)
+                if plan is None:
+                    plan = self._ramp(lv, q, u, seg, z, safe)
+            if plan is not None:
+                return self._write(w, lv, cur, plan, q, z, safe)
+        self.n_plunges += 1
+        _lift(w, lv, cur, q, z, safe)
+        return []
+
+    def _good(self, z) -> float:
+        """The lowest start a helix or ramp can expect at level z: GAP_MM above the previous level
+        (+ the corner radius), where the previous level's cut left the map."""
+        return max(self.z_prev + self.rc, z) + GAP_MM
+
+    def _start_height(self, T, z, safe) -> float:
+        """Where a helix or ramp starts: GAP_MM above the material under it (``T``), at most the safe
+        height."""
+        return min(max(T, z) + GAP_MM, safe)
+
+    def _write(self, w, lv, cur, plan: _Plan, q, z, safe):
+        _approach(w, lv, cur, plan.xyz[0, :2], plan.zs, z, safe)
+        w.add(plan.xyz[1:], USE_PLUNGE)
+        if plan.kind == "helix":
+            self.n_helix += 1
+        else:
+            self.n_ramps += 1
+        if plan.link is None:
+            return []
+        w.add(np.column_stack([plan.link[1:], np.full(plan.link.shape[0] - 1, z)]), USE_CUT)
+        return [plan.link]
+
+    def _helix_plan(self, lv, c, r, q, z, safe, T=None):
+        """The helix about c of radius r ending at the circle's point nearest q (or at q), if it lies
+        in the region: (plan without its link, end point) or None."""
+        dq = float(np.hypot(*(q - c)))
+        e = q if dq <= r * (1 + 1e-12) else c + r * (q - c) / dq
+        phi = math.atan2(e[1] - c[1], e[0] - c[0])
+        if T is None:
+            T = self.material(lv, c, r + self.Rt)
+        zs = self._start_height(T, z, safe)
+        if not _helix_in(lv.flat, lv.x0, lv.y0, lv.h, lv.nx, lv.ny, float(c[0]), float(c[1]), float(r), phi,
+                         max(zs - z, 0.0) / self.cfg.tan, float(e[0]), float(e[1])):
+            return None
+        hx = _helix_xyz(c, r, phi, zs, z, self.cfg.tan)
+        hx[-1, :2] = e
+        return _Plan("helix", hx, zs, None, (zs - z) / self.cfg.tan), e
+
+    def _helix(self, lv, q, qcell, u, z, safe, cap):
+        """The cheapest helix found (module docstring, 2.), no dearer than ``cap``; None when none
+        fits."""
+        cfg = self.cfg
+        u = np.array([1.0, 0.0]) if u is None else u
+        good = self._good(z)
+        best = None
+        for r in (cfg.radius, 0.5 * cfg.radius):
+            for c in _helix_centres(q, u, r, self.Rt, lv.h):
+                T = self.material(lv, c, r + self.Rt)
+                zs = self._start_height(T, z, safe)
+                dq = max(float(np.hypot(*(q - c))) - r, 0.0)
+                if (zs - z) / cfg.tan + dq >= min(cap, math.inf if best is None else best.cost):
+                    continue
+                got = self._helix_plan(lv, c, r, q, z, safe, T)
+                if got is None:
+                    continue
+                plan, e = got
+                if e is not q:
+                    if not lv.visible(e, q):
+                        continue
+                    plan.link = np.array([e, q])
+                    plan.cost += float(np.hypot(*(q - e)))
+                best = plan
+                if zs <= good + 1e-9:
+                    return best
+            if best is not None:
+                break
+        # farther: a helix where the map is lower (away from the part's walls), linked to q at the level
+        for r in (cfg.radius, 0.5 * cfg.radius):
+            lim = min(cap, math.inf if best is None else best.cost)
+            sites = _helix_sites(lv.flat, lv.nx, lv.ny, float(q[0]), float(q[1]), FAR_RADII * self.Rt,
+                                 max(1, int(round(0.5 * r / lv.h))), float(r + self.Rt), float(z), GAP_MM,
+                                 float(safe), cfg.tan, float(lim), *self._margs(lv))
+            if sites.shape[0] == 0:
+                continue
+            for k in np.argsort(sites[:, 3], kind="stable")[:FAR_TRIES]:
+                if sites[k, 3] >= min(lim, math.inf if best is None else best.cost):
+                    break
+                c = sites[k, :2].copy()
+                got = self._helix_plan(lv, c, r, q, z, safe, float(sites[k, 2]))
+                if got is None:
+                    continue
+                plan, e = got
+                budget = min(lim, math.inf if best is None else best.cost) - plan.cost
+                if e is q:
+                    link = None
+                elif lv.visible(e, q):
+                    link = np.array([e, q])
+                else:
+                    ce = _region_cell(lv, e)
+                    if ce < 0:
+                        continue
+                    link = lv.grid_path(e, ce, q, qcell, budget)
+                    if link is None:
+                        continue
+                if link is not None:
+                    plan.link = link
+                    plan.cost += float(np.hypot(*np.diff(link, axis=0).T).sum())
+                if plan.cost < min(lim, math.inf if best is None else best.cost):
+                    best = plan
+                    break
+            if best is not None:
+                break
+        return best
+
+    def _ramp(self, lv, q, u, seg, z, safe):
+        """A ramp along the first segment ending at q (module docstring, 3.); None when it does not
+        fit."""
+        cfg = self.cfg
+        if u is None or seg is None:
+            return None
+        Lr = min(seg, cfg.ramp)
+        if Lr < cfg.min_ramp:
+            return None
+        p = q + Lr * u
+        if not lv.visible(q, p):
+            return None
+        T = float(_seg_material(*self._margs(lv), float(q[0]), float(q[1]), float(p[0]), float(p[1]), self.Rt))
+        zs = self._start_height(T, z, safe)
+        return _Plan("ramp", _ramp_xyz(q, p, zs, z, cfg.tan), zs, None, (zs - z) / cfg.tan)
+
+
+def _region_cell(lv: _Level, xy) -> int:
+    """A region cell holding xy (a point within 1e-9 cell of an edge may take the cell across), or
+    -1."""
+    for ex in (0.0, -1e-9, 1e-9):
+        for ey in (0.0, -1e-9, 1e-9):
+            ix = int(math.floor((xy[0] - lv.x0) / lv.h + ex))
+            iy = int(math.floor((xy[1] - lv.y0) / lv.h + ey))
+            if 0 <= ix < lv.nx and 0 <= iy < lv.ny and lv.flat[ix * lv.ny + iy]:
+                return ix * lv.ny + iy
+    return -1
+
+
+def _helix_centres(q, u, r, Rt, h):
+    """Candidate helix centres near a piece starting at q in direction u, in the order tried: at
+    distance r, r + 2 h, r + Rt / 2 and r + Rt from q (the helix ends at q, or at the circle's point
+    nearest q and the tool feeds on to q at the level), each in the piece's direction and then 30,
+    60, ..., 180 degrees off it."""
+    out = []
+    for rho in (r, r + 2.0 * h, r + 0.5 * Rt, r + Rt):
+        for a in _DIRS_DEG:
+            ca, sa = math.cos(math.radians(a)), math.sin(math.radians(a))
+            out.append(q + rho * np.array([ca * u[0] - sa * u[1], sa * u[0] + ca * u[1]]))
+    return out
+
+
+def _first_dir(xy):
+    """The unit direction and length of the piece's first segment of non-zero length (None, None
+    when there is none)."""
+    for k in range(1, xy.shape[0]):
+        d = np.asarray(xy[k] - xy[0], dtype=np.float64)
+        L = float(np.hypot(*d))
+        if L > 1e-9:
+            return d / L, L
+    return None, None
+
+
+def _approach(w: _Writer, lv: _Level, cur, p, zs, z, safe):
+    """Lift from ``cur`` (None: the first approach, from the safe height), rapid over to p and down
+    to zs, the start of a helix or ramp: GAP_MM above the map's material under the whole helix or
+    ramp, which holds the tool disc at p, so the rapid stays clear of it. The link height
+    (:func:`planning.toolpath.roughing.links._link_height`) is raised to zs, at most the safe
+    height."""
+    if cur is None:
+        zl = safe
+        w.add([p[0], p[1], safe], USE_RAPID)
+    else:
+        zl = min(safe, max(_link_height(lv, np.array(cur[:2]), p, cur[2], z, safe), zs))
+        _retract(w, cur, zl)
+        w.add([p[0], p[1], zl], USE_RAPID)
+    if zl > zs:
+        w.add([p[0], p[1], zs], USE_RAPID)

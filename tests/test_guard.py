@@ -1,0 +1,132 @@
+"""The guard of issue 16 (planning/toolpath/guard.py): a set-up's moves run on the carried stock, the
+obstacles and the travel before posting; what offends is repaired or cut out, never written."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from planning.orientations.kinematics import machine_visibility
+from planning.simulate.dexel import TriDexel, simulate_moves
+from planning.simulate.kinematics import MachineModel
+from planning.simulate.motion import ToolShape
+from planning.toolpath.frames import AreaFrame
+from planning.toolpath.guard import SetupMachine, guard_toolpath, part_moves, run_on_stock
+from planning.toolpath.moves import ARC_CCW, FEED, PLANE_XY, RAPID, USE_CUT, USE_RAPID, Toolpath
+from planning.visibility.travel import travel_feasible
+
+FLAT = ToolShape(number=2, kind="flat", radius_mm=3.0, corner_radius_mm=0.0, flute_length_mm=20.0,
+                 pieces=((20.0, math.inf, 10.0),), gauge_length_mm=100.0)
+
+
+def _frame(axis=(0.0, 0.0, 1.0)) -> AreaFrame:
+    z = np.asarray(axis, float) / np.linalg.norm(axis)
+    x = np.cross([0.0, 1.0, 0.0], z) if abs(z[1]) < 0.9 else np.cross(z, [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return AreaFrame(rotation=np.stack([x, y, z]), origin_mm=np.zeros(3))
+
+
+def _tp(xyz, kind, use=None, centre=None, plane=None) -> Toolpath:
+    xyz = np.asarray(xyz, float)
+    kind = np.asarray(kind, np.int8)
+    P = len(kind)
+    use = np.where(kind == RAPID, USE_RAPID, USE_CUT).astype(np.int8) if use is None else np.asarray(use, np.int8)
+    centre = np.full((P, 3), np.nan) if centre is None else np.asarray(centre, float)
+    plane = np.zeros(P, np.int8) if plane is None else np.asarray(plane, np.int8)
+    return Toolpath(xyz_mm=xyz, kind=kind, centre_mm=centre, plane=plane, use=use, tip_offset_mm=0.0)
+
+
+def test_part_moves_chords_lie_on_the_arc_in_the_part_frame():
+    f = _frame((0.3, -0.2, 0.9))
+    # a quarter circle of radius 10 about (0, 0, -5) in the XY plane, counter-clockwise
+    tp = _tp([[10, 0, -5], [0, 10, -5]], [FEED, ARC_CCW], centre=[[np.nan] * 3, [0, 0, -5]], plane=[0, PLANE_XY])
+    pm = part_moves(tp, f)
+    assert pm.source[0] == 0 and np.all(pm.source[1:] == 1) and pm.source.size > 8
+    back = f.to_frame(pm.end[1:])
+    r = np.hypot(back[:, 0], back[:, 1])
+    assert np.allclose(r, 10.0, atol=1e-9) and np.allclose(back[:, 2], -5.0)
+    assert np.all(np.diff(np.arctan2(back[:, 1], back[:, 0])) > 0)          # counter-clockwise
+    assert np.allclose(pm.end[-1], f.to_part([[0, 10, -5]])[0])
+    # every chord's midpoint within the chord tolerance of the arc
+    mid = f.to_frame(0.5 * (pm.start[1:] + pm.end[1:]))
+    assert np.all(10.0 - np.hypot(mid[:, 0], mid[:, 1]) <= 0.005 + 1e-12)
+    assert np.allclose(pm.axis, f.rotation[2])
+
+
+@pytest.mark.parametrize("profile", ["compact_trunnion_bc", "fork_head_ac"])
+def test_travel_of_the_guard_is_the_travel_of_the_visibility_filter(profile):
+    """The guard's travel (simulate.kinematics, the posts' and the verification's model) and the
+    visibility stage's filter (orientations.positions) agree on random tips and set-ups."""
+    rng = np.random.default_rng(4)
+    axes = rng.normal(size=(12, 3))
+    axes[:, 2] = np.abs(axes[:, 2]) + 0.2
+    axes /= np.linalg.norm(axes, axis=1)[:, None]
+    mv = machine_visibility(axes, profile)
+    R, G, place = 3.0, 110.0, np.array([10.0, -20.0, 80.0])
+    model = MachineModel(profile, place)
+    tips = rng.uniform([-400, -300, -200], [400, 300, 300], size=(3000, 3))
+    checked = 0
+    for j in np.flatnonzero(mv.feasible):
+        ang = mv.angles_deg[j]
+        t = model.axis(ang)[0]
+        guard_ok = SetupMachine(model, ang).travel_ok(tips, G)
+        vis_ok = travel_feasible(tips + R * t, t[None, :], ang[None, :], profile, placement_mm=place,
+                                 tool_radius_mm=R, gauge_length_mm=G)[:, 0]
+        assert np.array_equal(guard_ok, vis_ok)
+        checked += 1
+        assert 0 < guard_ok.sum() < tips.shape[0]           # both kinds of answers are exercised
+    assert checked >= 6
+
+
+def _slab() -> TriDexel:
+    return TriDexel.box([-30, -30, -10], [30, 30, 0], 1.0, domain_lo=[-60, -60, -40], domain_hi=[60, 60, 60])
+
+
+def test_a_rapid_into_material_goes_over_the_stock_and_comes_down_as_a_feed():
+    f = _frame()
+    # rapid at z 10, then a RAPID down into the slab to z -2, feed across, retract
+    tp = _tp([[0, 0, 10], [0, 0, -2], [20, 0, -2], [20, 0, 10]], [RAPID, RAPID, FEED, FEED])
+    off, _, _ = run_on_stock(tp, f, FLAT, _slab(), None, None, rapid_clearance_mm=0.0)
+    assert off.rapid[1] and not off.rapid[0]
+    g = guard_toolpath(tp, f, FLAT, _slab(), None, None, safe_z_mm=10.0, rapid_clearance_mm=0.0)
+    assert g.rapids_to_feed == 1 and g.truncated == 0
+    # up to the safe height, across, down as a plunge feed: the same end point
+    k = g.toolpath.kind
+    assert k[1] == FEED and k[2] == RAPID and k[3] == FEED and np.allclose(g.toolpath.xyz_mm[3], [0, 0, -2])
+    again, _, _ = run_on_stock(g.toolpath, f, FLAT, _slab(), None, None, rapid_clearance_mm=0.0)
+    assert not again.any.any()
+    assert g.removed_mm3 > 0 and g.stock.volume_mm3() < _slab().volume_mm3()
+
+
+def test_the_guard_leaves_the_given_stock_alone_and_a_clean_path_unchanged():
+    f = _frame()
+    tp = _tp([[0, 0, 10], [0, 0, 1], [20, 0, 1], [20, 0, 10]], [RAPID, RAPID, FEED, FEED])
+    s = _slab()
+    v0 = s.volume_mm3()
+    g = guard_toolpath(tp, f, FLAT, s, None, None, safe_z_mm=10.0, rapid_clearance_mm=0.0)
+    assert s.volume_mm3() == v0
+    assert g.rounds == 1 and g.dropped == 0 and g.rapids_to_feed == 0 and g.truncated == 0
+    assert g.toolpath is tp
+
+
+def test_rapid_clearance_is_a_margin_over_the_material():
+    f = _frame()
+    tp = _tp([[-40, 0, 0.4], [40, 0, 0.4]], [RAPID, RAPID])        # 0.4 mm over the slab's top
+    clean, _, _ = run_on_stock(tp, f, FLAT, _slab(), None, None, rapid_clearance_mm=0.0)
+    near, _, _ = run_on_stock(tp, f, FLAT, _slab(), None, None, rapid_clearance_mm=0.5)
+    assert not clean.rapid.any() and near.rapid[1]
+
+
+def test_simulation_of_the_guarded_path_matches_a_fresh_run():
+    """The stock the guard hands on is the stock a fresh run of its path leaves."""
+    f = _frame((0.2, 0.1, 1.0))
+    tp = _tp([[-25, -5, 15], [-25, -5, -3], [25, -5, -3], [25, 5, -3], [-25, 5, -3], [-25, 5, 15]],
+             [RAPID, FEED, FEED, FEED, FEED, FEED])
+    g = guard_toolpath(tp, f, FLAT, _slab(), None, None, safe_z_mm=15.0, rapid_clearance_mm=0.0)
+    pm = part_moves(g.toolpath, f)
+    s = _slab()
+    simulate_moves(s, pm.start, pm.end, np.broadcast_to(pm.axis, pm.start.shape), FLAT, pm.kind)
+    assert s.volume_mm3() == pytest.approx(g.stock.volume_mm3(), rel=1e-12)

@@ -1,0 +1,122 @@
+"""Issue 16 acceptance: programs a machinist can run. On the reference cases the verification of the
+posted programs (their text read back as a control reads it, run on the simulated machine and stock)
+finds no rapid into material, no shank, holder, fixture or table contact, nothing beyond the travel
+and no gouge beyond the tolerance, for every area; LinuxCNC's own interpreter reads the same
+programs within the profile's travel. The fast tests plan lighter versions of the cases (fewer
+points, a coarser scallop and step-down); the slow test plans them with the defaults."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from planning.inputs import Cloud
+from planning.inputs import samples
+from planning.pipeline import run_plan
+from planning.simulate.program import check_travel
+from planning.simulate.rs274 import INSTALL_HINT, rs274_available, run_rs274
+from planning.simulate.verify import tool_shapes
+from schemas.params import apply_overrides, parse_config
+
+LIGHT = ["paths.finishing.scallop_mm=0.2", "paths.roughing.step_down_mm=5", "simulate.resolution_mm=1.0"]
+
+CASES = {
+    "half_sphere": (lambda: samples.half_sphere(),
+                    ["normals.method=input", "setups.max_setups=2", "tool.diameter_mm=10"]),
+    "slot": (lambda: samples.slot(density_per_mm2=0.5, seed=1), []),
+    "post_wall": (lambda: samples.post_wall(density_per_mm2=0.5, seed=2), []),
+    "filleted_box": (lambda: samples.filleted_box(density_per_mm2=0.5, seed=3), ["tool.diameter_mm=4"]),
+}
+
+
+def _plan(name: str, extra: list[str]):
+    make, sets = CASES[name]
+    s = make()
+    cloud = Cloud(points=s.points, normals=s.normals, source_format="generated")
+    return run_plan(cloud, parse_config(apply_overrides({}, sets + extra)), name=name)
+
+
+def _assert_clean(outcome, name: str) -> None:
+    v = outcome.result.verification
+    assert v is not None and v.status == "passed", (name, v.message)
+    assert [a.area for a in v.areas] == outcome.result.machining_order
+    assert sorted(outcome.result.machining_order) == list(range(len(outcome.result.setups)))
+    for a in v.areas:
+        assert (a.rapids_into_material, a.holder_collisions, a.fixture_collisions, a.travel_excursions) == \
+            (0, 0, 0, 0), (name, a.program)
+        assert a.deviation.n_gouged == 0, (name, a.program, a.deviation)
+    assert v.unreadable_programs == 0
+    assert v.deviation.finished_share > 0.6, (name, v.deviation)
+    # what is not machined is said, per area and in total
+    u = outcome.result.unmachined
+    assert u is not None and u.n_points == sum(u.per_area.values())
+    assert 0.0 <= u.share < 0.25, (name, u)
+    for st in outcome.result.setups:
+        if st.path is not None and st.path.finishing is not None:
+            assert st.path.finishing.unmachined_points == u.per_area.get(st.id, 0)
+            assert st.path.finishing.holder_collisions == 0 and st.path.finishing.fixture_collisions == 0
+
+
+@pytest.fixture(scope="module", params=sorted(CASES))
+def light_plan(request):
+    return request.param, _plan(request.param, LIGHT)
+
+
+def test_light_plans_of_the_reference_cases_verify_clean(light_plan):
+    name, outcome = light_plan
+    _assert_clean(outcome, name)
+
+
+def test_rs274_reads_the_linuxcnc_programs_within_the_travel(light_plan):
+    """The independent reader: LinuxCNC's interpreter's canonical moves, through the profile's
+    kinematics, never leave the profile's linear or rotary travel."""
+    assert rs274_available(), INSTALL_HINT
+    name, outcome = light_plan
+    p = outcome.result.parameters
+    from planning.orientations.kinematics import load_profile
+
+    profile = load_profile(p.machine.profile)
+    tools = tool_shapes(p, p.tool.assembly())
+    place = np.asarray(outcome.result.visibility.placement_mm, dtype=float)
+    read = 0
+    for area in outcome.result.machining_order:
+        prog = f"area_{area}.linuxcnc.nc"
+        if prog not in outcome.extra["programs"]:
+            continue
+        motion = run_rs274(outcome.extra["programs"][prog], program=prog, area=area, profile=profile,
+                           placement_mm=place, tools=tools)
+        assert motion.n_moves > 100
+        assert check_travel(motion, profile) == [], (name, prog)
+        read += 1
+    assert read == len(outcome.result.setups) or read >= 1
+
+
+def test_rest_roughing_cuts_less_air_than_roughing_every_set_up_from_the_box():
+    """The carried stock: on the slot, roughing from what the set-ups before left takes less
+    time than roughing every set-up from its full box, and removes what is there."""
+    rest = _plan("slot", LIGHT)
+    box = _plan("slot", LIGHT + ["paths.carry_stock=false", "simulate.enabled=false"])
+
+    def rough_s(o):
+        return sum(st.path.roughing.machining_time_s for st in o.result.setups
+                   if st.path is not None and st.path.roughing is not None)
+
+    assert rough_s(rest) < rough_s(box)
+    later = [st for st in rest.result.setups if st.id == rest.result.machining_order[-1]][0]
+    if later.path.roughing is not None:
+        assert later.path.roughing.rest and later.path.roughing.guard is not None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_default_plans_of_the_reference_cases_verify_clean(name):
+    make, sets = CASES[name]
+    full = {"slot": samples.slot, "post_wall": samples.post_wall, "filleted_box": samples.filleted_box,
+            "half_sphere": samples.half_sphere}[name]
+    s = full()
+    cloud = Cloud(points=s.points, normals=s.normals, source_format="generated")
+    outcome = run_plan(cloud, parse_config(apply_overrides({}, sets)), name=name)
+    _assert_clean(outcome, name)
+    json.dumps(outcome.result.model_dump(mode="json"))

@@ -14,7 +14,7 @@ from planning.simulate.kinematics import MachineModel
 from planning.simulate.motion import ToolShape
 from planning.toolpath.frames import AreaFrame
 from planning.toolpath.guard import SetupMachine, guard_toolpath, part_moves, run_on_stock
-from planning.toolpath.moves import ARC_CCW, FEED, PLANE_XY, RAPID, USE_CUT, USE_RAPID, Toolpath
+from planning.toolpath.moves import ARC_CCW, FEED, PLANE_XY, RAPID, USE_CUT, USE_PLUNGE, USE_RAPID, Toolpath
 from planning.visibility.travel import travel_feasible
 
 FLAT = ToolShape(number=2, kind="flat", radius_mm=3.0, corner_radius_mm=0.0, flute_length_mm=20.0,
@@ -93,9 +93,13 @@ def test_a_rapid_into_material_goes_over_the_stock_and_comes_down_as_a_feed():
     assert off.rapid[1] and not off.rapid[0]
     g = guard_toolpath(tp, f, FLAT, _slab(), None, None, safe_z_mm=10.0, rapid_clearance_mm=0.0)
     assert g.rapids_to_feed == 1 and g.truncated == 0
-    # up to the safe height, across, down as a plunge feed: the same end point
-    k = g.toolpath.kind
-    assert k[1] == FEED and k[2] == RAPID and k[3] == FEED and np.allclose(g.toolpath.xyz_mm[3], [0, 0, -2])
+    # over the stock: rapid down only to where the column meets the slab (its top z 0, plus the
+    # clearance), then a plunge feed to the same end point; no null moves are left
+    tp2 = g.toolpath
+    j = int(np.flatnonzero(np.all(np.isclose(tp2.xyz_mm, [0, 0, -2]), axis=1))[0])
+    assert tp2.kind[j] == FEED and tp2.use[j] == USE_PLUNGE
+    assert tp2.kind[j - 1] == RAPID and 0.5 <= tp2.xyz_mm[j - 1, 2] <= 2.0
+    assert np.all(np.linalg.norm(np.diff(tp2.xyz_mm, axis=0), axis=1) > 1e-9)
     again, _, _ = run_on_stock(g.toolpath, f, FLAT, _slab(), None, None, rapid_clearance_mm=0.0)
     assert not again.any.any()
     assert g.removed_mm3 > 0 and g.stock.volume_mm3() < _slab().volume_mm3()
@@ -130,3 +134,14 @@ def test_simulation_of_the_guarded_path_matches_a_fresh_run():
     s = _slab()
     simulate_moves(s, pm.start, pm.end, np.broadcast_to(pm.axis, pm.start.shape), FLAT, pm.kind)
     assert s.volume_mm3() == pytest.approx(g.stock.volume_mm3(), rel=1e-12)
+
+
+def test_column_clear_height_is_the_slab_top_plus_the_clearance():
+    from planning.toolpath.guard import column_clear_z
+
+    f = _frame()
+    pts = np.array([[0.0, 0.0, -5.0], [0.0, 0.0, 3.0], [45.0, 0.0, -5.0]])    # in, above, beside the slab
+    z = column_clear_z(f, FLAT, _slab(), pts, 20.0, 0.0, 0.5, step_mm=0.1)
+    assert 0.5 - 1e-9 <= z[0] <= 0.6 + 1e-9          # the slab's top (0) + the clearance, to one step
+    assert z[1] == pytest.approx(3.0)                  # already clear
+    assert z[2] == pytest.approx(-5.0)                 # beside the slab (tool radius 3, clearance 0.5): clear

@@ -14,9 +14,10 @@ the area frame) is guarded by :func:`guard_toolpath`:
    part of the tool in a fixture, the riser or the table; the controlled point of every move end
    beyond the profile's linear travel (:class:`SetupMachine`, the posts' kinematics);
 3. repairs, then again from step 2 (at most ``max_rounds`` times): a rapid into material goes over
-   it instead: up along the tool axis to the safe height, across, and down to its end as a plunge
-   feed (the columns above the path's points are clear of the part, so only stock is cut; a rapid
-   straight across could cut the part); the end point of any other offending move is cut out of the path
+   it instead: up along the tool axis to the safe height (fed until the column is clear of the
+   stock), across, rapid down to where the column meets stock and fed from there (the columns above
+   the path's points are clear of the part, so only stock is cut; a rapid straight across could cut
+   the part); the end point of any other offending move is cut out of the path
    (:func:`planning.toolpath.safety.cut_moves`: the path retracts along the tool axis to the safe
    height before it and comes down after it);
 4. what still offends after the last round: the path is cut off before its first offending move
@@ -194,21 +195,58 @@ class GuardOutcome:
         return self.truncated == 0
 
 
-def _rapids_over(tp: Toolpath, which: np.ndarray, safe_z_mm: float, pass_index):
-    """Each rapid ``which`` (P,) from point a to point b replaced by: up from a along +Z to the safe
-    height (a feed: the column above a may hold stock), a rapid at the safe height over b, and down
-    to b as a plunge feed. The columns above the path's points are clear of the part (ball drop;
-    roughing levels), so the feed moves cut only stock; a rapid along the safe height meets nothing.
-    Returns the new toolpath and pass_index (-1 on the new points)."""
+def column_clear_z(frame: AreaFrame, shape: ToolShape, stock: TriDexel, points_frame: np.ndarray, top_z: float,
+                   tip_offset_mm: float, clearance_mm: float, step_mm: float | None = None) -> np.ndarray:
+    """(n,) for each reference point (area frame, n,3) the lowest height (reference point, frame z) at
+    or above it from which the tool, moved straight up the tool axis to ``top_z``, never comes
+    within ``clearance_mm`` of the stock: the column sampled every ``step_mm`` (default half the
+    stock's ray spacing), the whole tool at each sample (:func:`planning.simulate.dexel.collide`)."""
+    p = np.asarray(points_frame, dtype=np.float64).reshape(-1, 3)
+    if p.shape[0] == 0:
+        return np.zeros(0)
+    step = 0.5 * stock.res if step_mm is None else float(step_mm)
+    height = np.maximum(top_z - p[:, 2], 0.0)
+    m = np.floor(height / step).astype(np.int64) + 1
+    owner = np.repeat(np.arange(p.shape[0]), m)
+    k = np.arange(owner.size) - np.repeat(np.cumsum(m) - m, m)
+    q = p[owner].copy()
+    q[:, 2] += k * step
+    tips = frame.to_part(q - np.array([0.0, 0.0, tip_offset_mm]))
+    ax = np.broadcast_to(frame.rotation[2], tips.shape)
+    hit = collide(stock, tips, tips, ax, shape, which="tool", grow_mm=clearance_mm) > 0
+    z = p[:, 2].copy()
+    if hit.any():
+        last = np.full(p.shape[0], -1, dtype=np.int64)
+        np.maximum.at(last, owner[hit], k[hit])
+        up = last >= 0
+        z[up] = np.minimum(p[up, 2] + (last[up] + 1) * step, np.maximum(top_z, p[up, 2]))
+    return z
+
+
+def _rapids_over(tp: Toolpath, which: np.ndarray, safe_z_mm: float, pass_index, clear_above=None):
+    """Each rapid ``which`` (P,) from point a to point b replaced by a way over the stock: up from a
+    along +Z (a feed until the column above a is clear of stock, then a rapid) to the safe height, a
+    rapid at the safe height over b, a rapid down to where the column above b meets stock, and a
+    plunge feed to b. The columns above the path's points are clear of the part (ball drop; roughing
+    levels), so the feed moves cut only stock; a rapid along the safe height meets nothing.
+    ``clear_above``: (points (k,3) -> (k,) lowest clear heights, :func:`column_clear_z`); None:
+    the whole way up and down is fed. Returns the new toolpath and pass_index (-1 on the new points)."""
     idx = np.flatnonzero(which)
     idx = idx[idx > 0]
     if idx.size == 0:
         return tp, pass_index
+    a_pts, b_pts = tp.xyz_mm[idx - 1], tp.xyz_mm[idx]
+    top = np.maximum(safe_z_mm, np.maximum(a_pts[:, 2], b_pts[:, 2]))
+    if clear_above is None:
+        za, zb = top.copy(), top.copy()
+    else:
+        za = np.minimum(clear_above(a_pts), top)
+        zb = np.minimum(clear_above(b_pts), top)
     xyz, kind, use, centre, plane = [], [], [], [], []
     pi = [] if pass_index is not None else None
     prev = 0
     nan3 = np.full((1, 3), np.nan)
-    for i in idx:
+    for n, i in enumerate(idx):
         xyz.append(tp.xyz_mm[prev:i])
         kind.append(tp.kind[prev:i])
         use.append(tp.use[prev:i])
@@ -216,15 +254,14 @@ def _rapids_over(tp: Toolpath, which: np.ndarray, safe_z_mm: float, pass_index):
         plane.append(tp.plane[prev:i])
         if pi is not None:
             pi.append(pass_index[prev:i])
-        a, b = tp.xyz_mm[i - 1], tp.xyz_mm[i]
-        z = max(safe_z_mm, a[2], b[2])
-        xyz.append(np.array([[a[0], a[1], z], [b[0], b[1], z], b]))
-        kind.append(np.array([FEED, RAPID, FEED], np.int8))
-        use.append(np.array([USE_RETRACT, USE_RAPID, USE_PLUNGE], np.int8))
-        centre.append(np.repeat(nan3, 3, axis=0))
-        plane.append(np.zeros(3, np.int8))
+        a, b, z = a_pts[n], b_pts[n], top[n]
+        xyz.append(np.array([[a[0], a[1], za[n]], [a[0], a[1], z], [b[0], b[1], z], [b[0], b[1], zb[n]], b]))
+        kind.append(np.array([FEED, RAPID, RAPID, RAPID, FEED], np.int8))
+        use.append(np.array([USE_RETRACT, USE_RAPID, USE_RAPID, USE_RAPID, USE_PLUNGE], np.int8))
+        centre.append(np.repeat(nan3, 5, axis=0))
+        plane.append(np.zeros(5, np.int8))
         if pi is not None:
-            pi.append(np.array([-1, -1, pass_index[i]], dtype=pass_index.dtype))
+            pi.append(np.array([-1, -1, -1, -1, pass_index[i]], dtype=pass_index.dtype))
         prev = i + 1
     xyz.append(tp.xyz_mm[prev:])
     kind.append(tp.kind[prev:])
@@ -327,7 +364,12 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
         drop |= _cut_points_to_drop(tp, lifted)
         rapid_only &= ~lifted
         if rapid_only.any() and not drop.any():
-            tp, pass_index = _rapids_over(tp, rapid_only, safe_z_mm, pass_index)
+            # the columns are read on the stock before the operation: more material than when the
+            # rapid runs, so the heights found are safe ones
+            top = max(safe_z_mm, float(tp.xyz_mm[:, 2].max()))
+            clear = (lambda pts, tp=tp, top=top: column_clear_z(frame, shape, stock, pts, top, tp.tip_offset_mm,
+                                                                rapid_clearance_mm + 0.5))
+            tp, pass_index = _rapids_over(tp, rapid_only, safe_z_mm, pass_index, clear_above=clear)
             out.rapids_to_feed += int(rapid_only.sum())
             continue
         if drop.any():

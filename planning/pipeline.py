@@ -436,6 +436,8 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     result.verification = simulation.verification
     result.machining_order = order
     result.unmachined = _unmachined(area_paths, points.shape[0])
+    if result.unmachined is not None and result.unmachined.n_points:
+        result.artifacts.unmachined_png = "unmachined.png"
     if simulation.deviation_mm is not None:
         result.artifacts.deviation_ply, result.artifacts.deviation_png = "deviation.ply", "deviation.png"
     if simulation.stock is not None:

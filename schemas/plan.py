@@ -243,6 +243,8 @@ class Artifacts(_Out):
                                                         "simulated result, with a deviation_mm property.")
     deviation_png: str | None = Field(None, description="Views of the deviation with a colour bar in mm.")
     stock_ply: str | None = Field(None, description="The simulated final stock as a triangle mesh.")
+    unmachined_png: str | None = Field(None, description="Views of the scan with the points no kept finishing move "
+                                                         "reaches in red (plan.json unmachined).")
 
 
 class VerificationOffence(_Out):

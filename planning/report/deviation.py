@@ -82,3 +82,33 @@ def render_deviation_png(path, points: np.ndarray, dev: np.ndarray, limit_mm: fl
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
+
+
+def render_unmachined_png(path, points: np.ndarray, unmachined: np.ndarray, title: str = "") -> None:
+    """Three orthographic views (top, front, side) of the scan: the points no kept finishing move
+    reaches (``unmachined``: input point indices) in red over the others in grey (issue 16: what the
+    guard cut out, shown)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = points.shape[0]
+    mask = np.zeros(n, dtype=bool)
+    mask[np.asarray(unmachined, dtype=np.int64)] = True
+    idx = np.arange(n) if n <= PNG_MAX_POINTS else np.sort(
+        np.random.default_rng(0).choice(n, PNG_MAX_POINTS, replace=False))
+    idx = np.union1d(idx, np.flatnonzero(mask)[:PNG_MAX_POINTS])
+    p, m = points[idx], mask[idx]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5.4), constrained_layout=True)
+    for ax, (h, v, name) in zip(axes, ((0, 1, "top (from +Z)"), (0, 2, "front (from -Y)"), (1, 2, "side (from +X)"))):
+        ax.scatter(p[~m, h], p[~m, v], c=[(0.75, 0.75, 0.75)], s=0.4, linewidths=0)
+        ax.scatter(p[m, h], p[m, v], c=[(0.86, 0.12, 0.12)], s=1.5, linewidths=0)
+        ax.set_aspect("equal")
+        ax.set_title(name)
+        ax.set_xlabel("XYZ"[h] + " (mm)")
+        ax.set_ylabel("XYZ"[v] + " (mm)")
+    fig.suptitle(title or f"unmachined scan points (red): {int(mask.sum())} of {n}")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)

@@ -61,8 +61,24 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike) -> dict[str, Pa
         _atomic_bytes(paths[name], text.encode())
 
     paths.update(_write_simulation(outcome, out))
+    paths.update(_write_unmachined(outcome, out))
     _atomic_bytes(paths["plan_json"], plan_json_text(outcome).encode())
     return paths
+
+
+def _write_unmachined(outcome: PlanOutcome, out: Path) -> dict[str, Path]:
+    """``unmachined.png`` when the guard left scan points unmachined (issue 16)."""
+    from planning.report.deviation import render_unmachined_png
+
+    u = outcome.result.unmachined
+    if u is None or u.n_points == 0 or not outcome.result.artifacts.unmachined_png:
+        return {}
+    idx = np.concatenate([ap.unmachined for ap in outcome.extra.get("area_paths", [])
+                          if getattr(ap, "unmachined", None) is not None] or [np.zeros(0, np.int64)])
+    path = out / outcome.result.artifacts.unmachined_png
+    render_unmachined_png(path, outcome.points, idx,
+                          title=f"unmachined scan points (red): {u.n_points} ({u.share:.1%}); {u.message}"[:160])
+    return {"unmachined_png": path}
 
 
 def _write_simulation(outcome: PlanOutcome, out: Path) -> dict[str, Path]:

@@ -148,6 +148,11 @@ class RoughingSummary(_Out):
         ..., description="Stock box (min corner, max corner) in the area frame, mm.")
     machining_time_s: float
     rest: bool = Field(False, description="Rest roughing: only the material the set-ups before left was cut.")
+    allowance_left_mm: dict[str, float] | None = Field(
+        None, description="The stock over the area's scan points when its finishing starts (after this roughing "
+                          "and every earlier set-up), read along their normals on the carried stock, mm: p05, p50, "
+                          "p95, max, and n points read. Uniform at stock_allowance_mm where the roughing reached; "
+                          "more in corners the end mill cannot enter and where its holder could not go.")
     n_helix: int = Field(0, description="Entries into material by a helix.")
     n_ramps: int = Field(0, description="Entries into material by a ramp.")
     n_plunges_into_material: int = Field(0, description="Straight plunges into material (no helix or ramp fitted).")

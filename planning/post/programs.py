@@ -100,6 +100,7 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
                 n_ramps=int(getattr(info, "n_ramps", 0)),
                 n_plunges_into_material=int(getattr(info, "n_plunges_into_material", 0)),
                 guard=_guard_summary(getattr(ap, "roughing_guard", None)),
+                allowance_left_mm=getattr(ap, "allowance_left", None),
                 machining_time_s=round(machining_time_s(ap.roughing, feed_mm_min=post.roughing_feed_mm_min,
                                                         plunge_mm_min=post.plunge_mm_min,
                                                         rapid_mm_min=post.rapid_mm_min), 1))

@@ -77,7 +77,7 @@ def _write_unmachined(outcome: PlanOutcome, out: Path) -> dict[str, Path]:
                           if getattr(ap, "unmachined", None) is not None] or [np.zeros(0, np.int64)])
     path = out / outcome.result.artifacts.unmachined_png
     render_unmachined_png(path, outcome.points, idx,
-                          title=f"unmachined scan points (red): {u.n_points} ({u.share:.1%}); {u.message}"[:160])
+                          title=f"scan points no kept finishing move reaches (red): {u.n_points} ({u.share:.1%})")
     return {"unmachined_png": path}
 
 

@@ -81,6 +81,7 @@ class AreaPaths:
     finishing_guard: object = None
     blocked: dict = field(default_factory=dict)
     blocked_figures: object = None
+    allowance_left: dict | None = None
     unmachined: np.ndarray | None = None       # input point indices of the area no kept finishing move reaches
 
     @property
@@ -209,6 +210,10 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
             t0 = time.perf_counter()
             _guard_roughing(ap, carried, top + paths_params.roughing.stock_margin_mm + paths_params.safe_clearance_mm)
             sec["guard_roughing"] = time.perf_counter() - t0
+        if carried is not None and carried.normals is not None:
+            # issue 16 item 1: the stock the finishing meets over this area (roughing allowance
+            # where roughing reached; more where the roughing tool or its holder could not go)
+            ap.allowance_left = carried.allowance_left(points[mine], carried.normals[mine])
         if fp.enabled:
             masks = _region_masks(mine, regions, cloud_f.shape[0])
             _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec,

@@ -265,7 +265,7 @@ def _paths(points: np.ndarray, areas: Areas, sel_axes: np.ndarray, tool, gv: Glo
 
 
 def _carried(points: np.ndarray, areas: Areas, config: PlanConfig, tool, gv: GlobalVisibility, profile,
-             rotary_deg: np.ndarray, blank, normals: np.ndarray):
+             rotary_deg: np.ndarray, blank, normals: np.ndarray, selected: np.ndarray):
     """The stock carried through the set-ups (issue 16 item 1): the same stock, obstacles and tools
     as the verification (:mod:`planning.simulate.models`), the set-ups on the machine for the travel,
     and the machining order."""
@@ -287,7 +287,8 @@ def _carried(points: np.ndarray, areas: Areas, config: PlanConfig, tool, gv: Glo
                         order=machining_order(areas.input_labels, k),
                         rapid_clearance_mm=config.simulate.rapid_clearance_mm + config.paths.guard_rapid_clearance_mm,
                         floor_z_mm=float(points[:, 2].min()), resolution_mm=config.simulate.resolution_mm,
-                        footprint=footprint(points), normals=normals)
+                        footprint=footprint(points), normals=normals,
+                        visible=gv.visible[:, selected][areas.nearest_sample])
 
 
 def _unmachined(area_paths, n_points: int):
@@ -419,8 +420,8 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     order = list(range(int(selected.size)))
     if (pp.finishing.enabled or pp.roughing.enabled) and selected.size:
         normals = cloud.normals if cloud.normals is not None else nrm.normals[areas.nearest_sample]
-        carried = (_carried(points, areas, config, tool, gv, profile, ori.angles_deg[selected], blank, normals)
-                   if carry else None)
+        carried = (_carried(points, areas, config, tool, gv, profile, ori.angles_deg[selected], blank, normals,
+                            selected) if carry else None)
         if carried is not None:
             order = carried.order
         area_paths = run.stage("paths", lambda p: _paths(points, areas, sel_axes, tool, gv, config, p, carried))

@@ -129,7 +129,10 @@ class FinishingSummary(_Out):
                                           "(cutter above the ball, shank or holder meets the scan), 'stock' (shank or "
                                           "holder in the carried stock), 'fixture', 'travel', 'underside' (ball below "
                                           "the part's underside); a point may count under several.")
-    unmachined_points: int = Field(0, description="Scan points of the area that no kept finishing move reaches.")
+    unmachined_points: int = Field(0, description="Scan points of the area that no kept finishing move of any set-up "
+                                                  "reaches.")
+    handed_in_points: int = Field(0, description="Scan points of other areas, left unmachined by the set-ups before, "
+                                                 "that this set-up sees and finished.")
     guard: GuardSummary | None = None
 
 

@@ -84,6 +84,7 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
                 holder_collisions=int(ap.holder_collisions), fixture_collisions=int(ap.fixture_collisions),
                 blocked_cl=dict(getattr(ap, "blocked", {}) or {}),
                 unmachined_points=int(0 if getattr(ap, "unmachined", None) is None else ap.unmachined.size),
+                handed_in_points=int(getattr(ap, "handed_in", 0)),
                 guard=_guard_summary(getattr(ap, "finishing_guard", None)),
                 machining_time_s=round(machining_time_s(ap.finishing, feed_mm_min=post.feed_mm_min,
                                                         plunge_mm_min=post.plunge_mm_min,

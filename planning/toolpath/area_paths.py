@@ -51,7 +51,7 @@ from planning.toolpath.guard import guard_toolpath
 from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath, concatenate
 from planning.toolpath.reduce import fit_arcs, reduce_cl
 from planning.toolpath.roughing import roughing_paths
-from planning.toolpath.safety import guard_finishing
+from planning.toolpath.safety import cutting_positions, finished_reach_mm, guard_finishing, unmachined_points
 from planning.toolpath.verify import BinnedCloud, move_clearance
 
 Progress = Callable[[float, str], None]
@@ -82,6 +82,7 @@ class AreaPaths:
     blocked: dict = field(default_factory=dict)
     blocked_figures: object = None
     allowance_left: dict | None = None
+    handed_in: int = 0                         # points other set-ups left that this one finished
     unmachined: np.ndarray | None = None       # input point indices of the area no kept finishing move reaches
 
     @property
@@ -185,12 +186,16 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     k = axes.shape[0]
     out: list[AreaPaths] = []
     order = list(range(k)) if carried is None else list(carried.order)
+    pool = np.zeros(points.shape[0], dtype=bool)       # unmachined by a set-up before: handed on
     for n_done, i in enumerate(order):
         sec: dict[str, float] = {}
         t0 = time.perf_counter()
         mine = input_labels == i
         if not mine.any():
             continue
+        extra = np.zeros_like(mine)
+        if carried is not None and carried.visible is not None and pool.any():
+            extra = pool & carried.visible[:, i] & ~mine
         frame, cloud_f, area_f, top = _frame_and_top(points, mine, axes[i], obstacles, fixtures, fp, R, reach)
         stock_f = None
         if carried is not None:
@@ -216,6 +221,8 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
             ap.allowance_left = carried.allowance_left(points[mine], carried.normals[mine])
         if fp.enabled:
             masks = _region_masks(mine, regions, cloud_f.shape[0])
+            if extra.any():                    # the points set-ups before left that this one sees
+                masks.append(np.concatenate([extra, np.zeros(cloud_f.shape[0] - extra.shape[0], dtype=bool)]))
             _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec,
                            blocked=None if carried is None else
                            (lambda fin: _cut_blocked(ap, fin, carried, obstacles, axes[i], tool, fixtures, area_f, fp)))
@@ -229,11 +236,32 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
                 sec["guard_finishing"] = time.perf_counter() - t0
             if carried is not None and ap.unmachined is not None:
                 ap.unmachined = np.flatnonzero(mine)[ap.unmachined]       # input point indices
+            if carried is not None:
+                pool[ap.unmachined if ap.unmachined is not None else np.zeros(0, np.int64)] = True
+                if extra.any():
+                    left = _still_unmachined(ap, cloud_f[:points.shape[0]][extra], fp)
+                    ap.handed_in = int(extra.sum() - left.sum())
+                    pool[np.flatnonzero(extra)[~left]] = False
         ap.seconds = {k2: round(v, 4) for k2, v in sec.items()}
         out.append(ap)
         if progress is not None:
             progress((n_done + 1) / k, f"area {i}: paths done")
+    if carried is not None:
+        # what no set-up finished, by the area it belongs to
+        for ap in out:
+            ap.unmachined = np.flatnonzero(pool & (input_labels == ap.area))
     return out
+
+
+def _still_unmachined(ap: AreaPaths, pts_f: np.ndarray, fp) -> np.ndarray:
+    """(n,) bool: the points ``pts_f`` (area frame) that no kept cutting move of ``ap``'s finishing
+    reaches (:func:`planning.toolpath.safety.unmachined_points` on the moves sampled every R / 4)."""
+    if ap.finishing is None or pts_f.shape[0] == 0:
+        return np.ones(pts_f.shape[0], dtype=bool)
+    spacing = ap.radius_mm / 4.0
+    kept = cutting_positions(ap.finishing, spacing)
+    reach = finished_reach_mm(ap.radius_mm, tol_mm=fp.tolerance_mm, scallop_mm=fp.scallop_mm, spacing_mm=spacing)
+    return unmachined_points(pts_f, kept, ap.radius_mm, reach)
 
 
 def roughing_window_reach_mm(paths_params, tool: ToolAssembly) -> float:

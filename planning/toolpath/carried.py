@@ -35,7 +35,9 @@ class CarriedStock:
     ``rapid_clearance_mm`` (the guard's), ``floor_z_mm`` (the part's underside, part frame z: no
     finishing ball goes below it inside ``footprint``), ``resolution_mm`` (the stock model's ray
     spacing), ``footprint`` (:func:`footprint` of the scan), ``normals`` (N,3) unit normals of the
-    scan's points (for the allowance left before finishing)."""
+    scan's points (for the allowance left before finishing), ``visible`` (N,k) bool: which set-up
+    sees each scan point (the visibility of its nearest sample): points a set-up leaves unmachined
+    are handed to a later one that sees them."""
 
     stock: TriDexel
     obstacles: TriDexel | None
@@ -48,6 +50,7 @@ class CarriedStock:
     resolution_mm: float
     footprint: "Footprint | None" = None
     normals: np.ndarray | None = None
+    visible: np.ndarray | None = None
 
     def allowance_left(self, points: np.ndarray, normals: np.ndarray) -> dict:
         """The stock left over the scan ``points`` (k,3, part frame) along their unit ``normals``

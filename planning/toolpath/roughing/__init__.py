@@ -11,8 +11,19 @@ in mm; the path records the tool TIP (``Toolpath.tip_offset_mm = 0``). Stage: pa
 radius ``Rf = Rt - rc``): the points within ``rc`` of the core, the half-infinite cylinder
 ``rho <= Rf, z >= tip + rc`` (``rc = 0``: the flat cylinder ``rho <= Rt, z >= tip``). Flutes,
 shank and holder are this cylinder continued upwards without end (conservative for a shank no
-wider than the cutter; the holder is not modelled). A cloud point's *clearance* is its distance
-to that solid (0 or below: inside the tool).
+wider than the cutter). A cloud point's *clearance* is its distance to that solid (0 or below:
+inside the tool).
+
+**Holder** (``holder_pieces``, optional: the caller passes
+:attr:`planning.simulate.motion.ToolShape.pieces` of the roughing tool, cylinders ``(z0, z1, r)``
+above the tip). At each level a tool-centre cell is *blocked* where a piece would meet the cloud
+(within r + allowance, above z + z0 - allowance) or the remaining material (the material map:
+the box or the given stock as lowered so far, within r, above z + z0 - HOLDER_GAP_MM); blocked
+cells are not cut, linked through, entered or descended to, and the lifts' rapids rise so that
+every piece clears the material (:class:`~planning.toolpath.roughing.maps._HolderMap`). Where a
+region is blocked the roughing stops going deeper there (the tool cannot reach; the material is
+left for finishing or other set-ups); ``RoughingPath.holder_blocked_cells`` counts them and
+``deepest_cut_mm`` says how deep it went. Without pieces (default) nothing changes.
 
 **Stock.** Either the box or the material that is there now. *Box* (default): the cloud's
 bounding box grown by ``stock_margin_mm`` on the four sides and on the top: the stock top is the
@@ -67,11 +78,17 @@ the runs (only the 2 x 2 blocks that can be mixed), the links' grid searches (in
 arrays reused), the coarse material map; per entry into material a few disc queries of the map and
 the chords of the candidate helices (numba); then one counting sort of the cloud for the
 verification. Rest roughing adds one pass over the stock points and two disc maxima per set-up.
-The default raster of the femur-like case is about 1300 x 650 cells.
+The holder adds one disc maximum per piece per set-up (the cloud), and per level two passes over
+the raster (the candidates' box, the mask in it) and, where the map has changed, one disc maximum
+per piece of the material map over blocks of cells (about HOLDER_BLOCKS blocks per radius). The
+default raster of the femur-like case is about 1300 x 650 cells.
 
 Simplified: no trochoidal or adaptive clearing; helices and ramps are straight chords (24 per
-helix turn), not arcs; no holder or fixture collisions; the material of earlier set-ups is known
-only through the stock the caller passes (its top per cell: an overhang of stock over air counts as
+helix turn), not arcs; no fixture collisions, the holder only when its pieces are given (each
+piece taken as reaching up without end, at most HOLDER_PIECES of them, merged conservatively, its
+blocked cells grown by up to about 3 raster cells + the blocks' diagonal: about 1.9 mm for a
+12.5 mm collet nut, 2.7 mm for a 25 mm flange with the default Ø10 cutter); the material of earlier
+set-ups is known only through the stock the caller passes (its top per cell: an overhang of stock over air counts as
 solid down to the floor), and the box otherwise; the remaining-material map is conservative (a cell
 is lowered only when wholly swept), so lifts and rapid descents may stop higher than needed, and
 its stock top is grown by the sampling spacing + one cell, so up to that much air is cut beside the
@@ -82,6 +99,7 @@ from planning.toolpath.roughing.clearance import ToolClearance, min_tool_clearan
 from planning.toolpath.roughing.entries import ENTRY_KINDS
 from planning.toolpath.roughing.levels import REMOVED_NOTE, REST_NOTE, RoughingPath, roughing_paths
 from planning.toolpath.roughing.links import GAP_MM
+from planning.toolpath.roughing.maps import HOLDER_GAP_MM
 
-__all__ = ["ENTRY_KINDS", "GAP_MM", "REMOVED_NOTE", "REST_NOTE", "RoughingPath", "ToolClearance", "min_tool_clearance",
-           "roughing_paths"]
+__all__ = ["ENTRY_KINDS", "GAP_MM", "HOLDER_GAP_MM", "REMOVED_NOTE", "REST_NOTE", "RoughingPath", "ToolClearance",
+           "min_tool_clearance", "roughing_paths"]

@@ -18,7 +18,8 @@ material, plunge at feed). Otherwise, in this order:
    piece's first segment, or square to it, or ahead along it (the least d of the four, back first
    on a tie) to a point q' where the disc is clear of material: the tool plunges there in air and
    feeds to q at the level; every position of that move (sampled h / 4 apart) lies in a
-   cell the forbidden map allows at the level and in the window (the allowance is kept; outside
+   cell the forbidden map allows at the level and in the window, and (holder pieces given) that the
+   holder does not block (:class:`planning.toolpath.roughing.maps._HolderMap`; the allowance is kept; outside
    the region it may cut at most that short way beyond the region's limits: at the stock box's
    sides, where the clearing lines start with the disc h into the stock, it is the way in from
    outside).
@@ -363,7 +364,8 @@ class _Entries:
     ``edge``: side entries start at least this far inside the raster's edge (mm: the tool radius and
     a cell where material may lie beyond the stock box, one cell otherwise); ``win`` (nx, ny) or
     None: the window's cells, which side entries keep to (the tool centre stays in the window,
-    beyond the stock box's reach or not). Per level the caller
+    beyond the stock box's reach or not; with the holder the caller sets ``win`` (flat) and
+    ``use_win`` per level to the cells the holder leaves free). Per level the caller
     sets ``thr`` (the forbidden map's threshold) and ``z_prev`` (the level above, or the stock
     top)."""
 

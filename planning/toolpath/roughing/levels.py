@@ -26,6 +26,15 @@ path with no level.
 lift, the tool comes straight down only into air or a hole already cut; into material it enters
 from the side, by a helix or by a ramp, and plunges (counted) only when none fits.
 
+**Holder** (``holder_pieces``): a :class:`~planning.toolpath.roughing.maps._HolderMap` is built
+once (the cloud part of the test) and asked at every level, before its region, which candidate
+cells the holder blocks (the material part, from the remaining-material map as the level above
+left it: the level's own cut only lowers it, so it is an upper bound for the whole level); the
+region is the candidates less the blocked cells, side entries keep to the unblocked cells, and the
+level's :class:`~planning.toolpath.roughing.links._Level` carries the holder's heights for the
+lifts. Levels are unchanged: where everything is blocked a level simply cuts nothing there. The
+offset contour follows only the forbidden map's edges, not the holder's (as with the window's).
+
 A level is cut (:func:`_cut_level`) by taking its pieces (:mod:`planning.toolpath.roughing.clearing`)
 in their order (:mod:`planning.toolpath.roughing.ordering`), each joined to the one before by a
 feed link at the level or a lift (:mod:`planning.toolpath.roughing.links`); the remaining-material
@@ -79,6 +88,8 @@ from planning.toolpath.roughing.maps import (
     _coarse_max,
     _disc_max,
     _ForbiddenMap,
+    _holder_pieces,
+    _HolderMap,
     _MaterialMap,
     _Raster,
     _raster,
@@ -125,7 +136,14 @@ class RoughingPath:
     ``n_ramps``, ``n_side_entries``: pieces entered by a helix, a ramp, or from the side (a plunge
     beside the material, then a feed in at the level); ``n_plunges_into_material``: straight
     plunges with remaining material above the level under the tool disc
-    (:mod:`planning.toolpath.roughing.entries`)."""
+    (:mod:`planning.toolpath.roughing.entries`).
+
+    Holder (``holder_pieces``): ``holder``: pieces were given; ``holder_blocked_cells``
+    (n_levels,): per level, the raster cells the tool centre could have cut (in the window's reach,
+    allowed by the forbidden map, rest roughing: near stock) but the holder blocks
+    (:class:`~planning.toolpath.roughing.maps._HolderMap`); ``n_holder_blocked_cells``: their sum
+    over the levels (cell-levels); ``deepest_cut_mm``: the lowest level at which anything was cut
+    (NaN when nothing was), with or without the holder."""
 
     toolpath: Toolpath
     levels_mm: np.ndarray
@@ -150,6 +168,10 @@ class RoughingPath:
     n_ramps: int = 0
     n_side_entries: int = 0
     n_plunges_into_material: int = 0
+    holder: bool = False
+    holder_blocked_cells: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    n_holder_blocked_cells: int = 0
+    deepest_cut_mm: float = math.nan
 
 
 def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: float = 0.0, step_down_mm: float = 2.0,
@@ -159,7 +181,7 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
                    safe_z_mm: float | None = None, window_xy_mm=None, window_reach_mm: float = 0.0,
                    stock_points_mm=None, stock_spacing_mm: float | None = None, entry: str = "helix",
                    entry_angle_deg: float = 3.0, entry_diameter_mm: float | None = None,
-                   ramp_length_mm: float | None = None,
+                   ramp_length_mm: float | None = None, holder_pieces=None,
                    progress: Callable[[int, int], None] | None = None) -> RoughingPath:
     """Z-level roughing of one set-up from a stock box or the stock left (mm, area frame; see
     :mod:`planning.toolpath.roughing`).
@@ -189,11 +211,23 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     diameter of the circle the tool centre runs on in a helix, in (0, 2 x cutter diameter) mm (None:
     70 % of the cutter diameter); ``ramp_length_mm``: the longest ramp leg, >= Rt, mm (None: twice
     the cutter diameter).
+
+    Holder: ``holder_pieces``: the non-cutting solids above the tip, a sequence of ``(z0_mm,
+    z1_mm, radius_mm)`` cylinders from z0 to z1 (may be inf) above the tip, as
+    :attr:`planning.simulate.motion.ToolShape.pieces` (e.g. ``roughing_shape(...).pieces``: the
+    holder from the stick-out up); None (default) or empty: the tool is the cutter's cylinder
+    continued upwards, as before. Given, at every level the tool centre keeps out of the cells where
+    a piece would meet the cloud (within its radius + the allowance, above its bottom - the
+    allowance) or the remaining material (within its radius, above its bottom - HOLDER_GAP_MM),
+    and the lifts rise so that the pieces clear the material
+    (:class:`~planning.toolpath.roughing.maps._HolderMap`): where the holder cannot follow, the
+    roughing stops going deeper and the material is left.
     """
     pts, Rt, rc, step, a, margin, s, h = _check_args(cloud_frame, tool_radius_mm, corner_radius_mm, step_down_mm,
                                                       stock_allowance_mm, stock_margin_mm, stepover_mm, pattern,
                                                       cell_mm)
     cfg = _entry_cfg(entry, entry_angle_deg, entry_diameter_mm, ramp_length_mm, Rt)
+    pieces = _holder_pieces(()) if holder_pieces is None else _holder_pieces(holder_pieces)
     rest = stock_points_mm is not None
     if rest:
         spts, spacing = _check_stock(stock_points_mm, stock_spacing_mm)
@@ -224,13 +258,16 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     ys = _line_ys(stock.box_lo, stock.box_hi, grid.h, Rt, rc, s)
     forb = _ForbiddenMap(grid.cmax, grid.h, Rt, rc, a, stock.big)
     ent = _Entries(cfg, mat, fine, forb.G, Rt, rc, edge=(Rt + h) if rest else h, win=win)
+    hold = _HolderMap(pieces, grid, mat, a, Rt, stock.big, win) if pieces.shape[0] else None
     wmask = _coarse_max(grid.inbox.astype(np.float64)) > 0      # coarse cells of the window's tool centres
     before = mat.volume_above(stock.floor, wmask)
-    w, cur, level_retracts, removed = _cut_levels(levels, grid, forb, mat, ys, pattern == "oneway", contour,
-                                                  stock.safe, Rt, rc, progress, ent, near, stock.z_top)
+    w, cur, level_retracts, removed, blocked, deepest = _cut_levels(levels, grid, forb, mat, ys, pattern == "oneway",
+                                                                    contour, stock.safe, Rt, rc, progress, ent, near,
+                                                                    stock.z_top, hold)
     air_top = fine if rest else _box_tops(grid, stock)
     return _result(pts, w, cur, levels, level_retracts, removed, stock, Rt, rc, grid.h, s,
-                   rest=rest, ent=ent, air_top=air_top, before=before, after=mat.volume_above(stock.floor, wmask))
+                   rest=rest, ent=ent, air_top=air_top, before=before, after=mat.volume_above(stock.floor, wmask),
+                   holder=hold is not None, blocked=blocked, deepest=deepest)
 
 
 def _check_args(cloud_frame, tool_radius_mm, corner_radius_mm, step_down_mm, stock_allowance_mm, stock_margin_mm,
@@ -389,30 +426,41 @@ def _levels(z_top, floor, step, step_down_mm) -> np.ndarray:
 
 
 def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, ys, oneway, contour, safe, Rt, rc,
-                progress, ent: _Entries, near=None, z_top=math.inf):
+                progress, ent: _Entries, near=None, z_top=math.inf, hold: _HolderMap | None = None):
     """Cut every level from the top down: its region (rest roughing, ``near`` not None: only the
-    cells whose ``near`` is above the level), pieces, order, links and entries, lowering the
+    cells whose ``near`` is above the level; ``hold`` not None: without the cells the holder
+    blocks, and lifts that keep the holder clear), pieces, order, links and entries, lowering the
     remaining material along the cut. Returns (the moves, the last tip (None when nothing was
-    cut), lifts within each level, the volume removed at each level)."""
+    cut), lifts within each level, the volume removed at each level, the cells the holder blocked
+    at each level, the lowest level cut (NaN when none))."""
     x0, y0, h, nx, ny = grid.x0, grid.y0, grid.h, grid.nx, grid.ny
     w = _Writer()
     cur = None                    # current tip (x, y, z)
     level_retracts = np.zeros(levels.size, np.int64)
     removed = np.zeros(levels.size)
+    blocked = np.zeros(levels.size, np.int64)
+    deepest = math.nan
     region = np.empty((nx, ny), dtype=bool)
     top_dil = None
     scratch = _Scratch(nx * ny)
     for li, z in enumerate(levels):
         thr = forb.threshold(z)
         limit = grid.inbox if near is None else grid.inbox & (near > z + Z_TOL_MM)
+        if hold is not None:         # the map at the start of the level: an upper bound of the material during it
+            blocked[li] = hold.level(limit, forb.G, thr, z, mat, cur, top_dil is None)
+            limit = hold.limit
+            ent.win, ent.use_win = hold.ok, True
         runs = _region_runs(forb.G, thr, limit, region)
         if top_dil is None:
             top_dil = mat.dilated()
         if runs[1].size:
-            lv = _Level(region, x0, y0, h, nx, ny, float(z), top_dil, mat.H, Rt, scratch)
+            lv = _Level(region, x0, y0, h, nx, ny, float(z), top_dil, mat.H, Rt, scratch,
+                        hold=None if hold is None else hold.HT)
             pieces = _line_pieces(region, runs, ys, x0, y0, h, ny, oneway)
             if contour:
                 pieces += _contour_pieces(region, forb.G, thr, runs, x0, y0, h)
+            if pieces:
+                deepest = float(z)
             ent.thr = thr
             ent.z_prev = float(levels[li - 1]) if li else float(z_top)
             cur, removed[li], any_swept = _cut_level(w, lv, pieces, cur, safe, oneway, level_retracts, li, ent, mat,
@@ -421,11 +469,11 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
                 top_dil = None
         if progress is not None:
             progress(li + 1, int(levels.size))
-    return w, cur, level_retracts, removed
+    return w, cur, level_retracts, removed, blocked, deepest
 
 
 def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock, Rt, rc, h, s, *, rest, ent,
-            air_top, before, after) -> RoughingPath:
+            air_top, before, after, holder=False, blocked=None, deepest=math.nan) -> RoughingPath:
     """The last retract to the safe height, the toolpath, its verified clearance
     (:func:`~planning.toolpath.roughing.clearance.min_tool_clearance`), the air cut (feed moves
     at a level whose disc meets no stock of ``air_top`` above it, :func:`_air_length` on the map's
@@ -459,7 +507,9 @@ def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock
         cell_mm=float(h), stepover_mm=float(s), rest=bool(rest), air_cut_mm=air_cut,
         stock_before_mm3=float(before), stock_after_mm3=float(after), safe_z_mm=float(stock.safe),
         entry=ent.cfg.kind, n_helix=int(ent.n_helix), n_ramps=int(ent.n_ramps), n_side_entries=int(ent.n_side),
-        n_plunges_into_material=int(ent.n_plunges))
+        n_plunges_into_material=int(ent.n_plunges), holder=bool(holder),
+        holder_blocked_cells=np.zeros(levels.size, np.int64) if blocked is None else blocked,
+        n_holder_blocked_cells=0 if blocked is None else int(blocked.sum()), deepest_cut_mm=float(deepest))
 
 
 def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, level_retracts, li, ent: _Entries,

@@ -21,8 +21,11 @@ rapid across, rapid down to GAP_MM above the remaining material under the tool d
 link height is GAP_MM above the highest remaining material under the disc along the way
 (:class:`planning.toolpath.roughing.maps._MaterialMap`), at most ``safe_z_mm`` (default stock top +
 5 mm; the first approach comes down from it, the last move returns to it). Feed links at a level
-may cut uncut stock (full width, at most one step down). Fixtures and the holder are not obstacles
-here. Cost: the grid searches run in a window, their
+may cut uncut stock (full width, at most one step down). Fixtures are not obstacles here; the
+holder (pieces given) is: its blocked cells are not in the region, so feed links avoid them, and
+the link height is also GAP_MM above the holder's height map along the way
+(:meth:`_Level.corridor_top`; a position clear at the level is clear above it, so the way up and
+down is clear). Cost: the grid searches run in a window, their
 scratch arrays reused.
 """
 
@@ -298,9 +301,12 @@ class _Scratch:
 
 
 class _Level:
-    """Per-level raster state used while ordering and linking."""
+    """Per-level raster state used while ordering and linking. ``hold`` (the material map's shape)
+    or None: the height the tool tip must stay above for the holder to clear the material
+    (:class:`planning.toolpath.roughing.maps._HolderMap`: ``HT``, already grown by the holder's
+    reach), read along the rapids of lifts."""
 
-    def __init__(self, region, x0, y0, h, nx, ny, z, top_dil, H, Rt, scratch):
+    def __init__(self, region, x0, y0, h, nx, ny, z, top_dil, H, Rt, scratch, hold=None):
         self.Rt = Rt
         self.scratch = scratch
         self.region = region
@@ -310,6 +316,7 @@ class _Level:
         self.H = H                                   # the material map's coarse cells, same origin
         self.ncx, self.ncy = top_dil.shape
         self.top_flat = np.ascontiguousarray(top_dil).ravel()
+        self.hold_flat = None if hold is None else np.ascontiguousarray(hold).ravel()
 
     def top_at(self, xy) -> float:
         """Highest remaining material under the tool disc about xy (from the dilated map)."""
@@ -331,9 +338,14 @@ class _Level:
                             float(a[0]), float(a[1]), float(b[0]), float(b[1])))
 
     def corridor_top(self, a, b) -> float:
-        """Highest remaining material under the tool disc along a -> b (from the dilated map)."""
-        return float(_seg_max(self.top_flat, self.x0, self.y0, self.H, self.ncx, self.ncy,
-                              float(a[0]), float(a[1]), float(b[0]), float(b[1])))
+        """Highest remaining material under the tool disc along a -> b (from the dilated map), and
+        with the holder at least the holder's height along it (samples H / 4 apart)."""
+        t = float(_seg_max(self.top_flat, self.x0, self.y0, self.H, self.ncx, self.ncy,
+                           float(a[0]), float(a[1]), float(b[0]), float(b[1])))
+        if self.hold_flat is not None:
+            t = max(t, float(_seg_max(self.hold_flat, self.x0, self.y0, self.H, self.ncx, self.ncy,
+                                      float(a[0]), float(a[1]), float(b[0]), float(b[1]))))
+        return t
 
     def grid_path(self, a, ca, b, cb, limit):
         """Shortest path at the level from a (in region cell ca) to b (cell cb) on the 8-connected

@@ -48,9 +48,16 @@ the map under a disc exactly (:meth:`_MaterialMap.disc_top`, :func:`_disc_top`,
 :func:`_fine_disc_top`: cells whose square comes closer than the radius) serves the entries;
 :func:`_air_length` measures the feed at a level that meets no stock.
 
+**Holder** (:class:`_HolderMap`, pieces given): which tool-centre cells a holder piece (z0, r)
+would put into the cloud (once, from the cells' highest points) or into the remaining material
+(per level, from this map), each a disc maximum over the piece's radius grown by the raster's
+slack, on blocks of cells that grow with the radius (:func:`_block_max`, HOLDER_BLOCKS);
+:func:`_holder_pieces` checks and reduces the pieces.
+
 Cost per set-up: one pass over the cloud for the cells' highest points and one disc maximum per
-sub-band (rest roughing: one pass over the stock points and two disc maxima more); per level: the
-coarse material map's square maximum and its lowering along the moves.
+sub-band (rest roughing: one pass over the stock points and two disc maxima more; holder: one disc
+maximum per piece); per level: the coarse material map's square maximum and its lowering along the
+moves (holder: the candidates' box, the mask, and where the map changed a disc maximum per piece).
 """
 
 from __future__ import annotations
@@ -68,6 +75,9 @@ Z_TOL_MM = 1e-6         #: points at most this far above (level - allowance) are
 MAX_BANDS = 8           #: most sub-bands of radius under the tool corner / bottom
 MAX_CELLS = 16_000_000  #: the raster's cell grows beyond cell_mm to stay under this many cells
 TOP_CELLS = 2           #: a cell of the remaining-material map spans this many raster cells each way
+HOLDER_GAP_MM = 0.5     #: the holder's bottom stays this far above the remaining material, mm
+HOLDER_PIECES = 4       #: most holder pieces kept (more are merged into larger ones, conservative)
+HOLDER_BLOCKS = 16      #: a holder piece's disc spans about this many blocks (cells grouped as its radius grows)
 _SQ2 = math.sqrt(2.0)
 
 
@@ -604,3 +614,212 @@ def _air_length(xyz, use, D, x0, y0, h, use_cut):
             if ix < 0 or iy < 0 or ix >= nx or iy >= ny or not D[ix, iy] > z + Z_TOL_MM:
                 total += L / m
     return total
+
+
+# ----------------------------------------------------------------------------------------------
+# The holder (non-cutting pieces above the tip)
+# ----------------------------------------------------------------------------------------------
+
+def _holder_pieces(pieces) -> np.ndarray:
+    """The checked holder pieces, (k, 2) rows (z0, r) in mm: ``pieces`` is a sequence of
+    ``(z0_mm, z1_mm, radius_mm)`` (:attr:`planning.simulate.motion.ToolShape.pieces`: a cylinder
+    from z0 to z1 above the tip, z1 may be inf), z0 >= 0, z1 > z0, radius > 0 (the first wrong one
+    raises :class:`~planning.errors.ParameterError`). The tops are dropped (every height map here
+    is solid down to the floor, so a piece meets the material exactly when its bottom does), the
+    pieces that another one contains as seen from below (no higher, no narrower) are left out, and
+    while more than HOLDER_PIECES remain (a cone sliced into cylinders), the two neighbours (by z0)
+    of the closest radii become one (the lower's z0, the larger radius: conservative). Rows by z0
+    ascending, radii ascending; (0, 2) when there is none."""
+    try:
+        rows = [tuple(float(v) for v in p) for p in pieces]
+    except (TypeError, ValueError):
+        raise ParameterError("holder_pieces must be a sequence of (z0_mm, z1_mm, radius_mm) triples") from None
+    for k, p in enumerate(rows):
+        if len(p) != 3:
+            raise ParameterError(f"holder_pieces[{k}] = {p}: must be (z0_mm, z1_mm, radius_mm)")
+        z0, z1, r = p
+        if not (math.isfinite(z0) and z0 >= 0):
+            raise ParameterError(f"holder_pieces[{k}]: z0 = {z0} must be a finite height >= 0 mm above the tip")
+        if not z1 > z0:               # inf allowed, NaN not
+            raise ParameterError(f"holder_pieces[{k}]: z1 = {z1} must be above z0 = {z0} mm (may be inf)")
+        if not (math.isfinite(r) and r > 0):
+            raise ParameterError(f"holder_pieces[{k}]: radius = {r} must be a finite radius > 0 mm")
+    front: list[list[float]] = []
+    for z0, _, r in sorted(rows, key=lambda p: (p[0], -p[2])):
+        if not front or r > front[-1][1]:
+            front.append([z0, r])
+    while len(front) > HOLDER_PIECES:
+        k = min(range(len(front) - 1), key=lambda i: front[i + 1][1] - front[i][1])
+        front[k][1] = front[k + 1][1]
+        del front[k + 1]
+    return np.array(front, dtype=np.float64).reshape(-1, 2)
+
+
+@njit(cache=True, nogil=True)
+def _block_max(v, b):
+    """The maximum over blocks of b x b cells of ``v`` (the last blocks clipped; -inf for none), as
+    :func:`_coarse_max` (any layout of ``v``)."""
+    n, m = v.shape
+    out = np.full((-(-n // b), -(-m // b)), -np.inf)
+    for i in range(n):
+        bi = i // b
+        for j in range(m):
+            out[bi, j // b] = max(out[bi, j // b], v[i, j])
+    return out
+
+
+def _expand(D, b, n, m):
+    """Blocks of b x b cells back to cells: (n, m) with each block's value."""
+    if b == 1:
+        return D[:n, :m]
+    return np.repeat(np.repeat(D, b, axis=0), b, axis=1)[:n, :m]
+
+
+class _HolderMap:
+    """Where the holder stops the tool centre (:mod:`planning.toolpath.roughing.levels`, holder
+    pieces given): at tip height z a raster cell is *blocked* when a piece (z0, r) would meet
+
+    (a) the cloud: a point within ``r + a`` of the tool centre (XY) above ``z + z0 - a`` (``a``
+        the allowance; a point stands for everything under it, as in the forbidden map, so the
+        piece's top does not matter). Once per set-up: ``GC`` (nx, ny), the largest over the
+        pieces of (the highest point among the cells within reach) - z0, + a; blocked where
+        ``GC > z``. The reach covers every centre within h of the cell's centre and every point of
+        the source cells (``r + a + h + (2b - 1) h / sqrt 2`` between blocks of b x b cells, b
+        growing with r so that a disc spans about HOLDER_BLOCKS blocks).
+    (b) the remaining material: the material map (:class:`_MaterialMap`, the box or the given stock
+        as lowered by the levels cut so far) above ``z + z0 - HOLDER_GAP_MM`` on a coarse cell
+        closer than r. Per level (:meth:`level`), from the map at the start of the level: ``HT``
+        (ncx, ncy, the map's coarse cells), the largest over the pieces of (the highest material
+        within reach) - z0; blocked where ``HT > z - HOLDER_GAP_MM``. The level's own cut only
+        lowers the map (to z, or z + rc under the corner), so the map at its start is an upper
+        bound of the material during the level: safe; it is also not too strict while z0 >
+        step + HOLDER_GAP_MM + rc (what the level removes, between z and the level above, is
+        below every piece; a holder whose lowest piece starts within a step of the tip would be
+        in the layer being cut, and blocks everything beside uncut material). The reach covers
+        every centre within h of a raster cell of the coarse cell and every point within H / 8 of
+        it (the links' samples), ``r + h (1 + 1 / sqrt 2) + (2b - 1) H / sqrt 2`` between blocks.
+        ``HT`` is computed only over the window of the level's candidate cells, the tool's last
+        position and side entries (+inf outside), and only again when the map has changed, the
+        window has grown, or a piece skipped (all its material below the level's threshold) might
+        now matter.
+
+    Blocked cells are neither cut, linked through, entered (helices and ramps lie in the region;
+    side entries keep to :attr:`ok`), nor used for lifts: a position clear at z is clear above it
+    (the material does not depend on the tip height). The rapids of lifts keep the holder clear
+    by rising at least GAP above ``HT`` along the way
+    (:meth:`planning.toolpath.roughing.links._Level.corridor_top`).
+    """
+
+    def __init__(self, pieces, grid: _Raster, mat: _MaterialMap, a, Rt, big, win=None):
+        h, nx, ny = grid.h, grid.nx, grid.ny
+        H = mat.H
+        self.h, self.H, self.nx, self.ny = h, H, nx, ny
+        self.x0, self.y0 = grid.x0, grid.y0
+        self.z0 = pieces[:, 0].copy()
+        tiny = 1e-9 * max(1.0, float(big))
+        GC = np.full((nx, ny), -np.inf)
+        for z0, r in pieces:
+            b = max(1, int(math.ceil(r / (HOLDER_BLOCKS * h))))
+            reach = (r + a + h + (2 * b - 1) * h / _SQ2) * (1.0 + 1e-12) + tiny
+            D = _disc_max(_block_max(grid.cmax, b), b * h, reach)
+            np.maximum(GC, _expand(D, b, nx, ny) - z0, out=GC)
+        self.GC = np.ascontiguousarray(GC + a + 1e-12 * (abs(big) + a + 1.0))
+        self.mb = [max(1, int(math.ceil(r / (HOLDER_BLOCKS * H)))) for r in pieces[:, 1]]
+        self.mreach = [(r + h * (1.0 + 1.0 / _SQ2) + (2 * b - 1) * H / _SQ2) * (1.0 + 1e-12) + tiny
+                       for r, b in zip(pieces[:, 1], self.mb)]
+        self.HT = np.full(mat.top.shape, np.inf)
+        self.win_c = None                 # the coarse window (i0, i1, j0, j1) where HT holds
+        self.valid_zm = math.inf          # ... for thresholds at least this (skipped pieces)
+        self.limit = np.zeros((nx, ny), dtype=bool)
+        self.ok = np.zeros(nx * ny, dtype=bool)
+        self.use_win = win is not None
+        self.win = np.ascontiguousarray(win if win is not None else np.ones((1, 1), bool))
+        self.pad = int(math.ceil((Rt + 4.0 * h) / h)) + 3         # side entries, in cells
+
+    def level(self, limit, G, thr, z, mat: _MaterialMap, cur, changed) -> int:
+        """The level's limit without the blocked cells: :attr:`limit` (nx, ny) = ``limit`` and not
+        forbidden (``G > thr``) and not blocked at tip height z; :attr:`ok` (nx * ny): the cells
+        not blocked (and in the window) around them, where side entries may pass; ``cur``: the
+        tool's position (x, y, z) or None; ``changed``: the material map was lowered since the last
+        call. Returns the number of candidate cells (``limit`` and allowed) blocked."""
+        nx, ny, T = self.nx, self.ny, TOP_CELLS
+        self.limit.fill(False)
+        self.ok.fill(False)
+        i0, i1, j0, j1 = _cand_box(limit, G, float(thr))
+        if i1 < 0:
+            return 0
+        if cur is not None:
+            ic = min(max(int(math.floor((cur[0] - self.x0) / self.h)), 0), nx - 1)
+            jc = min(max(int(math.floor((cur[1] - self.y0) / self.h)), 0), ny - 1)
+            i0, i1, j0, j1 = min(i0, ic), max(i1, ic), min(j0, jc), max(j1, jc)
+        p = self.pad
+        ci0, ci1 = max(i0 - p, 0) // T, -(-min(i1 + 1 + p, nx) // T)
+        cj0, cj1 = max(j0 - p, 0) // T, -(-min(j1 + 1 + p, ny) // T)
+        zm = float(z) - HOLDER_GAP_MM
+        w = self.win_c
+        if changed or w is None or zm < self.valid_zm or not (w[0] <= ci0 and ci1 <= w[1] and w[2] <= cj0
+                                                               and cj1 <= w[3]):
+            self._material(mat, (ci0, ci1, cj0, cj1), zm)
+        return int(_holder_mask(limit, G, float(thr), self.GC, float(z), self.HT, zm, ci0 * T, min(ci1 * T, nx),
+                                cj0 * T, min(cj1 * T, ny), self.limit, self.ok, self.win, self.use_win))
+
+    def _material(self, mat: _MaterialMap, cw, zm):
+        """``HT`` over the coarse window ``cw`` from the map as it is now (class docstring); pieces
+        whose material in reach is nowhere above ``zm`` + z0 are skipped while the threshold stays
+        at least that high."""
+        ci0, ci1, cj0, cj1 = cw
+        top, H = mat.top, self.H
+        ncx, ncy = top.shape
+        acc = np.full((ci1 - ci0, cj1 - cj0), -np.inf)
+        valid = -math.inf
+        for z0, b, reach in zip(self.z0, self.mb, self.mreach):
+            g = int(math.ceil(reach / H)) + b
+            s0, s1 = max(ci0 - g, 0), min(ci1 + g, ncx)
+            t0, t1 = max(cj0 - g, 0), min(cj1 + g, ncy)
+            src = top[s0:s1, t0:t1]
+            m = float(src.max())
+            if not m - z0 > zm:
+                valid = max(valid, m - z0)
+                continue
+            D = _disc_max(_block_max(src, b), b * H, reach)
+            E = _expand(D, b, s1 - s0, t1 - t0)[ci0 - s0:ci1 - s0, cj0 - t0:cj1 - t0]
+            np.maximum(acc, E - z0, out=acc)
+        self.HT.fill(np.inf)
+        self.HT[ci0:ci1, cj0:cj1] = acc
+        self.win_c = cw
+        self.valid_zm = valid
+
+
+@njit(cache=True, nogil=True)
+def _cand_box(limit, G, thr):
+    """The bounding box (i0, i1, j0, j1), inclusive, of the cells where ``limit`` holds and ``G``
+    is not above ``thr``; i1 = -1 when there is none."""
+    nx, ny = limit.shape
+    i0, i1, j0, j1 = nx, -1, ny, -1
+    for i in range(nx):
+        for j in range(ny):
+            if limit[i, j] and not G[i, j] > thr:
+                i0 = min(i0, i)
+                i1 = i
+                j0 = min(j0, j)
+                j1 = max(j1, j)
+    return i0, i1, j0, j1
+
+
+@njit(cache=True, nogil=True)
+def _holder_mask(limit, G, thr, GC, z, HT, zm, i0, i1, j0, j1, out, ok, win, use_win):
+    """Over the cells [i0, i1) x [j0, j1): ``out`` = ``limit`` and not ``G > thr`` and not blocked
+    (``GC > z`` or ``HT`` of the coarse cell ``> zm``); ``ok`` (flat) = not blocked (and, with
+    ``use_win``, in ``win``). Returns the number of cells ``limit`` and allowed but blocked."""
+    ny = out.shape[1]
+    n = 0
+    for i in range(i0, i1):
+        ci = i // TOP_CELLS
+        for j in range(j0, j1):
+            hold = GC[i, j] > z or HT[ci, j // TOP_CELLS] > zm
+            cand = limit[i, j] and not G[i, j] > thr
+            out[i, j] = cand and not hold
+            if cand and hold:
+                n += 1
+            ok[i * ny + j] = not hold and (not use_win or win[i, j])
+    return n

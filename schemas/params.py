@@ -412,6 +412,10 @@ class RoughingParams(_Strict):
     stepover_mm: float | None = Field(
         None, gt=0, le=100, description="Distance between clearing lines, mm; null = 60 % of the diameter.")
     pattern: Literal["zigzag", "oneway"] = Field("zigzag", description="Clearing lines alternate or run one way.")
+    window: bool = Field(
+        True, description="Rough only over the set-up's own area (its footprint grown by the tools' reach); false: "
+                          "all the stock the set-up can reach (with paths.carry_stock the later set-ups then have "
+                          "less left).")
     entry: Literal["helix", "ramp", "plunge"] = Field(
         "helix", description="How a level is entered where material stands under the tool: 'helix' (falls back to "
                              "a ramp, then a plunge), 'ramp' (back and forth along the first line; falls back to a "

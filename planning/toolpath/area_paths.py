@@ -330,13 +330,15 @@ def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec:
         stock_top = float(stock_f[:, 2].max()) if stock_f.shape[0] else -math.inf
     if rp.enabled and floor < stock_top:
         t0 = time.perf_counter()
-        rest = {} if carried is None else {"stock_points_mm": stock_f, "stock_spacing_mm": carried.resolution_mm}
+        # with the carried stock: rest roughing, and the end mill's holder kept out of the stock and the part
+        rest = {} if carried is None else {"stock_points_mm": stock_f, "stock_spacing_mm": carried.resolution_mm,
+                                           "holder_pieces": carried.roughing_shape.pieces}
         rr = roughing_paths(cloud_f, tool_radius_mm=rp.diameter_mm / 2.0,
                             corner_radius_mm=rp.corner_radius_mm, step_down_mm=rp.step_down_mm,
                             stock_allowance_mm=rp.stock_allowance_mm, stock_margin_mm=rp.stock_margin_mm,
                             stepover_mm=rp.stepover_mm, pattern=rp.pattern, floor_z_mm=floor,
                             safe_z_mm=top + rp.stock_margin_mm + paths_params.safe_clearance_mm,
-                            window_xy_mm=area_f[:, :2], window_reach_mm=window_reach, **rest,
+                            window_xy_mm=area_f[:, :2] if rp.window else None, window_reach_mm=window_reach, **rest,
                             **_entry_args(rp))
         ap.roughing, ap.roughing_info = rr.toolpath, rr
         sec["roughing"] = time.perf_counter() - t0

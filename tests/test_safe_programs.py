@@ -120,3 +120,20 @@ def test_default_plans_of_the_reference_cases_verify_clean(name):
     outcome = run_plan(cloud, parse_config(apply_overrides({}, sets)), name=name)
     _assert_clean(outcome, name)
     json.dumps(outcome.result.model_dump(mode="json"))
+
+
+@pytest.mark.slow
+def test_the_femur_like_make_run_plan_verifies_clean():
+    """The femur-like reference with the `make run` configuration (scripts/demo_service.py): every
+    program clean on the simulated machine; what the set-ups cannot reach is reported."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    from demo_service import CONFIGS
+
+    s = samples.femur_like()
+    cloud = Cloud(points=s.points, normals=None, source_format="generated")
+    outcome = run_plan(cloud, parse_config(json.loads(json.dumps(CONFIGS["femur_like"]))), name="femur_like")
+    assert outcome.result.status == "planned"
+    _assert_clean(outcome, "femur_like")

@@ -145,3 +145,18 @@ def test_column_clear_height_is_the_slab_top_plus_the_clearance():
     assert 0.5 - 1e-9 <= z[0] <= 0.6 + 1e-9          # the slab's top (0) + the clearance, to one step
     assert z[1] == pytest.approx(3.0)                  # already clear
     assert z[2] == pytest.approx(-5.0)                 # beside the slab (tool radius 3, clearance 0.5): clear
+
+
+def test_what_still_offends_after_the_last_round_is_cut_off_with_a_retract():
+    """With no repair round allowed, the path is cut off before its first offending move (a feed
+    whose holder goes 30 mm into the slab) and ends with a retract; what is left runs clean."""
+    f = _frame()
+    deep = -35.0                                  # the holder starts 20 mm above the tip: it enters the slab
+    tp = _tp([[-40, 0, 10], [-40, 0, 1], [-35, 0, 1], [-35, 0, deep], [0, 0, deep], [0, 0, 10]],
+             [RAPID, RAPID, FEED, FEED, FEED, FEED])
+    slab = TriDexel.box([-30, -30, -40], [30, 30, 0], 1.0, domain_lo=[-60, -60, -60], domain_hi=[60, 60, 60])
+    g = guard_toolpath(tp, f, FLAT, slab, None, None, safe_z_mm=10.0, rapid_clearance_mm=0.0, max_rounds=0)
+    assert g.truncated > 0 and g.toolpath.n_moves < tp.n_moves + 1
+    assert g.toolpath.xyz_mm[-1, 2] == pytest.approx(10.0)           # the retract to the safe height
+    again, _, _ = run_on_stock(g.toolpath, f, FLAT, slab, None, None, rapid_clearance_mm=0.0)
+    assert not again.any.any()

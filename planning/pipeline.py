@@ -286,7 +286,7 @@ def _carried(points: np.ndarray, areas: Areas, config: PlanConfig, tool, gv: Glo
                         roughing_shape=tools[config.post.roughing_tool_number], machines=machines,
                         order=machining_order(areas.input_labels, k),
                         rapid_clearance_mm=config.simulate.rapid_clearance_mm + config.paths.guard_rapid_clearance_mm,
-                        floor_z_mm=float(points[:, 2].min()), resolution_mm=config.simulate.resolution_mm,
+                        resolution_mm=config.simulate.resolution_mm,
                         footprint=footprint(points), normals=normals,
                         visible=gv.visible[:, selected][areas.nearest_sample])
 

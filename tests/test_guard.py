@@ -160,3 +160,28 @@ def test_what_still_offends_after_the_last_round_is_cut_off_with_a_retract():
     assert g.toolpath.xyz_mm[-1, 2] == pytest.approx(10.0)           # the retract to the safe height
     again, _, _ = run_on_stock(g.toolpath, f, FLAT, slab, None, None, rapid_clearance_mm=0.0)
     assert not again.any.any()
+
+
+def test_the_underside_counts_only_inside_the_footprint():
+    """A disc of radius 50 on z = 0 (the half sphere's foot): a ball of radius 5 dipping 2 mm below
+    the underside is refused over the disc and within reach of its rim, allowed clear of it; the
+    boundary follows sqrt(R^2 - h^2) (brute force over the disc's points)."""
+    from planning.toolpath.carried import footprint
+
+    rng = np.random.default_rng(1)
+    r = 50 * np.sqrt(rng.uniform(0, 1, 20000))
+    a = rng.uniform(0, 2 * np.pi, 20000)
+    pts = np.c_[r * np.cos(a), r * np.sin(a), np.zeros_like(r)]
+    fp = footprint(pts, cell_mm=0.25)
+    R = 5.0
+    x = np.linspace(0, 60, 601)
+    for z in (-2.0, 0.0, 3.0, 6.0):
+        c = np.c_[x, np.zeros_like(x), np.full_like(x, z)]
+        got = fp.below_floor(c, R, 0.01)
+        h = z + 0.01
+        reach = np.sqrt(max(R * R - max(h, 0.0) ** 2, 0.0)) if h < R else -1.0
+        want = (x - 50.0 < reach) if h < R else np.zeros_like(x, dtype=bool)
+        # exact but for the raster: allow one cell and a half either side of the boundary
+        near = np.abs(x - 50.0 - reach) < 0.4
+        assert np.array_equal(got[~near], want[~near]), z
+    assert not fp.below_floor(np.array([[0.0, 0.0, 5.5]]), R, 0.01)[0]        # ball above the floor

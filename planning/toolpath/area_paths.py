@@ -80,7 +80,6 @@ class AreaPaths:
     roughing_guard: object = None
     finishing_guard: object = None
     blocked: dict = field(default_factory=dict)
-    blocked_figures: object = None
     allowance_left: dict | None = None
     handed_in: int = 0                         # points other set-ups left that this one finished
     unmachined: np.ndarray | None = None       # input point indices of the area no kept finishing move reaches
@@ -390,7 +389,6 @@ def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, to
                                 floor_z_part_mm=carried.footprint, tol_mm=fp.tolerance_mm, scallop_mm=fp.scallop_mm,
                                 step_mm=fp.step_mm)
     ap.blocked = dict(figs.blocked)
-    ap.blocked_figures = figs
     ap.unmachined = figs.unmachined
     if out is None:                            # the set-up cannot finish any of its area
         ap.unmachined = np.ones(area_f.shape[0], dtype=bool)

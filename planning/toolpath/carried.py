@@ -32,9 +32,9 @@ class CarriedStock:
     each guarded operation in turn), ``obstacles`` (fixtures, riser and table, never cut; or None),
     ``finishing_shape`` / ``roughing_shape`` (the tools as the simulation sees them), ``machines``
     (per set-up :class:`SetupMachine`, or None: travel not checked), ``order`` (area ids),
-    ``rapid_clearance_mm`` (the guard's), ``floor_z_mm`` (the part's underside, part frame z: no
-    finishing ball goes below it inside ``footprint``), ``resolution_mm`` (the stock model's ray
-    spacing), ``footprint`` (:func:`footprint` of the scan), ``normals`` (N,3) unit normals of the
+    ``rapid_clearance_mm`` (the guard's), ``resolution_mm`` (the stock model's ray spacing),
+    ``footprint`` (:func:`footprint` of the scan: no finishing ball cuts below the part's underside
+    inside it), ``normals`` (N,3) unit normals of the
     scan's points (for the allowance left before finishing), ``visible`` (N,k) bool: which set-up
     sees each scan point (the visibility of its nearest sample): points a set-up leaves unmachined
     are handed to a later one that sees them."""
@@ -46,11 +46,24 @@ class CarriedStock:
     machines: list[SetupMachine] | None
     order: list[int]
     rapid_clearance_mm: float
-    floor_z_mm: float
     resolution_mm: float
     footprint: "Footprint | None" = None
     normals: np.ndarray | None = None
     visible: np.ndarray | None = None
+
+    def allowance_left(self, points: np.ndarray, normals: np.ndarray) -> dict:
+        """The stock left over the scan ``points`` (k,3, part frame) along their unit ``normals``
+        on the carried stock as it is now (:func:`planning.simulate.dexel.signed_deviation`, clipped
+        at 20 mm; mm): ``p05``, ``p50``, ``p95``, ``max`` of the readings, and ``n`` read."""
+        from planning.simulate.dexel import signed_deviation
+
+        d = signed_deviation(self.stock, points, normals, max_mm=20.0)
+        d = d[np.isfinite(d)]
+        if d.size == 0:
+            return {"n": 0}
+        q = np.percentile(d, [5, 50, 95])
+        return {"n": int(d.size), "p05": round(float(q[0]), 3), "p50": round(float(q[1]), 3),
+                "p95": round(float(q[2]), 3), "max": round(float(d.max()), 3)}
 
     def allowance_left(self, points: np.ndarray, normals: np.ndarray) -> dict:
         """The stock left over the scan ``points`` (k,3, part frame) along their unit ``normals``

@@ -47,7 +47,7 @@ class CarriedStock:
     order: list[int]
     rapid_clearance_mm: float
     resolution_mm: float
-    footprint: "Footprint | None" = None
+    footprint: Footprint | None = None
     normals: np.ndarray | None = None
     visible: np.ndarray | None = None
 
@@ -64,27 +64,6 @@ class CarriedStock:
         q = np.percentile(d, [5, 50, 95])
         return {"n": int(d.size), "p05": round(float(q[0]), 3), "p50": round(float(q[1]), 3),
                 "p95": round(float(q[2]), 3), "max": round(float(d.max()), 3)}
-
-    def allowance_left(self, points: np.ndarray, normals: np.ndarray) -> dict:
-        """The stock left over the scan ``points`` (k,3, part frame) along their unit ``normals``
-        on the carried stock as it is now (:func:`planning.simulate.dexel.signed_deviation`, clipped
-        at 20 mm; mm): ``p05``, ``p50``, ``p95``, ``max`` of the readings, and ``n`` read."""
-        from planning.simulate.dexel import signed_deviation
-
-        d = signed_deviation(self.stock, points, normals, max_mm=20.0)
-        d = d[np.isfinite(d)]
-        if d.size == 0:
-            return {"n": 0}
-        q = np.percentile(d, [5, 50, 95])
-        return {"n": int(d.size), "p05": round(float(q[0]), 3), "p50": round(float(q[1]), 3),
-                "p95": round(float(q[2]), 3), "max": round(float(d.max()), 3)}
-
-    def stock_top_mm(self, frame) -> float:
-        """The highest frame z (mm) of the stock as it is now; -inf when none is left."""
-        pts = self.stock.boundary_points()
-        if pts.shape[0] == 0:
-            return -np.inf
-        return float((frame.to_frame(pts)[:, 2]).max())
 
 
 @dataclass

@@ -82,7 +82,12 @@ from planning.toolpath.roughing.links import (
     _seg_in,
     _Writer,
 )
-from planning.toolpath.roughing.maps import Z_TOL_MM, _MaterialMap
+from planning.toolpath.roughing.maps import (
+    Z_TOL_MM,
+    _disc_top,
+    _fine_disc_top,
+    _MaterialMap,
+)
 
 ENTRY_KINDS = ("helix", "ramp", "plunge")
 HELIX_CHORDS = 24       #: straight chords per helix turn
@@ -137,40 +142,10 @@ def _material_at(top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h, px, 
     over the coarse cells whose part comes closer than r (as
     :func:`planning.toolpath.roughing.maps._disc_top`), and with ``use_fine`` the smaller of that
     and the largest ``fine`` (the raster's stock top) over the raster cells closer than r."""
-    ncx, ncy = top.shape
-    best = -np.inf
-    r2 = r * r
-    i0 = max(int(math.floor((px - r - X0) / H)) - 1, 0)
-    i1 = min(int(math.floor((px + r - X0) / H)) + 1, ncx - 1)
-    j0 = max(int(math.floor((py - r - Y0) / H)) - 1, 0)
-    j1 = min(int(math.floor((py + r - Y0) / H)) + 1, ncy - 1)
-    for i in range(i0, i1 + 1):
-        dx = max(abs(px - cx[i]) - hx[i], 0.0)
-        for j in range(j0, j1 + 1):
-            t = top[i, j]
-            if not (t > best):
-                continue
-            dy = max(abs(py - cy[j]) - hy[j], 0.0)
-            if dx * dx + dy * dy < r2:
-                best = t
+    best = _disc_top(top, cx, cy, hx, hy, X0, Y0, H, px, py, r)
     if not use_fine or best == -np.inf:
         return best
-    nx, ny = fine.shape
-    bf = -np.inf
-    i0 = max(int(math.floor((px - r - x0) / h)) - 1, 0)
-    i1 = min(int(math.floor((px + r - x0) / h)) + 1, nx - 1)
-    j0 = max(int(math.floor((py - r - y0) / h)) - 1, 0)
-    j1 = min(int(math.floor((py + r - y0) / h)) + 1, ny - 1)
-    for i in range(i0, i1 + 1):
-        dx = max(abs(px - (x0 + (i + 0.5) * h)) - 0.5 * h, 0.0)
-        for j in range(j0, j1 + 1):
-            t = fine[i, j]
-            if not (t > bf):
-                continue
-            dy = max(abs(py - (y0 + (j + 0.5) * h)) - 0.5 * h, 0.0)
-            if dx * dx + dy * dy < r2:
-                bf = t
-    return min(best, bf)
+    return min(best, _fine_disc_top(fine, x0, y0, h, px, py, r))
 
 
 @njit(cache=True, nogil=True)

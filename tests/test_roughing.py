@@ -15,13 +15,19 @@ import math
 
 import numpy as np
 import pytest
+from roughing_clouds import _dome, _grid, _pockets, _post
 from scipy import ndimage, sparse
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from planning.errors import ParameterError
 from planning.toolpath.moves import RAPID, USE_CUT, USE_PLUNGE, USE_RAPID, USE_RETRACT
-from planning.toolpath.roughing import GAP_MM, RoughingPath, min_tool_clearance, roughing_paths
+from planning.toolpath.roughing import (
+    GAP_MM,
+    RoughingPath,
+    min_tool_clearance,
+    roughing_paths,
+)
 from planning.toolpath.roughing.common import _argsort_stable
 from planning.toolpath.roughing.links import _grid_path_cells
 from planning.toolpath.roughing.maps import _disc_max, _square_max, _sweep_top
@@ -34,47 +40,6 @@ ALLOW = 0.5       # stock allowance, mm
 # ------------------------------------------------------------------------------------------------
 # clouds (area frame: tool axis +Z, top of the part at z = 0)
 # ------------------------------------------------------------------------------------------------
-
-def _grid(x0, x1, y0, y1, sp):
-    X, Y = np.meshgrid(np.arange(x0, x1 + 1e-9, sp), np.arange(y0, y1 + 1e-9, sp), indexing="ij")
-    return X.ravel(), Y.ravel()
-
-
-def _dome():
-    """A hemisphere of radius 8 standing on a plane (z = -8), 30 x 30 mm."""
-    x, y = _grid(-15, 15, -15, 15, 0.75)
-    r = np.hypot(x, y)
-    z = np.where(r < 8, np.sqrt(np.maximum(64 - r * r, 0.0)), 0.0) - 8.0
-    return np.stack([x, y, z], 1)
-
-
-def _post():
-    """A plane at z = -8 with a 6 x 6 mm square post rising to z = 0, its walls sampled."""
-    x, y = _grid(-15, 15, -12, 12, 0.75)
-    on = (np.abs(x - 3) <= 3) & (np.abs(y) <= 3)
-    top = np.stack([x, y, np.where(on, 0.0, -8.0)], 1)
-    s = np.arange(-3, 3 + 1e-9, 0.5)
-    zs = np.arange(-8, 0 + 1e-9, 0.5)
-    rim = np.concatenate([np.stack([3 + s, np.full_like(s, -3)], 1), np.stack([3 + s, np.full_like(s, 3)], 1),
-                          np.stack([np.full_like(s, 0.0), s], 1), np.stack([np.full_like(s, 6.0), s], 1)])
-    walls = np.array([[p[0], p[1], z] for p in rim for z in zs])
-    return np.concatenate([top, walls])
-
-
-def _pockets(centres, half_x, half_y=10.0, radius=7.0, depth=6.0):
-    """A block with its top at z = 0 and round pockets (walls and floor at z = -depth sampled)."""
-    x, y = _grid(-half_x, half_x, -half_y, half_y, 0.6)
-    pts = []
-    inside = np.zeros(x.size, dtype=bool)
-    for cx, cy in centres:
-        inside |= np.hypot(x - cx, y - cy) < radius
-    pts.append(np.stack([x, y, np.where(inside, -depth, 0.0)], 1))
-    ang = np.linspace(0, 2 * np.pi, int(2 * np.pi * radius / 0.5), endpoint=False)
-    zs = np.arange(-depth, 0 + 1e-9, 0.5)
-    for cx, cy in centres:
-        ring = np.stack([cx + radius * np.cos(ang), cy + radius * np.sin(ang)], 1)
-        pts.append(np.array([[p[0], p[1], z] for p in ring for z in zs]))
-    return np.concatenate(pts)
 
 
 def _plate():

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 import pytest
+from roughing_clouds import _grid
 from scipy.spatial import cKDTree
 
 from planning.errors import ParameterError
@@ -34,10 +35,6 @@ ALLOW = 0.5       # stock allowance (the default), mm
 # ------------------------------------------------------------------------------------------------
 # clouds and stocks (area frame: tool axis +Z)
 # ------------------------------------------------------------------------------------------------
-
-def _grid(x0, x1, y0, y1, sp):
-    X, Y = np.meshgrid(np.arange(x0, x1 + 1e-9, sp), np.arange(y0, y1 + 1e-9, sp), indexing="ij")
-    return X.ravel(), Y.ravel()
 
 
 def _walls(x0, x1, y0, y1, z0, z1, sp):

@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 import pytest
+from roughing_clouds import _dexel_points, _dome, _grid
 from scipy import ndimage
 
 from planning.errors import ParameterError
@@ -29,46 +30,10 @@ SP = 1.0          # stock sampling spacing, mm
 # clouds and stocks (area frame: tool axis +Z)
 # ------------------------------------------------------------------------------------------------
 
-def _grid(x0, x1, y0, y1, sp):
-    X, Y = np.meshgrid(np.arange(x0, x1 + 1e-9, sp), np.arange(y0, y1 + 1e-9, sp), indexing="ij")
-    return X.ravel(), Y.ravel()
-
-
-def _dome():
-    """A hemisphere of radius 8 standing on a plane (z = -8), 30 x 30 mm."""
-    x, y = _grid(-15, 15, -15, 15, 0.75)
-    r = np.hypot(x, y)
-    z = np.where(r < 8, np.sqrt(np.maximum(64 - r * r, 0.0)), 0.0) - 8.0
-    return np.stack([x, y, z], 1)
-
 
 def _plate(hx=12.0, hy=9.0):
     x, y = _grid(-hx, hx, -hy, hy, 0.5)
     return np.stack([x, y, np.zeros_like(x)], 1)
-
-
-def _dexel_points(top, lo, hi, s=SP, fine=8):
-    """End points of the material intervals of the height-field stock ``top`` (material from lo[2]
-    up to top(x, y); -inf: none) inside the box lo..hi, along rays parallel to X, Y, Z spaced s
-    apart (interval ends along X and Y found every s / fine)."""
-    xs = np.arange(lo[0] + s / 2, hi[0], s)
-    ys = np.arange(lo[1] + s / 2, hi[1], s)
-    zs = np.arange(lo[2] + s / 2, hi[2], s)
-    X, Y = np.meshgrid(xs, ys, indexing="ij")
-    T = np.minimum(top(X, Y), hi[2])
-    m = T > lo[2]
-    out = [np.stack([X[m], Y[m], T[m]], 1), np.stack([X[m], Y[m], np.full(m.sum(), lo[2])], 1)]
-    for axis, other in ((0, ys), (1, xs)):
-        a = np.arange(lo[axis], hi[axis] + 1e-9, s / fine)
-        A, O, Z = np.meshgrid(a, other, zs, indexing="ij")
-        inside = (top(A, O) if axis == 0 else top(O, A)) > Z
-        pad = np.zeros((1,) + inside.shape[1:], bool)
-        start = inside & ~np.concatenate([pad, inside[:-1]])
-        end = inside & ~np.concatenate([inside[1:], pad])
-        e = start | end
-        p = np.stack([A[e], O[e], Z[e]], 1)
-        out.append(p if axis == 0 else p[:, [1, 0, 2]])
-    return np.concatenate(out)
 
 
 def _in_box(lo, hi, x, y):

@@ -45,7 +45,7 @@ def _top_sums(g: np.ndarray, rc: int):
     return np.full(g.shape, top[:rc].sum()), g + top[: rc - 1].sum()
 
 
-def _branch_bounds(cov, ov, g, h, P, Q, allowed, r, floor, mode):
+def _branch_bounds(cov, ov, g, h, P, Q, allowed, r, floor, mode, lub=None):
     """Bounds of each child j of a node with r >= 3 axes to add (``allowed``: the pairs j < l that
     may stand together).  Returns (viable, k1, k2, lb): which children may reach ``floor``, the
     child's lower key (k1, k2) in the order of ``mode`` and its overlap lower bound ``lb`` (in mode
@@ -59,6 +59,8 @@ def _branch_bounds(cov, ov, g, h, P, Q, allowed, r, floor, mode):
         b = g + T.max(axis=1)
         bs.append(b)
     cub = cov + bs[r]
+    if lub is not None:  # the price bound of planning.setups.lagrange, where the search has prices
+        cub = np.minimum(cub, lub)
     viable = cub >= floor
     if mode == "overlap":
         # overlap created by j and the next axis l of the chain (exact for the pair), and the

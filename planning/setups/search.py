@@ -37,6 +37,7 @@ from planning.setups.bounds import (
     _top_sums,
 )
 from planning.setups.heuristics import _heuristics, _local_search, _timeout_fallback
+from planning.setups.lagrange import _prices, _top_r_sum
 from planning.setups.problem import _key_cover, _key_overlap, _Outcome, _Problem, _wgram
 
 
@@ -53,6 +54,8 @@ class _Search:
 
     mode "overlap": minimise (overlap, -covered, tuple) subject to covered >= floor.
     mode "cover":   minimise (-covered, overlap, tuple) subject to covered >= floor.
+    mode "max":     the largest covered >= floor, nothing else: only a strictly larger coverage
+                    than the incumbent's is looked for (ties are settled by the caller).
     ``stop_at_first``: stop as soon as any subset with covered >= floor is found (existence).
 
     The state every method shares: the incumbent (``best_key``, ``best_sel``), the open frames of
@@ -63,14 +66,20 @@ class _Search:
     """
 
     def __init__(self, prob: _Problem, k: int, mode: str, floor: float, deadline: float,
-                 incumbent=None, stop_at_first=False, progress=None):
+                 incumbent=None, stop_at_first=False, progress=None, prices=None):
         self.p = prob
+        # Lagrangian prices of the classes (planning.setups.lagrange), or None: no price bound
+        self.mu = None if prices is None else np.asarray(prices, dtype=prob.ftype)
+        self.W = float(prob.w.sum())
         self.k = k
         self.mode = mode
         self.floor = float(floor)
         self.deadline = deadline
         self.stop_at_first = stop_at_first
         self.keyf = _key_overlap if mode == "overlap" else _key_cover
+        self.strict = mode == "max"
+        if self.strict:
+            self.mode = mode = "cover"
         self.best_key = None
         self.best_sel = None
         if incumbent is not None:
@@ -94,7 +103,7 @@ class _Search:
         """Coverage a subtree must still be able to reach: the constraint, and in "cover" mode
         also the incumbent's coverage (ties may still win on overlap or indices)."""
         if self.mode == "cover" and self.best_key is not None:
-            return max(self.floor, float(-self.best_key[0]))
+            return max(self.floor, float(-self.best_key[0]) + (1.0 if self.strict else 0.0))
         return self.floor
 
     def _dominated(self, lo1, lo2, S, cand_after, r):
@@ -129,6 +138,10 @@ class _Search:
             P=p.gram[np.ix_(cand, cand)] if k >= 2 else None,
             Q=np.zeros((cand.size, cand.size)) if k >= 2 else None,
         )
+        if self.mu is not None:
+            Pm = _wgram(p.Af, self.mu)[np.ix_(cand, cand)]
+            node.update(M=float(self.mu.sum(dtype=np.float64)), s=np.diag(Pm).copy(),
+                        Pm=Pm if k >= 2 else None)
         with contextlib.suppress(_Found):
             self._node(node, k)
 
@@ -219,7 +232,8 @@ class _Search:
         if M < r:
             return
         allowed = self._allowed(cand)
-        viable, k1, k2, lb = _branch_bounds(cov, ov, g, h, P, Q, allowed, r, floor, self.mode)
+        lub = self._price_bounds(node, allowed, r) if self.mu is not None else None
+        viable, k1, k2, lb = _branch_bounds(cov, ov, g, h, P, Q, allowed, r, floor, self.mode, lub)
         if r == 3 and M <= _TENSOR_MAX and viable.any():
             viable &= _pairs_exist(node, allowed, floor, self._overlap_incumbent())
         idx = np.flatnonzero(viable)
@@ -251,6 +265,17 @@ class _Search:
         finally:
             self.frames.pop()
 
+    def _price_bounds(self, node, allowed, r):
+        """Price bound (planning.setups.lagrange) of each child j of a node with r axes to add: the
+        coverage of j and any r - 1 allowed later axes is at most ``W - M + s_j`` plus the r - 1
+        largest ``s_l - Pm_jl`` (the prices l still collects once j covers its classes)."""
+        s, Pm = node["s"], node["Pm"]
+        T = np.where(allowed, s[None, :] - Pm, -np.inf)
+        t = r - 1
+        if T.shape[1] > t:
+            T = -np.partition(-T, t - 1, axis=1)[:, :t]
+        return self.W - node["M"] + s + T.sum(axis=1)
+
     def _child(self, node, j, after, rc):
         """State after adding candidate position j; rc = axes still to add (>= 1); None when the
         bounds rule the child out before its Gram products are paid for."""
@@ -271,6 +296,11 @@ class _Search:
         # single-axis filters: an axis whose own added overlap, or whose best coverage together
         # with the best other gains, already rules it out cannot appear in this subtree
         keep = cov + np.minimum(*_top_sums(g, rc)) >= floor
+        sc = Mc = None
+        if self.mu is not None:  # the same with the prices: W - M + (best rc price gains)
+            sc = node["s"][after] - node["Pm"][j, after]
+            Mc = node["M"] - node["s"][j]
+            keep &= self.W - Mc + np.minimum(*_top_sums(sc, rc)) >= floor
         if inc is not None:
             keep &= ov + h <= inc[0]
         if np.count_nonzero(keep) < rc:
@@ -280,9 +310,11 @@ class _Search:
         if not keep.all():
             sub = np.flatnonzero(keep)
             after, g, h = after[sub], g[sub], h[sub]
-        return self._build_child(node, axis, after, cov, ov, g, h, rc)
+            if sc is not None:
+                sc = sc[sub]
+        return self._build_child(node, axis, after, cov, ov, g, h, rc, sc, Mc)
 
-    def _build_child(self, node, axis, after, cov, ov, g, h, rc):
+    def _build_child(self, node, axis, after, cov, ov, g, h, rc, sc=None, Mc=None):
         """The child's state: its candidates ``after`` (positions into the parent's) with gains g, h;
         with rc >= 2 axes still to add also P, Q and the class degrees, updated by two small weighted
         Gram products over the classes the new axis covers first and turns into overlap."""
@@ -305,6 +337,10 @@ class _Search:
             d = deg + col  # 0, 1 or 2 (= two or more): all the search needs
             np.minimum(d, 2, out=d)
             child["deg"] = d
+            if sc is not None:
+                child["Pm"] = node["Pm"][ix] - _wgram(X1, self.mu[R1])
+        if sc is not None:
+            child.update(s=sc, M=Mc)
         return child
 
 
@@ -320,38 +356,108 @@ def _progress_fn(progress, lo, hi, text):
     return lambda f: progress(lo + (hi - lo) * float(f), text)
 
 
-def _bnb_best_cover(prob, K, deadline, heur, progress):
-    """Infeasible case: best subset of size <= K (max covered, min k, min overlap, min tuple)."""
-    best = None  # (cov, k, key, sel)
-    timed_out = False
-    for k in range(1, min(K, prob.m) + 1):
-        floor = 1 if best is None else best[0] + 1  # a larger k must cover strictly more
-        inc = None
-        if k in heur and heur[k][1] >= floor:
-            inc = _local_search(prob, heur[k][0], "cover", floor)
-        s = _Search(prob, k, "cover", floor, deadline, incumbent=inc,
-                    progress=_progress_fn(progress, 0.5 + 0.5 * (k - 1) / K, 0.5 + 0.5 * k / K,
-                                          f"best coverage with {k} set-ups"))
-        try:
-            s.run()
-        except _Timeout:
-            timed_out = True
-        if s.best_sel is not None:
-            c, _ = prob.evaluate(s.best_sel)
+def _best_cover_at(prob, k, floor, incumbent, deadline, prices, running):
+    """The best k-subset in the infeasible order (most covered, least overlap, smallest tuple)
+    among those covering at least ``floor``: a "cover" search from the ``incumbent`` (sel or None).
+    Returns the search (``best_sel`` None where no k axes reach ``floor``); the search is also put
+    in the list ``running`` first, so that a caller catching _Timeout can read its best found."""
+    inc = None
+    if incumbent:
+        c, o = prob.evaluate(incumbent)
+        if c >= floor:
+            inc = (list(incumbent), _key_cover(o, c, prob.tuple_of(incumbent)))
+    s = _Search(prob, k, "cover", floor, deadline, incumbent=inc, prices=prices)
+    running.append(s)
+    s.run()
+    return s
+
+
+def _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound):
+    """Infeasible case (proven before the call): the best subset of at most K axes, in the order of
+    :mod:`planning.setups.select` (most covered, then fewest axes, least overlap, smallest tuple).
+
+    Without zone conflicts coverage never falls when an axis is added, so one "cover" search at K,
+    from the greedy incumbent and bounded by the prices of :mod:`planning.setups.lagrange`, settles
+    the largest coverage C* and the least overlap and smallest tuple at K; then each smaller k is
+    asked whether it reaches C* too (the price bound rules most of them out at the root; else an
+    existence search with floor C*), and the first that does is searched again.  With zone conflicts
+    a subset may not extend, so every k is searched in turn, a larger k needing strictly more.
+    Returns (sel, note); the note says what a time-out left unproven (``bound``: the price bound,
+    no selection of at most K axes covers more)."""
+    kmax = min(K, prob.m)
+    if kmax == 0:
+        return [], ""
+    best = None  # (covered, k, sel)
+    ks = range(1, kmax + 1) if prob.has_conflicts else [kmax]
+    cstar = None  # the largest coverage, once proven
+    running: list = []  # the searches started, the last one is what a time-out interrupts
+    try:
+        for k in ks:
+            floor = 1 if best is None else best[0] + 1  # a larger k must cover strictly more
+            if progress:
+                progress(0.5 + 0.4 * (k - 1) / kmax, f"best coverage with {k} set-ups")
+            s = _best_cover_at(prob, k, floor, heur[k][0] if k in heur else None, deadline, prices,
+                               running)
+            if s.best_sel is not None:
+                best = (-s.best_key[0], k, list(s.best_sel))
+        if best is None:
+            return [], ""
+        cstar = best[0]
+        if not prob.has_conflicts:  # the smallest k that reaches C* too
+            W, M = float(prob.w.sum()), float(prices.sum())
+            s_all = prob.AT.astype(np.float64) @ prices
+            for k in range(1, kmax):
+                if W - M + _top_r_sum(s_all, k) < cstar:
+                    continue  # the price bound: no k axes reach C*
+                if progress:
+                    progress(0.9, f"do {k} set-up(s) reach the best coverage?")
+                if k in heur and heur[k][1] >= cstar:
+                    best = (cstar, k, list(heur[k][0]))
+                else:
+                    e = _Search(prob, k, "cover", cstar, deadline, stop_at_first=True, prices=prices)
+                    e.run()
+                    if e.best_sel is None:
+                        continue
+                    best = (cstar, k, list(e.best_sel))
+                s = _best_cover_at(prob, k, cstar, best[2], deadline, prices, running)
+                best = (cstar, k, list(s.best_sel))
+                break
+    except _Timeout:
+        if cstar is not None:
+            return best[2], ("time limit reached: the coverage shown is the maximum; fewer set-ups "
+                             "or less overlap may reach it too")
+        s = running[-1] if running else None
+        if s is not None and s.best_sel is not None:
+            c = -s.best_key[0]
             if best is None or c > best[0]:
-                best = (c, k, s.best_key, s.best_sel)
-        if timed_out:
-            break
-    return (best[3] if best else []), timed_out
+                best = (c, len(s.best_sel), list(s.best_sel))
+        if best is None:
+            return [], "time limit reached before any selection was found"
+        return best[2], (f"time limit reached: the best coverage shown may not be the maximum; no "
+                         f"selection covers more than {math.floor(bound)} points")
+    return best[2], ""
 
 
 def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
     """Branch and bound for at most K set-ups: stage 1, the smallest k reaching ``prob.required``
     (the greedy answer where it reaches it, else an existence search); stage 2, the least overlap at
-    that k from the locally improved incumbent."""
+    that k from the locally improved incumbent.
+
+    Where greedy does not reach the coverage with K axes, the price bound of
+    :mod:`planning.setups.lagrange` (the LP dual of max coverage with K axes) is tried first: below
+    ``prob.required`` it proves at once that no k <= K reaches it (coverage never falls as axes are
+    added, and the bound holds for fewer axes too), and its prices then bound every search."""
     req = prob.required
     heur = _heuristics(prob, K)
     kmax = min(K, prob.m)
+    prices = bound = None
+    if kmax >= 1 and not (kmax in heur and heur[kmax][1] >= req):
+        if progress:
+            progress(0.05, f"can {kmax} set-ups reach the coverage at all?")
+        prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0])
+        if bound < req:
+            sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound)
+            return _Outcome("infeasible", sel, None, note)
     kstar, found = None, None
     for k in range(1, kmax + 1):
         if progress:
@@ -359,7 +465,7 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
         if k in heur and heur[k][1] >= req:
             kstar, found = k, heur[k][0]
             break
-        s = _Search(prob, k, "cover", req, deadline, stop_at_first=True)
+        s = _Search(prob, k, "cover", req, deadline, stop_at_first=True, prices=prices)
         try:
             s.run()
         except _Timeout:
@@ -368,8 +474,9 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
             kstar, found = k, s.best_sel
             break
     if kstar is None:
-        sel, timed_out = _bnb_best_cover(prob, K, deadline, heur, progress)
-        note = "time limit reached: the best coverage shown may not be the maximum" if timed_out else ""
+        if prices is None:
+            prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0])
+        sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound)
         return _Outcome("infeasible", sel, None, note)
     # stage 2: least overlap at k*
     inc = _local_search(prob, found, "overlap", req)
@@ -382,4 +489,3 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
         lb = ov if s.timeout_bound is None else min(ov, int(math.ceil(s.timeout_bound - 1e-9)))
         return _Outcome("feasible", s.best_sel, lb, "time limit reached")
     return _Outcome("optimal", s.best_sel, s.best_key[0])
-

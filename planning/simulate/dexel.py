@@ -93,7 +93,7 @@ class TriDexel:
     :meth:`cylinder`, :meth:`from_mesh`; combine with :meth:`union`. Two models can be combined
     only on the same grid (same ``lo``, ``n`` and resolution)."""
 
-    def __init__(self, lo, resolution_mm: float, n, csrs):
+    def __init__(self, lo, resolution_mm: float, n, csrs, _bounds_of: TriDexel | None = None):
         self.lo = np.asarray(lo, float).copy()
         self.res = float(resolution_mm)
         self.n = np.asarray(n, np.int64).copy()
@@ -125,6 +125,8 @@ class TriDexel:
         self.tbase = np.concatenate([[0], np.cumsum(ntile)]).astype(np.int64)
         self.tile_lo = np.empty(int(self.tbase[3]))
         self.tile_hi = np.empty(int(self.tbase[3]))
+        # the segments whose rays the kernels changed since the last refresh
+        self.dirty = np.zeros(int(self.sbase[3]), np.uint8)
         # pool from the per-family CSR lists
         ptrs, ivs, shift = [], [], 0
         for f, (ptr, iv) in enumerate(csrs):
@@ -145,7 +147,12 @@ class TriDexel:
         self.off, self.pool, self.t_top, self.t_end = K.repack(
             off, cnt, cap, pool, self.t_fam, self.t_res, self.t_mod, self.base, self.n,
             zero, zero.copy(), zero.copy(), 256, 0.5)
-        self._refresh()
+        if _bounds_of is None:
+            self._refresh()
+        else:                                  # the same material: the same (exact) bounds
+            _bounds_of._refresh_dirty()
+            for name in ("seg_lo", "seg_hi", "tile_lo", "tile_hi"):
+                getattr(self, name)[:] = getattr(_bounds_of, name)
 
     # ---------------------------------------------------------------- constructors
 
@@ -286,7 +293,7 @@ class TriDexel:
         return TriDexel(self.lo, self.res, self.n, csrs)
 
     def copy(self) -> TriDexel:
-        return TriDexel(self.lo, self.res, self.n, [self.csr(f) for f in range(3)])
+        return TriDexel(self.lo, self.res, self.n, [self.csr(f) for f in range(3)], _bounds_of=self)
 
     def volumes_mm3(self) -> np.ndarray:
         """(3,) the volume seen by the X, Y and Z rays (module docstring for the bound)."""
@@ -309,6 +316,13 @@ class TriDexel:
     def _refresh(self) -> None:
         K.refresh_segments(self.n, self.base, self.sbase, self.nseg, self.off, self.cnt, self.pool,
                            self.seg_lo, self.seg_hi, self.tbase, self.tile_lo, self.tile_hi)
+        self.dirty[:] = 0
+
+    def _refresh_dirty(self) -> None:
+        """The bounds of the segments (and their tiles) the kernels changed since the last refresh;
+        the others are exact already, so this equals :meth:`_refresh`."""
+        K.refresh_dirty(self.n, self.base, self.sbase, self.nseg, self.off, self.cnt, self.pool,
+                        self.seg_lo, self.seg_hi, self.tbase, self.tile_lo, self.tile_hi, self.dirty)
 
 
 def _box_or(lo, hi, res, domain_lo, domain_hi):
@@ -421,8 +435,8 @@ def _run(model: TriDexel, start, end, axis, pieces, mode, grow=None, depth_cap_m
         while True:
             def task(t, model=model):
                 K.run_task(t, model.lo, model.res, model.n, model.base, model.sbase, model.nseg, model.seg_lo,
-                           model.seg_hi, model.tbase, model.tile_lo, model.tile_hi, model.off, model.cnt, model.cap,
-                           model.pool, model.t_fam, model.t_res, model.t_mod, model.t_top, model.t_end, t_next,
+                           model.seg_hi, model.tbase, model.tile_lo, model.tile_hi, model.dirty, model.off, model.cnt,
+                           model.cap, model.pool, model.t_fam, model.t_res, model.t_mod, model.t_top, model.t_end, t_next,
                            t_status, mptr, midx, cs, cd, ca, cm, cz, pk, pz0, pz1, pr, pcut, cg,
                            float(depth_cap_mm), rem, dep, vis)
             # one job per row residue, running its tasks of the three families: the residues share
@@ -434,7 +448,7 @@ def _run(model: TriDexel, start, end, axis, pieces, mode, grow=None, depth_cap_m
                 break
             model._repack(t_status)
             t_status[:] = 0
-        model._refresh()
+        model._refresh_dirty()
         removed[sl] = rem.sum(0)
         for f in range(3):
             depth[f, sl] = dep[model.t_fam == f].max(0, initial=0.0)

@@ -503,11 +503,12 @@ def _seg_index(f, j, i, sbase, nseg):
 
 
 @njit(cache=True)
-def _piece(op, f, jres, jmod, task, lo, res, n, base, sbase, nseg, seg_lo, seg_hi, tbase, tile_lo, tile_hi,
+def _piece(op, f, jres, jmod, task, lo, res, n, base, sbase, nseg, seg_lo, seg_hi, tbase, tile_lo, tile_hi, dirty,
            off, cnt, cap, pool, t_top, t_end, P, d, a, kind, z0, z1, R, capf):
     """Apply one swept piece to the rays of a task (rows ``j = jres mod jmod`` of family f): op 0
     cut, 1 measure (stops at the first ray whose overlap reaches ``capf``), 2 add. Returns
-    (status, length removed / added, largest overlap, rays evaluated)."""
+    (status, length removed / added, largest overlap, rays evaluated). Marks ``dirty`` every row
+    segment whose rays it cut or added to (:func:`refresh_dirty` recomputes only those)."""
     ua = (f + 1) % 3
     va = (f + 2) % 3
     nu = n[ua]
@@ -646,6 +647,7 @@ def _piece(op, f, jres, jmod, task, lo, res, n, base, sbase, nseg, seg_lo, seg_h
                     rem = subtract(pool, off, cnt, cap, r, s0, s1, task, t_top, t_end)
                     if rem < 0.0:
                         return 1, total, maxov, visits
+                    dirty[sg] = 1
                     total += rem
                 elif op == 1:
                     ov = overlap(pool, off, cnt, r, s0, s1)
@@ -660,6 +662,7 @@ def _piece(op, f, jres, jmod, task, lo, res, n, base, sbase, nseg, seg_lo, seg_h
                         ad = add(pool, off, cnt, cap, r, s0, s1, task, t_top, t_end)
                         if ad < 0.0:
                             return 1, total, maxov, visits
+                        dirty[sg] = 1
                         total += ad
                         seg_lo[sg] = min(seg_lo[sg], s0)
                         seg_hi[sg] = max(seg_hi[sg], s1)
@@ -668,7 +671,7 @@ def _piece(op, f, jres, jmod, task, lo, res, n, base, sbase, nseg, seg_lo, seg_h
 
 
 @njit(cache=True)
-def _move(m, f, jres, jmod, task, lo, res, n, base, sbase, nseg, seg_lo, seg_hi, tbase, tile_lo, tile_hi,
+def _move(m, f, jres, jmod, task, lo, res, n, base, sbase, nseg, seg_lo, seg_hi, tbase, tile_lo, tile_hi, dirty,
           off, cnt, cap, pool, t_top, t_end, start, dvec, axv, mode, zcap, pk, pz0, pz1, pr, pcut, grow, depth_cap):
     """One move on one task's rays (``grow[m]``: added to the radius and to both axial ends of the
     pieces it measures). The overlap measured saturates at ``depth_cap`` (divided by the |cos| of
@@ -712,7 +715,7 @@ def _move(m, f, jres, jmod, task, lo, res, n, base, sbase, nseg, seg_lo, seg_hi,
             if pk[k] == CYL and z1 <= z0:
                 continue
             st, tot, ov, vis = _piece(op, f, jres, jmod, task, lo, res, n, base, sbase, nseg, seg_lo, seg_hi,
-                                      tbase, tile_lo, tile_hi, off, cnt, cap, pool, t_top, t_end, P, d, a,
+                                      tbase, tile_lo, tile_hi, dirty, off, cnt, cap, pool, t_top, t_end, P, d, a,
                                       pk[k], z0, z1, R, capf)
             visits += vis
             removed += tot
@@ -723,7 +726,7 @@ def _move(m, f, jres, jmod, task, lo, res, n, base, sbase, nseg, seg_lo, seg_hi,
 
 
 @njit(nogil=True, cache=True)
-def run_task(t, lo, res, n, base, sbase, nseg, seg_lo, seg_hi, tbase, tile_lo, tile_hi, off, cnt, cap, pool,
+def run_task(t, lo, res, n, base, sbase, nseg, seg_lo, seg_hi, tbase, tile_lo, tile_hi, dirty, off, cnt, cap, pool,
              t_fam, t_res, t_mod, t_top, t_end, t_next, t_status, mptr, midx, start, dvec, axv, mode, zcap,
              pk, pz0, pz1, pr, pcut, grow, depth_cap, removed, depth, visits):
     """Task t walks its moves ``midx[mptr[t]:mptr[t+1]]`` from ``t_next[t]`` (module docstring);
@@ -736,7 +739,7 @@ def run_task(t, lo, res, n, base, sbase, nseg, seg_lo, seg_hi, tbase, tile_lo, t
     while q < mptr[t + 1]:
         m = midx[q]
         st, rem, ov, vis = _move(m, f, t_res[t], t_mod[t], t, lo, res, n, base, sbase, nseg, seg_lo, seg_hi,
-                                 tbase, tile_lo, tile_hi, off, cnt, cap, pool, t_top, t_end, start, dvec,
+                                 tbase, tile_lo, tile_hi, dirty, off, cnt, cap, pool, t_top, t_end, start, dvec,
                                  axv, mode, zcap, pk, pz0, pz1, pr, pcut, grow, depth_cap)
         removed[t, m] += rem
         depth[t, m] = max(depth[t, m], ov)
@@ -899,6 +902,50 @@ def refresh_segments(n, base, sbase, nseg, off, cnt, pool, seg_lo, seg_hi, tbase
                     hi_ = max(hi_, seg_hi[sg])
                 tile_lo[tbase[f] + tj * nseg[f] + s] = lo_
                 tile_hi[tbase[f] + tj * nseg[f] + s] = hi_
+
+
+@njit(cache=True)
+def refresh_dirty(n, base, sbase, nseg, off, cnt, pool, seg_lo, seg_hi, tbase, tile_lo, tile_hi, dirty):
+    """:func:`refresh_segments` for the segments flagged in ``dirty`` (u1, one per segment) and the
+    tiles holding them only; the flags are cleared. The bounds of a segment none of whose rays
+    changed are already exact, so the result equals a full refresh. Returns the segments redone."""
+    done = 0
+    for f in range(3):
+        nu = n[(f + 1) % 3]
+        nv = n[(f + 2) % 3]
+        ns = nseg[f]
+        for tj in range((nv + TROWS - 1) // TROWS):
+            j0 = tj * TROWS
+            j1 = min(nv, j0 + TROWS)
+            for s in range(ns):
+                hit = False
+                for j in range(j0, j1):
+                    sg = sbase[f] + j * ns + s
+                    if dirty[sg] == 0:
+                        continue
+                    dirty[sg] = 0
+                    hit = True
+                    done += 1
+                    lo_ = _INF
+                    hi_ = -_INF
+                    for i in range(s * SEG, min(nu, (s + 1) * SEG)):
+                        r = base[f] + j * nu + i
+                        c = cnt[r]
+                        if c > 0:
+                            lo_ = min(lo_, pool[off[r], 0])
+                            hi_ = max(hi_, pool[off[r] + c - 1, 1])
+                    seg_lo[sg] = lo_
+                    seg_hi[sg] = hi_
+                if hit:
+                    lo_ = _INF
+                    hi_ = -_INF
+                    for j in range(j0, j1):
+                        sg = sbase[f] + j * ns + s
+                        lo_ = min(lo_, seg_lo[sg])
+                        hi_ = max(hi_, seg_hi[sg])
+                    tile_lo[tbase[f] + tj * ns + s] = lo_
+                    tile_hi[tbase[f] + tj * ns + s] = hi_
+    return done
 
 
 # ------------------------------------------------------------------------------------ builders

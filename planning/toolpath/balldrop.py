@@ -27,6 +27,7 @@ from numba import njit, prange
 
 from planning.errors import ParameterError
 from planning.geometry.raster import bin_cells, rows_in_order
+from planning.toolpath.verify import serial_twin
 
 _BLOCK = 4      # raster cells per side of the blocks pruned as a whole
 
@@ -155,7 +156,7 @@ def _drop(pts, order, start, cmax, bmax, nby, xy, R, x0, y0, h, nx, ny, slack, z
 
 #: Fewer query lines than this run on one thread (starting the thread pool costs more).
 _PARALLEL_MIN = 2048
-_drop_serial = njit(cache=True, nogil=True)(_drop.py_func)
+_drop_serial = serial_twin(_drop, "_drop_serial")   # its own cache entry (see serial_twin)
 
 
 class DropSurface:

@@ -39,6 +39,7 @@ are scanned point by point. Compiled with numba, parallel over moves.
 from __future__ import annotations
 
 import math
+import types
 from dataclasses import dataclass
 
 import numpy as np
@@ -353,13 +354,13 @@ def _move_min(F, I, row, pts, start, cmin, cmax, x0, y0, h, nx, ny, slack, limit
 def _prep(sel, xyz, kind, centre, plane_a, plane_b, plane_n, F, I):
     for k in prange(sel.shape[0]):
         m = sel[k]
-        s = xyz[m - 1]
-        e = xyz[m]
         if kind[m] == ARC_CW or kind[m] == ARC_CCW:
             ia, ib, inn = plane_a[m], plane_b[m], plane_n[m]
-            _fill_arc(F, I, k, s, e, centre[m, ia], centre[m, ib], ia, ib, inn, kind[m] == ARC_CCW)
+            _fill_arc(F, I, k, xyz[m - 1], xyz[m], centre[m, ia], centre[m, ib], ia, ib, inn, kind[m] == ARC_CCW)
         else:
-            _fill_line(F, I, k, s[0], s[1], s[2], e[0], e[1], e[2])
+            # scalars, not row views: a view per move costs reference counting (atomic in the
+            # threads) many times the fill itself
+            _fill_line(F, I, k, xyz[m - 1, 0], xyz[m - 1, 1], xyz[m - 1, 2], xyz[m, 0], xyz[m, 1], xyz[m, 2])
 
 
 @njit(parallel=True, cache=True)
@@ -372,8 +373,24 @@ def _clearance(F, I, pts, start, cmin, cmax, x0, y0, h, nx, ny, slack, limit, ou
 
 #: Fewer measured moves than this run on one thread.
 _PARALLEL_MIN = 4096
-_prep_serial = njit(cache=True, nogil=True)(_prep.py_func)
-_clearance_serial = njit(cache=True, nogil=True)(_clearance.py_func)
+
+
+def serial_twin(kernel, name: str):
+    """A serial (``nogil``) copy of the parallel numba ``kernel`` under its own ``name``. numba's
+    cache keys an entry by the function's module, qualified name, line and signature, not by its
+    flags: ``njit(cache=True)(kernel.py_func)`` shares the parallel kernel's cache entry, and
+    whichever of the two compiled first is loaded for both (the "serial" one then started the
+    thread pool on every small call). A copy of the function object with another qualified name
+    gets its own entry."""
+    f = kernel.py_func
+    g = types.FunctionType(f.__code__, f.__globals__, name, f.__defaults__, f.__closure__)
+    g.__qualname__ = name
+    g.__doc__ = f.__doc__
+    return njit(cache=True, nogil=True)(g)
+
+
+_prep_serial = serial_twin(_prep, "_prep_serial")
+_clearance_serial = serial_twin(_clearance, "_clearance_serial")
 
 
 class BinnedCloud:

@@ -413,7 +413,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     sel_axes = ori.axes[selected]
     areas = run.stage("areas", lambda p: assign_areas(points, nrm.sample_index, nrm.normals, gv.visible,
                                                       selected, sel_axes, config.visibility.cone_deg,
-                                                      config.areas))
+                                                      config.areas, progress=p))
     run.warnings += _areas_warnings(areas, nrm)
     area_paths = []
     pp = config.paths

@@ -20,21 +20,24 @@ EXIT_OK, EXIT_ERROR, EXIT_INFEASIBLE, EXIT_UNSAFE = 0, 2, 3, 4
 
 
 class _Progress:
-    """Prints one line per stage start/end and coarse progress inside long stages, to stderr."""
+    """Prints one line per stage start/end and progress inside long stages, to stderr: a line when
+    the stage has moved on by a fifth, or when ``every_s`` (2 s) have passed since its last line
+    (so a long stage never goes silent for longer while it reports)."""
 
-    def __init__(self, stream=None, quiet: bool = False):
-        self.stream, self.quiet = stream, quiet
-        self._last: dict[str, float] = {}
+    def __init__(self, stream=None, quiet: bool = False, every_s: float = 2.0):
+        self.stream, self.quiet, self.every_s = stream, quiet, float(every_s)
+        self._last: dict[str, tuple[float, float]] = {}
         self._t0 = time.perf_counter()
 
     def __call__(self, stage: str, fraction: float, message: str) -> None:
         if self.quiet:
             return
-        last = self._last.get(stage, -1.0)
-        if 0.0 < fraction < 1.0 and fraction - last < 0.2:
+        now = time.perf_counter()
+        last, last_t = self._last.get(stage, (-1.0, -float("inf")))
+        if 0.0 < fraction < 1.0 and fraction - last < 0.2 and now - last_t < self.every_s:
             return
-        self._last[stage] = fraction
-        elapsed = time.perf_counter() - self._t0
+        self._last[stage] = (fraction, now)
+        elapsed = now - self._t0
         print(f"[{elapsed:7.2f} s] {stage:<12} {fraction:4.0%}  {message}", file=self.stream or sys.stderr,
               flush=True)
 

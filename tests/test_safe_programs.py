@@ -8,13 +8,14 @@ points, a coarser scallop and step-down); the slow test plans them with the defa
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
 
 from planning.inputs import Cloud
 from planning.inputs import samples
-from planning.pipeline import run_plan
+from planning.pipeline import STAGES, run_plan
 from planning.simulate.program import check_travel
 from planning.simulate.rs274 import INSTALL_HINT, rs274_available, run_rs274
 from planning.simulate.verify import tool_shapes
@@ -35,7 +36,11 @@ def _plan(name: str, extra: list[str]):
     make, sets = CASES[name]
     s = make()
     cloud = Cloud(points=s.points, normals=s.normals, source_format="generated")
-    return run_plan(cloud, parse_config(apply_overrides({}, sets + extra)), name=name)
+    calls: list[tuple[str, float, str]] = []          # the progress the plan reported (issue 17 item 3)
+    out = run_plan(cloud, parse_config(apply_overrides({}, sets + extra)), name=name,
+                   progress=lambda st, f, m: calls.append((st, f, m)))
+    out.extra["progress_calls"] = calls
+    return out
 
 
 def _assert_clean(outcome, name: str) -> None:
@@ -91,6 +96,44 @@ def test_rs274_reads_the_linuxcnc_programs_within_the_travel(light_plan):
         assert check_travel(motion, profile) == [], (name, prog)
         read += 1
     assert read == len(outcome.result.setups)                 # every set-up has its program
+
+
+def test_every_stage_reports_its_start_and_end_and_never_goes_back(light_plan):
+    """Issue 17 item 3: progress that moves (how often in seconds is the machine's business: the
+    CLI and the bench show it, no test measures time)."""
+    name, outcome = light_plan
+    calls = outcome.extra["progress_calls"]
+    ran = [t.stage for t in outcome.result.timings]
+    assert set(ran) <= set(STAGES) and "paths" in ran and "simulate" in ran
+    for stage in ran:
+        fr = [f for st, f, _ in calls if st == stage]
+        assert fr[0] == 0.0 and fr[-1] == 1.0, (name, stage)
+        assert all(0.0 <= f <= 1.0 for f in fr), (name, stage)
+        assert all(b >= a - 1e-12 for a, b in zip(fr, fr[1:])), (name, stage, fr)
+
+
+def test_paths_report_every_step_of_every_area(light_plan):
+    """The paths stage tells the area (n of k) and its step, and counts inside the steps."""
+    name, outcome = light_plan
+    msgs = [m for st, _, m in outcome.extra["progress_calls"] if st == "paths"]
+    order = outcome.result.machining_order
+    for n, area in enumerate(order):
+        head = f"area {area} ({n + 1}/{len(order)}): "
+        steps = {m[len(head):].split(",")[0] for m in msgs if m.startswith(head)}
+        assert {"finishing", "cut blocked", "reduce arcs", "verify", "collisions", "guard finishing"} <= steps, \
+            (name, area, steps)
+        assert f"area {area}: paths done" in msgs
+    assert any(re.search(r": roughing, level \d+/\d+", m) for m in msgs), name
+    assert any(re.search(r": guard roughing", m) for m in msgs), name
+
+
+def test_the_simulation_reports_every_program_and_its_moves(light_plan):
+    name, outcome = light_plan
+    msgs = [m for st, _, m in outcome.extra["progress_calls"] if st == "simulate"]
+    for a in outcome.result.verification.areas:
+        assert any(m.startswith(f"{a.program}: simulating {a.n_moves} moves") for m in msgs), (name, a.program)
+        assert any(m.startswith(f"{a.program}: moves 1-") for m in msgs), (name, a.program)
+    assert any("deviation" in m for m in msgs), name
 
 
 def test_rest_roughing_cuts_less_air_than_roughing_every_set_up_from_the_box():

@@ -58,21 +58,24 @@ class Areas:
 
 def assign_areas(points: np.ndarray, sample_index: np.ndarray, normals: np.ndarray,
                  visibility: np.ndarray, selected: np.ndarray, selected_axes: np.ndarray,
-                 cone_deg=(10.0, 80.0), params: AreasParams | None = None) -> Areas:
+                 cone_deg=(10.0, 80.0), params: AreasParams | None = None, progress=None) -> Areas:
     """Label sampled and input points with set-ups (see the module docstring).
 
     ``points`` (N,3) mm is the whole cloud, ``sample_index`` (n,) the sampled points with unit
     ``normals`` (n,3); ``visibility`` (n,m) bool after every global filter; ``selected`` (k,)
     column indices with unit ``selected_axes`` (k,3); ``cone_deg`` the tool cone (degrees);
-    ``params`` :class:`schemas.params.AreasParams` (default values when None).
+    ``params`` :class:`schemas.params.AreasParams` (default values when None); ``progress(fraction,
+    message)`` is told each step (graph, alpha-expansion, merging, propagation).
     """
     params = params or AreasParams()
+    say = progress or (lambda fraction, message="": None)
     points = np.asarray(points, dtype=np.float64)
     sample_index = np.asarray(sample_index, dtype=np.int64)
     n, k = sample_index.shape[0], len(selected)
     sub = np.asarray(visibility, dtype=bool)[:, np.asarray(selected, dtype=np.int64)]  # (n,k)
     seen = sub.any(axis=1)
     sp = points[sample_index]
+    say(0.0, "neighbour graph")
     graph = neighbour_graph(sp, normals, params.neighbours)
     labels = np.full(n, -1, dtype=np.int64)
     method = params.method if params.smoothness_mm > 0 else "per_point"
@@ -81,8 +84,11 @@ def assign_areas(points: np.ndarray, sample_index: np.ndarray, normals: np.ndarr
                                   params.sharp_edge_deg, params.sharp_edge_weight)
         labels = _attach_leftovers(sp, per_point_labels(energy), seen)
         if method == "graphcut":
+            say(0.35, "alpha-expansion")
             labels = alpha_expansion(energy, graph.edges, labels)
+            say(0.6, "merging small regions")
             labels = merge_small_regions(graph, labels, sub | ~seen[:, None], params.min_region_mm2)
+    say(0.7, "regions and the input points' areas")
     regions = region_index(graph, labels)
     nearest = _nearest_sample(points, sample_index)
     input_labels, input_regions = _propagate(nearest, sample_index, labels, regions, k)

@@ -39,13 +39,16 @@ def _blocks(tool: np.ndarray) -> list[tuple[int, int]]:
 
 
 def run_moves(stock: TriDexel, obstacles: TriDexel | None, motion: ProgramMotion, tools: dict, *,
-              rapid_clearance_mm: float = 0.0) -> MoveFigures:
+              rapid_clearance_mm: float = 0.0, progress=None) -> MoveFigures:
     """Cut ``stock`` (in place) with the moves of ``motion`` in their order and measure every move
     (see :class:`MoveFigures`); ``tools`` maps T numbers to
-    :class:`~planning.simulate.motion.ToolShape`. A T number missing from ``tools`` raises."""
+    :class:`~planning.simulate.motion.ToolShape`. A T number missing from ``tools`` raises.
+    ``progress(fraction, message)``: the share of the moves done, per block of one tool."""
     P = motion.n_moves
     out = MoveFigures(np.zeros(P), np.zeros(P), np.zeros(P), np.zeros(P))
     for a, b in _blocks(motion.tool):
+        if progress is not None:
+            progress(a / max(P, 1), f"moves {a + 1}-{b} of {P} (T{int(motion.tool[a])})")
         number = int(motion.tool[a])
         if number == 0:
             out.no_tool += b - a

@@ -229,8 +229,15 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
     motions = []
     order = list(range(order)) if isinstance(order, (int, np.integer)) else [int(i) for i in order]
     names = [f"area_{i}.{dialect}.nc" for i in order if f"area_{i}.{dialect}.nc" in programs]
+    n_steps = len(names) + 1                  # every program, then the deviation of the scan
+
+    def say(n_done: int, fraction: float, message: str) -> None:
+        if progress is not None:
+            progress((n_done + max(0.0, min(1.0, fraction))) / n_steps, message)
+
     for n_done, name in enumerate(names):
         area = int(name.split("_")[1].split(".")[0])
+        say(n_done, 0.0, f"{name}: reading ({n_done + 1}/{len(names)})")
         try:
             motion = read_program(programs[name], dialect=dialect, program=name, area=area, profile=profile,
                                   placement_mm=placement_mm, tools=tools)
@@ -241,8 +248,10 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
         v.notes += [n for n in motion.notes if n not in v.notes]
         motions.append(motion)
         travel = check_travel(motion, profile)
-        run = run_moves(models.stock, models.obstacles, motion, tools,
-                              rapid_clearance_mm=sim.rapid_clearance_mm)
+        say(n_done, 0.05, f"{name}: simulating {motion.n_moves} moves ({n_done + 1}/{len(names)})")
+        run = run_moves(models.stock, models.obstacles, motion, tools, rapid_clearance_mm=sim.rapid_clearance_mm,
+                        progress=None if progress is None else
+                        (lambda f, m, n_done=n_done, name=name: say(n_done, 0.05 + 0.95 * f, f"{name}: {m}")))
         av = AreaVerification(area=area, program=name, n_moves=motion.n_moves,
                               removed_mm3=round(float(run.removed_mm3.sum()), 1),
                               machining_time_s=round(_machining_time_s(motion, config), 1),
@@ -262,8 +271,8 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
                                       amount=round(float(t["excess"]), 4),
                                       detail=f"{t['axis']} {t['value']:.3f} beyond {t['limit']:.3f}")
                   for t in sorted(travel, key=lambda t: -t["excess"])[:WORST_PER_CLASS]]
-        if progress is not None:
-            progress((n_done + 1) / (len(names) + 1), f"{name}: {motion.n_moves} moves simulated")
+        say(n_done, 1.0, f"{name}: {motion.n_moves} moves simulated")
+    say(len(names), 0.0, "deviation of the scan from the simulated stock")
     dev, dev_high = deviation_pair(models.stock, points, normals, max_mm=10.0)
     fp = config.paths.finishing
     limit = fp.tolerance_mm + fp.scallop_mm + models.measuring_bound_mm

@@ -150,6 +150,51 @@ def obstacle_top_mm(frame: AreaFrame, fixtures: Sequence, xy_lo, xy_hi, reach_mm
     return top
 
 
+class _PathsProgress:
+    """Progress of the paths stage (issue 17 item 3): the area being done (``n_done`` of ``k``) and,
+    inside it, its steps by a fixed share of the area (:data:`STEPS`), each step's own fraction
+    (levels, passes, chunks, repair rounds) mapped into its share. Reports never go back, and
+    calls within ``min_interval_s`` of the last are dropped unless a step starts."""
+
+    #: share of an area's time each step starts at and ends at (rough, from the femur-like plan)
+    STEPS = {"frame": (0.0, 0.02), "roughing": (0.02, 0.2), "guard_roughing": (0.2, 0.3),
+             "finishing": (0.3, 0.55), "cut_blocked": (0.55, 0.75), "reduce_arcs": (0.75, 0.85),
+             "verify": (0.85, 0.87), "collisions": (0.87, 0.89), "guard_finishing": (0.89, 1.0)}
+
+    def __init__(self, progress: Progress | None, k: int, min_interval_s: float = 0.1):
+        self.progress, self.k, self.min_interval_s = progress, max(int(k), 1), float(min_interval_s)
+        self.n_done, self.area, self.last_t, self.last_f = 0, -1, -math.inf, 0.0
+
+    def start_area(self, n_done: int, area: int) -> None:
+        self.n_done, self.area = int(n_done), int(area)
+
+    def _emit(self, fraction: float, message: str, force: bool) -> None:
+        now = time.perf_counter()
+        if not force and now - self.last_t < self.min_interval_s:
+            return
+        self.last_t, self.last_f = now, max(self.last_f, min(1.0, fraction))
+        self.progress(self.last_f, message)
+
+    def step(self, name: str) -> Callable[[float, str], None] | None:
+        """Announce step ``name`` of the current area; return the callback of its own progress
+        (fraction of the step in [0, 1], message), or None when nobody listens."""
+        if self.progress is None:
+            return None
+        lo, hi = self.STEPS[name]
+        head = f"area {self.area} ({self.n_done + 1}/{self.k}): {name.replace('_', ' ')}"
+        self._emit((self.n_done + lo) / self.k, head, force=True)
+
+        def report(fraction: float, message: str = "") -> None:
+            f = max(0.0, min(1.0, float(fraction)))
+            self._emit((self.n_done + lo + (hi - lo) * f) / self.k, f"{head}, {message}" if message else head,
+                       force=False)
+        return report
+
+    def area_done(self) -> None:
+        if self.progress is not None:
+            self._emit((self.n_done + 1) / self.k, f"area {self.area}: paths done", force=True)
+
+
 def _count_arcs(tp: Toolpath) -> int:
     return int(np.isin(tp.kind, [ARC_CW, ARC_CCW]).sum())
 
@@ -186,12 +231,15 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     out: list[AreaPaths] = []
     order = list(range(k)) if carried is None else list(carried.order)
     pool = np.zeros(points.shape[0], dtype=bool)       # unmachined by a set-up before: handed on
+    prog = _PathsProgress(progress, len(order))
     for n_done, i in enumerate(order):
         sec: dict[str, float] = {}
         t0 = time.perf_counter()
         mine = input_labels == i
         if not mine.any():
             continue
+        prog.start_area(n_done, i)
+        prog.step("frame")
         extra = np.zeros_like(mine)
         if carried is not None and carried.visible is not None and pool.any():
             extra = pool & carried.visible[:, i] & ~mine
@@ -207,11 +255,12 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
         ap = AreaPaths(area=i, frame=frame, safe_z_mm=safe, finishing=None, finishing_info=None, radius_mm=R,
                        tolerance_mm=tol)
         _add_roughing(ap, cloud_f, area_f, top, paths_params, sec, roughing_window_reach_mm(paths_params, tool),
-                      stock_f=stock_f, carried=carried)
+                      stock_f=stock_f, carried=carried, progress=prog.step("roughing"))
         if ap.roughing is not None and ap.roughing.n_moves == 0:
             ap.roughing = None                 # rest roughing: nothing left above this area
         if carried is not None and ap.roughing is not None:
             t0 = time.perf_counter()
+            prog.step("guard_roughing")
             _guard_roughing(ap, carried, top + paths_params.roughing.stock_margin_mm + paths_params.safe_clearance_mm)
             sec["guard_roughing"] = time.perf_counter() - t0
         if carried is not None and carried.normals is not None:
@@ -224,13 +273,16 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
                 masks.append(np.concatenate([extra, np.zeros(cloud_f.shape[0] - extra.shape[0], dtype=bool)]))
             _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec,
                            blocked=None if carried is None else
-                           (lambda fin: _cut_blocked(ap, fin, carried, obstacles, axes[i], tool, fixtures, area_f, fp)))
+                           (lambda fin: _cut_blocked(ap, fin, carried, obstacles, axes[i], tool, fixtures, area_f, fp)),
+                           progress=prog)
             # cutter, shank and holder above the ball at every CL point of the cut
             t0 = time.perf_counter()
+            prog.step("collisions")
             _count_collisions(ap, obstacles, axes[i], tool, fixtures)
             sec["collisions"] = time.perf_counter() - t0
             if carried is not None and ap.finishing is not None:
                 t0 = time.perf_counter()
+                prog.step("guard_finishing")
                 _guard_finishing(ap, carried, area_f, fp)
                 sec["guard_finishing"] = time.perf_counter() - t0
             if carried is not None and ap.unmachined is not None:
@@ -243,8 +295,7 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
                     pool[np.flatnonzero(extra)[~left]] = False
         ap.seconds = {k2: round(v, 4) for k2, v in sec.items()}
         out.append(ap)
-        if progress is not None:
-            progress((n_done + 1) / k, f"area {i}: paths done")
+        prog.area_done()
     if carried is not None:
         # what no set-up finished, by the area it belongs to
         for ap in out:
@@ -317,7 +368,7 @@ def _frame_and_top(points, mine, axis, obstacles, fixtures, fp, R: float, reach:
 
 
 def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec: dict, window_reach: float,
-                  stock_f=None, carried=None) -> None:
+                  stock_f=None, carried=None, progress=None) -> None:
     """Step 3: roughing (when enabled and there is stock above the area's floor) into ``ap``, the
     tool centre within ``window_reach`` mm of the area's points (:func:`roughing_window_reach_mm`).
     With ``carried``, rest roughing: only the material of the carried stock (its boundary points
@@ -338,7 +389,8 @@ def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec:
                             stepover_mm=rp.stepover_mm, pattern=rp.pattern, floor_z_mm=floor,
                             safe_z_mm=top + rp.stock_margin_mm + paths_params.safe_clearance_mm,
                             window_xy_mm=area_f[:, :2] if rp.window else None, window_reach_mm=window_reach, **rest,
-                            **_entry_args(rp))
+                            **_entry_args(rp), progress=None if progress is None else
+                            (lambda done, n: progress(done / max(n, 1), f"level {done}/{n}")))
         ap.roughing, ap.roughing_info = rr.toolpath, rr
         sec["roughing"] = time.perf_counter() - t0
 
@@ -396,24 +448,29 @@ def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, to
 
 
 def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, max_slope_deg: float,
-                   sec: dict, blocked=None) -> None:
+                   sec: dict, blocked=None, progress: _PathsProgress | None = None) -> None:
     """Step 4 and the gouge check of step 5 into ``ap``: finishing passes per region
     (:func:`_region_finishing`), the blocked CL points cut out (``blocked``: FinishingPath ->
     FinishingPath, or None), arc fitting or CL reduction of the joined path, and the minimal
     clearance of the final moves (capped at R)."""
     R, tol = ap.radius_mm, ap.tolerance_mm
     t0 = time.perf_counter()
+    step = (lambda name: None) if progress is None else progress.step
+    finishing_progress = step("finishing")
     binned = BinnedCloud(cloud_f, R / 4.0)
-    fin = _region_finishing(cloud_f, region_masks, binned, fp, R, tol, ap.safe_z_mm, max_slope_deg)
+    fin = _region_finishing(cloud_f, region_masks, binned, fp, R, tol, ap.safe_z_mm, max_slope_deg,
+                            progress=finishing_progress)
     sec["finishing"] = time.perf_counter() - t0
     if blocked is not None:
         t0 = time.perf_counter()
+        step("cut_blocked")
         fin = blocked(fin)
         sec["cut_blocked"] = time.perf_counter() - t0
         if fin is None:                        # nothing of the area can be finished from this set-up
             return
     tp = fin.toolpath
     t0 = time.perf_counter()
+    step("reduce_arcs")
     # arc fitting also reduces the straight stretches it leaves, against the ORIGINAL CL
     # points (reducing first would let the arcs drift 2 tol from them)
     if fp.arcs:
@@ -422,6 +479,7 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
         tp = reduce_cl(tp, binned, R, tol_mm=tol, pass_index=fin.pass_index)
     sec["reduce_arcs"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    step("verify")
     clear = move_clearance(tp, binned, R)
     ap.min_clearance_mm = float(np.nanmin(clear)) if np.isfinite(clear).any() else float(R)
     ap.min_clearance_mm = min(ap.min_clearance_mm, float(R))
@@ -431,14 +489,18 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
 
 
 def _region_finishing(cloud_f, region_masks, binned: BinnedCloud, fp, R: float, tol: float, safe: float,
-                      max_slope_deg: float) -> FinishingPath:
+                      max_slope_deg: float, progress: Progress | None = None) -> FinishingPath:
     """The finishing passes (:func:`planning.toolpath.finishing.finishing_passes`, ``safe`` the
     ball-centre height of retracts and rapids, mm) of each region in ``region_masks`` (bool masks
     over ``cloud_f``), joined by :func:`join_region_paths`. A region on which no pass lies adds
     nothing; when none gets a pass, the first region's error is raised (as for a one-region area)."""
     surface = DropSurface(cloud_f, R)
     fins, first_error = [], None
-    for mask in region_masks:
+    sizes = np.array([np.count_nonzero(m) for m in region_masks], dtype=np.float64)
+    done_before = np.concatenate([[0.0], np.cumsum(sizes)]) / max(sizes.sum(), 1.0)
+    for r, mask in enumerate(region_masks):
+        if progress is not None:         # regions by their share of the area's points
+            progress(done_before[r], f"region {r + 1}/{len(region_masks)}")
         try:
             fins.append(finishing_passes(cloud_f, mask, radius_mm=R, scallop_mm=fp.scallop_mm, step_mm=fp.step_mm,
                                          margin_mm=fp.margin_mm, zigzag=fp.pattern == "zigzag", tol_mm=tol,

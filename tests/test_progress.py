@@ -1,0 +1,63 @@
+"""Issue 17 item 3: progress that moves. The paths stage's reporter (per area, per step of an area,
+and inside the steps); the CLI's lines. The progress of whole plans is checked on the reference
+cases' light plans in tests/test_safe_programs.py (no second plan here)."""
+
+from __future__ import annotations
+
+import io
+
+import pytest
+
+from planning.toolpath.area_paths import _PathsProgress
+from scanmill.cli import _Progress
+
+
+def test_paths_progress_maps_steps_into_areas_and_throttles():
+    got: list[tuple[float, str]] = []
+    p = _PathsProgress(lambda f, m: got.append((f, m)), k=4, min_interval_s=3600.0)
+    p.start_area(1, 7)
+    cb = p.step("finishing")                       # a step start is always told
+    lo, hi = _PathsProgress.STEPS["finishing"]
+    assert got[-1][0] == pytest.approx((1 + lo) / 4) and got[-1][1] == "area 7 (2/4): finishing"
+    cb(0.5, "pass 3/6")                            # within the interval: dropped
+    assert len(got) == 1
+    p.min_interval_s = 0.0
+    cb(0.5, "pass 3/6")
+    assert got[-1][0] == pytest.approx((1 + lo + 0.5 * (hi - lo)) / 4)
+    assert got[-1][1] == "area 7 (2/4): finishing, pass 3/6"
+    cb(0.2, "late")                                # never backwards
+    assert got[-1][0] == pytest.approx((1 + lo + 0.5 * (hi - lo)) / 4)
+    p.area_done()
+    assert got[-1][0] == pytest.approx(2 / 4) and got[-1][1] == "area 7: paths done"
+    assert _PathsProgress(None, k=2).step("roughing") is None
+
+
+def test_cli_prints_a_stage_line_per_fifth_or_every_two_seconds(monkeypatch):
+    out = io.StringIO()
+    clock = [0.0]
+    monkeypatch.setattr("scanmill.cli.time.perf_counter", lambda: clock[0])
+    p = _Progress(stream=out)
+    p("paths", 0.0, "start")
+    p("paths", 0.05, "a")           # small step, no time passed: silent
+    clock[0] = 2.5
+    p("paths", 0.06, "b")           # small step, but 2.5 s since the last line: printed
+    p("paths", 0.30, "c")           # a fifth further: printed
+    p("paths", 1.0, "done")
+    lines = out.getvalue().splitlines()
+    assert [ln.split()[-1] for ln in lines] == ["start", "b", "c", "done"]
+
+
+def test_region_finishing_reports_each_region_by_its_share_of_the_points():
+    from planning.toolpath.area_paths import _region_finishing
+    from planning.toolpath.verify import BinnedCloud
+    from schemas.params import parse_config
+    from surfaces import wave
+
+    pts = wave(size_mm=20.0, density=2.0).points
+    left = pts[:, 0] < 0
+    fp = parse_config({"paths": {"finishing": {"scallop_mm": 0.2}}}).paths.finishing
+    got: list[tuple[float, str]] = []
+    _region_finishing(pts, [left, ~left], BinnedCloud(pts, 0.75), fp, 3.0, 0.01, 20.0, 60.0,
+                      progress=lambda f, m: got.append((f, m)))
+    assert [m for _, m in got[:2]] == ["region 1/2", "region 2/2"]
+    assert got[0][0] == 0.0 and got[1][0] == pytest.approx(left.sum() / left.size)

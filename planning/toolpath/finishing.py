@@ -140,7 +140,7 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
         raise ParameterError("the area has no points")
     safe = (R + 5.0) if safe_z_mm is None else float(safe_z_mm)
     link_max = 2.5 * s if link_max_mm is None else float(link_max_mm)
-    band, lo, hi = _band(pts, mask, area, s, margin_mm)
+    on_band, lo, hi = _band(pts, mask, area, s, margin_mm)
     # ball centres touching the band lie within R of it in (x, y)
     y0, y1 = area[:, 1].min() - margin_mm - R, area[:, 1].max() + margin_mm + R
     xs = np.arange(lo[0] - R, hi[0] + R + step, step)
@@ -155,7 +155,7 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
         """Which samples of the pass at y rest on the band, and their ball-drop heights (NaN elsewhere)."""
         res = surface.drop(np.stack([xs, np.full(xs.size, y)], 1))
         inside = res.contact >= 0
-        inside[inside] = band[res.contact[inside]]
+        inside[inside] = on_band(res.contact[inside])
         return inside, np.where(inside, res.z_mm, np.nan)
 
     if not 0.0 <= max_slope_deg < 90.0:
@@ -182,8 +182,11 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
 
 def _band(pts: np.ndarray, mask: np.ndarray, area: np.ndarray, s: float, margin_mm: float):
     """The points a pass may rest on: the area's footprint on a square raster of ``s / 2`` cells
-    (closed once), grown by ``margin_mm`` into the neighbours. Returns ``band`` (N,) bool over
-    ``pts`` and the raster's lower and upper (x, y) corners ``lo``, ``hi`` (mm)."""
+    (closed once), grown by ``margin_mm`` into the neighbours. Returns ``on_band``, a function of
+    point indices into ``pts`` (k,) -> (k,) bool (whether each of those points is in the band),
+    and the raster's lower and upper (x, y) corners ``lo``, ``hi`` (mm). Only the points a ball
+    rests on are ever asked about, so the band is not evaluated over the whole cloud (a region's
+    passes ask about a few thousand points of a cloud of a million)."""
     # footprint raster (cells of s/2), grown by the margin: the band of points the ball may touch
     c = s / 2.0
     lo = area[:, :2].min(axis=0) - margin_mm - c
@@ -198,11 +201,15 @@ def _band(pts: np.ndarray, mask: np.ndarray, area: np.ndarray, s: float, margin_
         r = int(np.ceil(margin_mm / c))
         yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
         occ = ndimage.binary_dilation(occ, structure=(xx * xx + yy * yy) * c * c <= margin_mm ** 2)
-    ij = np.floor((pts[:, :2] - lo) / c).astype(np.int64)
-    inr = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
-    band = mask.copy()
-    band[inr] |= occ[ij[inr, 0], ij[inr, 1]]
-    return band, lo, hi
+
+    def on_band(idx: np.ndarray) -> np.ndarray:
+        ij = np.floor((pts[idx, :2] - lo) / c).astype(np.int64)
+        inr = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
+        band = mask[idx]
+        band[inr] |= occ[ij[inr, 0], ij[inr, 1]]
+        return band
+
+    return on_band, lo, hi
 
 
 def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float) -> list:

@@ -140,7 +140,7 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
         raise ParameterError("the area has no points")
     safe = (R + 5.0) if safe_z_mm is None else float(safe_z_mm)
     link_max = 2.5 * s if link_max_mm is None else float(link_max_mm)
-    on_band, lo, hi = _band(pts, mask, area, s, margin_mm)
+    on_band, near_band, lo, hi = _band(pts, mask, area, s, margin_mm, R)
     # ball centres touching the band lie within R of it in (x, y)
     y0, y1 = area[:, 1].min() - margin_mm - R, area[:, 1].max() + margin_mm + R
     xs = np.arange(lo[0] - R, hi[0] + R + step, step)
@@ -153,10 +153,16 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
 
     def drop_pass(y):
         """Which samples of the pass at y rest on the band, and their ball-drop heights (NaN elsewhere)."""
-        res = surface.drop(np.stack([xs, np.full(xs.size, y)], 1))
-        inside = res.contact >= 0
-        inside[inside] = on_band(res.contact[inside])
-        return inside, np.where(inside, res.z_mm, np.nan)
+        # only samples with a band point within R can rest on one: the others are not dropped
+        near = np.flatnonzero(near_band(xs, y))
+        res = surface.drop(np.stack([xs[near], np.full(near.size, y)], 1))
+        ok = res.contact >= 0
+        ok[ok] = on_band(res.contact[ok])
+        inside = np.zeros(xs.size, dtype=bool)
+        inside[near] = ok
+        z = np.full(xs.size, np.nan)
+        z[near] = np.where(ok, res.z_mm, np.nan)
+        return inside, z
 
     if not 0.0 <= max_slope_deg < 90.0:
         raise ParameterError(f"max_slope_deg = {max_slope_deg}: must be in [0, 90)")
@@ -180,13 +186,15 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
                          length_mm=float(seg[feed[1:]].sum()), n_retracts=n_retracts, pass_index=pass_index)
 
 
-def _band(pts: np.ndarray, mask: np.ndarray, area: np.ndarray, s: float, margin_mm: float):
+def _band(pts: np.ndarray, mask: np.ndarray, area: np.ndarray, s: float, margin_mm: float, R: float):
     """The points a pass may rest on: the area's footprint on a square raster of ``s / 2`` cells
     (closed once), grown by ``margin_mm`` into the neighbours. Returns ``on_band``, a function of
-    point indices into ``pts`` (k,) -> (k,) bool (whether each of those points is in the band),
-    and the raster's lower and upper (x, y) corners ``lo``, ``hi`` (mm). Only the points a ball
-    rests on are ever asked about, so the band is not evaluated over the whole cloud (a region's
-    passes ask about a few thousand points of a cloud of a million)."""
+    point indices into ``pts`` (k,) -> (k,) bool (whether each of those points is in the band);
+    ``near_band``, a function of ``(xs (k,), y)`` -> (k,) bool, False only where no band point
+    lies within ``R`` of ``(x, y)`` in (x, y) (a ball of radius R dropped there cannot rest on
+    the band: it is not dropped); and the raster's lower and upper (x, y) corners ``lo``, ``hi``
+    (mm). Only the points a ball rests on are ever asked about, so the band is not evaluated over
+    the whole cloud (a region's passes ask about a few thousand points of a cloud of a million)."""
     # footprint raster (cells of s/2), grown by the margin: the band of points the ball may touch
     c = s / 2.0
     lo = area[:, :2].min(axis=0) - margin_mm - c
@@ -196,11 +204,28 @@ def _band(pts: np.ndarray, mask: np.ndarray, area: np.ndarray, s: float, margin_
     occ = np.zeros((nx, ny), dtype=bool)
     ij = np.floor((area[:, :2] - lo) / c).astype(np.int64)
     occ[ij[:, 0], ij[:, 1]] = True
+    foot = occ                                  # the cells of the area's own points (in the band whatever closing does)
     occ = ndimage.binary_closing(occ, iterations=1)
     if margin_mm > 0:
         r = int(np.ceil(margin_mm / c))
         yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
         occ = ndimage.binary_dilation(occ, structure=(xx * xx + yy * yy) * c * c <= margin_mm ** 2)
+    # cells within R of a band cell, on the raster padded by more than R: a band point p and a
+    # line (x, y) with |p - (x, y)| <= R lie in cells whose indices differ by less than R / c + 1
+    # per axis, so by less than R / c + sqrt(2) (< R / c + 1.5) between the cells' centres
+    pad = int(np.ceil(R / c)) + 2
+    grid = np.zeros((nx + 2 * pad, ny + 2 * pad), dtype=bool)
+    grid[pad:pad + nx, pad:pad + ny] = occ | foot
+    near = ndimage.distance_transform_edt(~grid) <= R / c + 1.5 if grid.any() else grid
+
+    def near_band(xs: np.ndarray, y: float) -> np.ndarray:
+        j = int(np.floor((y - lo[1]) / c)) + pad
+        if not 0 <= j < ny + 2 * pad:
+            return np.zeros(xs.size, dtype=bool)
+        i = np.floor((xs - lo[0]) / c).astype(np.int64) + pad
+        ok = (i >= 0) & (i < nx + 2 * pad)
+        ok[ok] = near[i[ok], j]
+        return ok
 
     def on_band(idx: np.ndarray) -> np.ndarray:
         ij = np.floor((pts[idx, :2] - lo) / c).astype(np.int64)
@@ -209,7 +234,7 @@ def _band(pts: np.ndarray, mask: np.ndarray, area: np.ndarray, s: float, margin_
         band[inr] |= occ[ij[inr, 0], ij[inr, 1]]
         return band
 
-    return on_band, lo, hi
+    return on_band, near_band, lo, hi
 
 
 def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float) -> list:

@@ -12,6 +12,8 @@ covered and overlap point counts and the proof, :class:`SetupSelection`) in
 * :mod:`~planning.setups.result`: :class:`SetupSelection` and its message;
 * :mod:`~planning.setups.heuristics`: greedy max coverage and local exchanges (incumbents, hints);
 * :mod:`~planning.setups.search` and :mod:`~planning.setups.bounds`: the branch and bound (default);
+* :mod:`~planning.setups.lagrange`: the price (LP dual) bound on the coverage of r axes, which proves
+  infeasibility and bounds the searches of the infeasible case;
 * :mod:`~planning.setups.cpsat`: the OR-Tools CP-SAT model (a cross-check);
 * :mod:`~planning.setups.bruteforce`: every combination, the reference for tests;
 * :mod:`~planning.setups.zones`: the functional zones of the configuration as a per-point mask.

@@ -27,7 +27,12 @@ either
   exchanges (:mod:`planning.setups.heuristics`).  The matrix products are small, so BLAS runs
   single-threaded during the call (see ``_single_threaded_blas``).  Measured
   (``bench/bench_setups.py``): the proven optimum for 100k bone-like normals x 145-206 axes, max 5
-  set-ups, in 0.2-0.9 s on the shared 2-core machine.
+  set-ups, in 0.2-0.9 s on the shared 2-core machine.  Infeasibility (no ``k <= max_setups``
+  reaches the coverage) is proven for every k at once by an upper bound on the coverage of
+  ``max_setups`` axes: Lagrangian prices of the classes from the dual of the LP relaxation of max
+  coverage (:mod:`planning.setups.lagrange`, HiGHS); where it falls short of the required count
+  no search runs for the proof, and the same prices then bound the search for the best-coverage
+  answer (``bench/bench_infeasible.py``).
 * ``"cpsat"``: OR-Tools CP-SAT over the same weighted classes (:mod:`planning.setups.cpsat`).  Exact
   too, but its overlap bound is 0 on this problem (``docs/design.md``, Performance, "Set-ups"); kept as
   an independent cross-check and as the model for side constraints.  It does not apply the index
@@ -109,7 +114,9 @@ def select_setups(visibility, *, coverage=0.95, max_setups=5, min_points=1, zone
     points seen by two or more chosen axes (overlap), subject to no point of ``zone_mask`` (functional
     zones) being seen by two chosen axes.  Ties: least overlap, then most covered points, then the
     smallest sorted tuple of axis indices.  When no ``k <= max_setups`` reaches the coverage the
-    result is ``"infeasible"`` with the best-coverage subset of at most ``max_setups`` axes.
+    result is ``"infeasible"`` with the best-coverage subset of at most ``max_setups`` axes (then
+    fewest axes, least overlap, smallest tuple); the branch and bound proves it with an LP bound on
+    the coverage of ``max_setups`` axes where it can, else by searching.
 
     ``solver``: ``"auto"`` (= ``"branch_and_bound"``: exact, and fast at scale because its bounds are
     combinatorial; CP-SAT's LP bound on the overlap is 0 here), ``"cpsat"`` (OR-Tools CP-SAT, one

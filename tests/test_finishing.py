@@ -208,3 +208,27 @@ def test_scallop_on_analytic_surfaces():
     cyl = np.stack([x, y, -5.0 + np.sqrt(np.maximum(rc * rc - y * y, 0.0)) - rc], 1)
     cp = finishing_passes(cyl, (np.abs(x) < 6) & (np.abs(y) < 4), radius_mm=R, scallop_mm=h, step_mm=0.5)
     assert _measured_scallop(cp, cyl, R, win) <= h + 0.002
+
+
+@pytest.mark.parametrize("adaptive", [True, False])
+def test_progress_is_told_of_the_passes_and_changes_nothing(adaptive, monkeypatch):
+    import planning.toolpath.finishing as fin_mod
+
+    pts = _plane()
+    area = (np.abs(pts[:, 0]) <= 10) & (np.abs(pts[:, 1]) <= 5)
+    kw = dict(radius_mm=3.0, scallop_mm=0.01, margin_mm=1.0, adaptive=adaptive)
+    plain = finishing_passes(pts, area, **kw)
+    calls = []
+    monkeypatch.setattr(fin_mod, "PROGRESS_EVERY_S", 0.0)       # every pass reports
+    told = finishing_passes(pts, area, progress=lambda f, m: calls.append((f, m)), **kw)
+    assert np.array_equal(told.cl_mm, plain.cl_mm) and np.array_equal(told.pass_index, plain.pass_index)
+    fr = [f for f, _ in calls]
+    assert all(0.0 <= f <= 1.0 for f in fr) and fr == sorted(fr) and fr[-1] == 1.0
+    n_pass = sum(m.startswith("pass ") and "/" in m and ":" not in m for _, m in calls)
+    assert n_pass >= plain.n_passes                   # once per pass (those without a run included)
+    assert all(m.startswith("pass ") for _, m in calls)
+    # throttled: a slow clock allows only the last call
+    calls.clear()
+    monkeypatch.setattr(fin_mod, "PROGRESS_EVERY_S", 1e9)
+    finishing_passes(pts, area, progress=lambda f, m: calls.append((f, m)), **kw)
+    assert len(calls) == 2 and calls[-1][0] == 1.0          # the first pass, then the end

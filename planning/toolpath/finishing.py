@@ -30,6 +30,8 @@ every cloud point at z <= 0). Parallel planes y = const (passes along X), zig-za
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +51,43 @@ from planning.toolpath.moves import (
 from planning.toolpath.verify import BinnedCloud, move_clearance
 
 _ADAPT_ROUNDS = 8   # fixed-point rounds of an adaptive side step
+
+#: :func:`finishing_passes` calls its ``progress`` at most this often (seconds), the last call aside.
+PROGRESS_EVERY_S = 0.1
+#: The share of ``progress``'s fraction that the passes take; making them safe and joining them the rest.
+PASSES_SHARE = 0.7
+
+
+class _Progress:
+    """Throttled progress of one :func:`finishing_passes` call (see its ``progress``)."""
+
+    def __init__(self, fn, y0: float, y1: float, s: float):
+        self.fn, self.y0, self.span, self.s = fn, y0, max(y1 - y0, 0.0), s
+        self.last = -math.inf
+
+    def _call(self, fraction: float, message: str, force: bool = False) -> None:
+        now = time.monotonic()
+        if force or now - self.last >= PROGRESS_EVERY_S:
+            self.last = now
+            self.fn(min(max(float(fraction), 0.0), 1.0), message)
+
+    def passed(self, k: int, y: float, total: int | None = None) -> None:
+        """Pass ``k`` (1-based) made at ``y``; ``total`` when known, else estimated from the step-over."""
+        if self.fn is None:
+            return
+        share = min((y - self.y0) / self.span, 1.0) if self.span > 0 else 1.0
+        if total is None:
+            total = k + max(int(math.ceil((self.y0 + self.span - y) / self.s - 1e-9)), 0)
+        self._call(PASSES_SHARE * share, f"pass {k}/~{total}")
+
+    def joining(self, n: int, share: float = 0.0, what: str = "making safe and linking") -> None:
+        """The ``n`` passes made; ``share`` in [0, 1] of making them safe and joining them done."""
+        if self.fn is not None:
+            self._call(PASSES_SHARE + (1.0 - PASSES_SHARE) * share, f"pass {n}/{n}: {what}")
+
+    def done(self, n: int) -> None:
+        if self.fn is not None:
+            self._call(1.0, f"pass {n}/{n}: done", force=True)
 
 
 def _max_dz(z_prev: np.ndarray, z_next: np.ndarray) -> float:
@@ -102,7 +141,8 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
                      zigzag: bool = True, tol_mm: float = 1e-3, safe_z_mm: float | None = None,
                      lead_mm: float = 1.0, link_max_mm: float | None = None, adaptive: bool = True,
                      max_slope_deg: float = 87.0, max_splits: int = 12,
-                     binned: BinnedCloud | None = None, surface: DropSurface | None = None) -> FinishingPath:
+                     binned: BinnedCloud | None = None, surface: DropSurface | None = None,
+                     progress: Callable[[float, str], None] | None = None) -> FinishingPath:
     """Ball-end finishing of one area (mm, area frame; see the module docstring).
 
     ``cloud_frame`` (N,3): every cloud point (and forbidden point); ``area_mask`` (N,) bool: the
@@ -124,7 +164,12 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
     ``binned``: ``cloud_frame`` already binned for the clearance queries (built here if None);
     ``surface``: ``cloud_frame`` already binned for ball drops of radius ``radius_mm``
     (:class:`planning.toolpath.balldrop.DropSurface`, built here if None; a caller finishing
-    several regions of one cloud shares one).
+    several regions of one cloud shares one);
+    ``progress``: called as ``progress(fraction, message)`` while the passes are made (``fraction``
+    in [0, 1] rises with the passes done: up to :data:`PASSES_SHARE` over the passes, by the
+    share of the y range they cover, the rest while they are made safe and joined; ``message``
+    like ``"pass 12/~80"``, the total estimated from the step-over), at most every
+    :data:`PROGRESS_EVERY_S` seconds, and once with 1.0 at the end (None: not called).
     """
     pts = np.asarray(cloud_frame, dtype=np.float64)
     mask = np.asarray(area_mask, dtype=bool).reshape(-1)
@@ -167,12 +212,16 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
     if not 0.0 <= max_slope_deg < 90.0:
         raise ParameterError(f"max_slope_deg = {max_slope_deg}: must be in [0, 90)")
     dy_min = s * math.cos(math.radians(max_slope_deg))
-    passes = _adaptive_passes(drop_pass, y0, y1, s, dy_min) if adaptive else _even_passes(drop_pass, y0, y1, s)
+    tell = _Progress(progress, y0, y1, s)
+    passes = _adaptive_passes(drop_pass, y0, y1, s, dy_min, tell) if adaptive else \
+        _even_passes(drop_pass, y0, y1, s, tell)
     stretches, n_done = _stretches(passes, xs, zigzag)
+    tell.joining(len(passes))
     if not stretches:
         raise ParameterError("no finishing pass lies on the area")
     cl, u, clear, pass_index, n_retracts = _join_stretches(
-        surface, tree, stretches, R, step, tol_mm, max_splits, lead_mm, safe, link_max if zigzag else -1.0)
+        surface, tree, stretches, R, step, tol_mm, max_splits, lead_mm, safe, link_max if zigzag else -1.0,
+        lambda share, what: tell.joining(len(passes), share, what))
     tp = lines(cl, u, tip_offset_mm=R)
     # moves not measured while being made safe (leads, plunges, retracts): measure them now
     feed = tp.kind == FEED
@@ -182,6 +231,7 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
         clear[todo] = _clr(cl, todo, tree, R)[todo]
     seg = np.linalg.norm(np.diff(cl, axis=0), axis=1)
     worst = float(np.nanmin(clear)) if np.isfinite(clear).any() else float("inf")
+    tell.done(len(passes))
     return FinishingPath(toolpath=tp, n_passes=n_done, step_over_mm=s, min_clearance_mm=worst,
                          length_mm=float(seg[feed[1:]].sum()), n_retracts=n_retracts, pass_index=pass_index)
 
@@ -237,13 +287,16 @@ def _band(pts: np.ndarray, mask: np.ndarray, area: np.ndarray, s: float, margin_
     return on_band, near_band, lo, hi
 
 
-def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float) -> list:
+def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float, tell=None) -> list:
     """Passes ``(y, inside, z)`` from ``y0`` to ``y1``, each side step the largest (<= ``s``, >=
-    ``dy_min``) that keeps neighbouring ball centres at most ``s`` apart in the cross-section."""
+    ``dy_min``) that keeps neighbouring ball centres at most ``s`` apart in the cross-section
+    (``tell``: a :class:`_Progress`, told of each pass)."""
     passes = []                                 # (y, inside, z)
     y, cur = y0, drop_pass(y0)
     while True:
         passes.append((y, *cur))
+        if tell is not None:
+            tell.passed(len(passes), y)
         if y >= y1 - 1e-9:
             break
         # the largest side step (<= s) whose neighbouring ball centres, at every x, are at most s
@@ -264,12 +317,15 @@ def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float) -
     return passes
 
 
-def _even_passes(drop_pass, y0: float, y1: float, s: float) -> list:
-    """Passes ``(y, inside, z)`` a constant ``s`` apart, centred on ``[y0, y1]``."""
+def _even_passes(drop_pass, y0: float, y1: float, s: float, tell=None) -> list:
+    """Passes ``(y, inside, z)`` a constant ``s`` apart, centred on ``[y0, y1]`` (``tell``: a
+    :class:`_Progress`, told of each pass)."""
     passes = []                                 # (y, inside, z)
     n_pass = max(1, int(np.ceil((y1 - y0) / s)) + 1)
     for y in 0.5 * (y0 + y1) + (np.arange(n_pass) - (n_pass - 1) / 2.0) * s:   # centred on the area
         passes.append((y, *drop_pass(y)))
+        if tell is not None:
+            tell.passed(len(passes), y, n_pass)
     return passes
 
 
@@ -296,15 +352,18 @@ def _stretches(passes: list, xs: np.ndarray, zigzag: bool):
     return stretches, n_done
 
 
-def _join_stretches(surface, tree, stretches, R, step, tol_mm, max_splits, lead_mm, safe, link_max):
+def _join_stretches(surface, tree, stretches, R, step, tol_mm, max_splits, lead_mm, safe, link_max, tick=None):
     """Make the stretches gouge safe (:func:`_make_safe_many`) and join them in order: a surface
     link where :func:`_links` finds one (``link_max`` < 0: never), else lead-out, retract, rapid
     and lead-in. Returns the CL points (P,3), the use of the move reaching each (P,), its
     clearance (NaN where not measured), the pass of each point (-1 off the passes) and the
-    number of retracts."""
+    number of retracts. ``tick(share done, what next)``, if given, is told of the steps."""
+    tick = tick or (lambda share, what: None)
     safe_lines = _make_safe_many(surface, tree, [ln for _, ln in stretches], R, tol_mm, max_splits)
     stretches = [(p, ln, cl) for (p, _), (ln, cl) in zip(stretches, safe_lines)]
+    tick(0.6, "ramps")
     ramp_in, ramp_out = _ramps(surface, tree, [ln for _, ln, _ in stretches], R, tol_mm, lead_mm, safe)
+    tick(0.7, "links")
     xyz, use, clr, pid = [], [], [], []
     n_retracts = 0
 

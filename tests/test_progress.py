@@ -59,5 +59,10 @@ def test_region_finishing_reports_each_region_by_its_share_of_the_points():
     got: list[tuple[float, str]] = []
     _region_finishing(pts, [left, ~left], BinnedCloud(pts, 0.75), fp, 3.0, 0.01, 20.0, 60.0,
                       progress=lambda f, m: got.append((f, m)))
-    assert [m for _, m in got[:2]] == ["region 1/2", "region 2/2"]
-    assert got[0][0] == 0.0 and got[1][0] == pytest.approx(left.sum() / left.size)
+    heads = [(f, m) for f, m in got if m.startswith("region") and "," not in m]
+    assert [m for _, m in heads] == ["region 1/2", "region 2/2"]
+    assert heads[0][0] == 0.0 and heads[1][0] == pytest.approx(left.sum() / left.size)
+    assert any(m.startswith("region 1/2, pass ") for _, m in got)      # the passes inside each region
+    assert any(m.startswith("region 2/2, pass ") for _, m in got)
+    fr = [f for f, _ in got]
+    assert all(b >= a - 1e-12 for a, b in zip(fr, fr[1:])) and fr[-1] == pytest.approx(1.0)

@@ -499,13 +499,17 @@ def _region_finishing(cloud_f, region_masks, binned: BinnedCloud, fp, R: float, 
     sizes = np.array([np.count_nonzero(m) for m in region_masks], dtype=np.float64)
     done_before = np.concatenate([[0.0], np.cumsum(sizes)]) / max(sizes.sum(), 1.0)
     for r, mask in enumerate(region_masks):
-        if progress is not None:         # regions by their share of the area's points
-            progress(done_before[r], f"region {r + 1}/{len(region_masks)}")
+        inner = None
+        if progress is not None:         # regions by their share of the area's points, passes inside
+            head = f"region {r + 1}/{len(region_masks)}"
+            progress(done_before[r], head)
+            inner = (lambda f, m, r=r, head=head:
+                     progress(done_before[r] + f * (done_before[r + 1] - done_before[r]), f"{head}, {m}"))
         try:
             fins.append(finishing_passes(cloud_f, mask, radius_mm=R, scallop_mm=fp.scallop_mm, step_mm=fp.step_mm,
                                          margin_mm=fp.margin_mm, zigzag=fp.pattern == "zigzag", tol_mm=tol,
                                          safe_z_mm=safe, lead_mm=fp.lead_mm, max_slope_deg=max_slope_deg,
-                                         binned=binned, surface=surface))
+                                         binned=binned, surface=surface, progress=inner))
         except ParameterError as e:
             if len(region_masks) == 1:
                 raise

@@ -185,3 +185,21 @@ def test_the_underside_counts_only_inside_the_footprint():
         near = np.abs(x - 50.0 - reach) < 0.4
         assert np.array_equal(got[~near], want[~near]), z
     assert not fp.below_floor(np.array([[0.0, 0.0, 5.5]]), R, 0.01)[0]        # ball above the floor
+
+
+def test_progress_moves_from_0_to_1_and_leaves_the_outcome_alone():
+    """issue 17: ``progress(fraction, message)`` per round, fractions rising in [0, 1] and ending at 1;
+    the outcome is the one without it. The obstacle check, kept across the rounds, finds the same."""
+    f = _frame()
+    tp = _tp([[0, 0, 10], [0, 0, -2], [20, 0, -2], [20, 5, 10]], [RAPID, RAPID, FEED, RAPID])
+    table = TriDexel.box([-60, -60, -60], [60, 60, -50], 1.0, domain_lo=[-60, -60, -60], domain_hi=[60, 60, 60])
+    calls = []
+    g = guard_toolpath(tp, f, FLAT, _slab(), table, None, safe_z_mm=10.0, rapid_clearance_mm=0.0,
+                       progress=lambda x, msg: calls.append((x, msg)))
+    ref = guard_toolpath(tp, f, FLAT, _slab(), table, None, safe_z_mm=10.0, rapid_clearance_mm=0.0)
+    assert g.rounds == ref.rounds >= 2
+    assert np.array_equal(g.toolpath.xyz_mm, ref.toolpath.xyz_mm) and g.removed_mm3 == ref.removed_mm3
+    fr = [c[0] for c in calls]
+    assert len(calls) >= 2 and fr[-1] == 1.0 and all(0.0 <= x <= 1.0 for x in fr)
+    assert all(b >= a for a, b in zip(fr, fr[1:]))
+    assert all(isinstance(c[1], str) and c[1] for c in calls)

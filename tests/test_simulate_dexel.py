@@ -448,3 +448,29 @@ def test_stock_mesh_is_closed_with_the_right_volume(method):
     V, F = stock_mesh(b, method=method)
     assert closed_edges(F) if method == "marching_cubes" else True
     assert abs(mesh_volume(V, F) - b.volume_mm3()) < 0.02 * exact
+
+
+def test_progress_of_simulate_moves_and_collide_ends_at_one_and_changes_nothing():
+    """issue 17: the optional ``progress(fraction, message)``: fractions rising to 1.0, results
+    identical to a run without it (chunks of 50 moves here, so it is called more than once)."""
+    from planning.simulate import dexel as D
+
+    x = np.linspace(-8, 8, 201)
+    s = np.stack([x[:-1], np.zeros(200), np.full(200, 4.0)], 1)
+    e = np.stack([x[1:], np.zeros(200), np.full(200, 4.0)], 1)
+    a = np.tile([0.0, 0.0, 1.0], (200, 1))
+    kind = np.full(200, FEED)
+    calls = []
+    one, two = TriDexel.box([-10, -10, 0], [10, 10, 5], 0.5), TriDexel.box([-10, -10, 0], [10, 10, 5], 0.5)
+    old = D.CHUNK
+    try:
+        D.CHUNK = 50
+        r1 = simulate_moves(one, s, e, a, BALL3, kind, progress=lambda f, m: calls.append(f))
+        r2 = simulate_moves(two, s, e, a, BALL3, kind)
+    finally:
+        D.CHUNK = old
+    assert np.array_equal(r1.removed_mm3, r2.removed_mm3) and np.array_equal(r1.holder_depth_mm, r2.holder_depth_mm)
+    assert calls and calls[-1] == 1.0 and all(b >= a_ for a_, b in zip(calls, calls[1:]))
+    calls.clear()
+    d1 = collide(one, s, e, a, BALL3, "tool", progress=lambda f, m: calls.append(f))
+    assert np.array_equal(d1, collide(one, s, e, a, BALL3, "tool")) and calls[-1] == 1.0

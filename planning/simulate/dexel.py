@@ -49,7 +49,9 @@ shows that much, so a buried holder does not cost every ray of its footprint.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
 
 import numba
@@ -400,12 +402,46 @@ def _as_moves(start, end, axis):
     return s, e, np.ascontiguousarray(a / nrm)
 
 
+#: A progress callback: ``progress(fraction done in [0, 1], short message)``.
+Progress = Callable[[float, str], None]
+
+
+class Throttled:
+    """``progress`` passed on at most once per ``min_interval_s`` (the first and the last call, 1.0,
+    always), the fraction clipped to [0, 1] and never going back. A None ``progress`` makes every
+    call a no-op."""
+
+    def __init__(self, progress: Progress | None, min_interval_s: float = 0.1):
+        self.progress = progress
+        self.min_interval_s = float(min_interval_s)
+        self.last_t = -math.inf
+        self.last_f = 0.0
+
+    def __call__(self, fraction: float, message: str) -> None:
+        if self.progress is None:
+            return
+        f = max(self.last_f, min(1.0, max(0.0, float(fraction))))
+        now = time.monotonic()
+        if f < 1.0 and now - self.last_t < self.min_interval_s:
+            return
+        if f >= 1.0 and self.last_f >= 1.0:
+            return
+        self.last_t, self.last_f = now, f
+        self.progress(f, message)
+
+    def part(self, lo: float, hi: float) -> Progress:
+        """A callback mapping [0, 1] onto [lo, hi] of this one (same throttle)."""
+        return lambda f, msg: self(lo + (hi - lo) * min(1.0, max(0.0, float(f))), msg)
+
+
 def _run(model: TriDexel, start, end, axis, pieces, mode, grow=None, depth_cap_mm: float = math.inf,
-         chunk: int = CHUNK):
+         chunk: int | None = None, progress: Progress | None = None, what: str = "moves"):
     """The kernel over all moves in chunks. Returns (length removed/added per move summed over the
-    families, (3,P) largest overlap per family, rays evaluated)."""
+    families, (3,P) largest overlap per family, rays evaluated). ``progress(fraction, message)`` after
+    every chunk (the caller throttles it)."""
     s, e, a = _as_moves(start, end, axis)
     P = s.shape[0]
+    chunk = CHUNK if chunk is None else int(chunk)
     mode = np.ascontiguousarray(np.broadcast_to(np.asarray(mode, np.int64), (P,)))
     grow = np.zeros(P) if grow is None else np.ascontiguousarray(np.broadcast_to(np.asarray(grow, float), (P,)))
     d = e - s
@@ -436,14 +472,20 @@ def _run(model: TriDexel, start, end, axis, pieces, mode, grow=None, depth_cap_m
             def task(t, model=model):
                 K.run_task(t, model.lo, model.res, model.n, model.base, model.sbase, model.nseg, model.seg_lo,
                            model.seg_hi, model.tbase, model.tile_lo, model.tile_hi, model.dirty, model.off, model.cnt,
-                           model.cap, model.pool, model.t_fam, model.t_res, model.t_mod, model.t_top, model.t_end, t_next,
-                           t_status, mptr, midx, cs, cd, ca, cm, cz, pk, pz0, pz1, pr, pcut, cg,
+                           model.cap, model.pool, model.t_fam, model.t_res, model.t_mod, model.t_top, model.t_end,
+                           t_next, t_status, mptr, midx, cs, cd, ca, cm, cz, pk, pz0, pz1, pr, pcut, cg,
                            float(depth_cap_mm), rem, dep, vis)
             # one job per row residue, running its tasks of the three families: the residues share
             # the work evenly wherever the tool goes
             jobs = [[t for t in range(T) if model.t_res[t] == q and t_next[t] < mptr[t + 1]]
                     for q in range(int(model.t_mod.max()))]
-            _map(lambda ts: [task(t) for t in ts], [j for j in jobs if j])
+            poll = None
+            if progress is not None:
+                def poll(c0=c0, M=M, mptr=mptr, t_next=t_next):
+                    # the tasks' moves done so far (t_next moves on as they run)
+                    done = float((t_next - mptr[:-1]).sum()) / max(1, int(mptr[-1]))
+                    progress((c0 + done * M) / P, f"{what} {c0 + int(done * M)} of {P}")
+            _map(lambda ts: [task(t) for t in ts], [j for j in jobs if j], poll)
             if not t_status.any():
                 break
             model._repack(t_status)
@@ -453,6 +495,8 @@ def _run(model: TriDexel, start, end, axis, pieces, mode, grow=None, depth_cap_m
         for f in range(3):
             depth[f, sl] = dep[model.t_fam == f].max(0, initial=0.0)
         visits += int(vis.sum())
+        if progress is not None:
+            progress(sl.stop / P, f"{what} {sl.stop} of {P}")
     return removed, depth, visits
 
 
@@ -460,18 +504,23 @@ _POOL: ThreadPoolExecutor | None = None
 _POOL_SIZE = 0
 
 
-def _map(fn, items) -> None:
-    """Run ``fn`` over ``items`` on ``numba.get_num_threads()`` threads (the kernels release the GIL)."""
+def _map(fn, items, poll: Callable[[], None] | None = None) -> None:
+    """Run ``fn`` over ``items`` on ``numba.get_num_threads()`` threads (the kernels release the GIL);
+    with ``poll``, on the pool even for one thread, calling ``poll()`` every 0.1 s while waiting."""
     global _POOL, _POOL_SIZE
     nth = max(1, numba.get_num_threads())
-    if nth == 1 or len(items) <= 1:
+    if poll is None and (nth == 1 or len(items) <= 1):
         for it in items:
             fn(it)
         return
     if _POOL is None or _POOL_SIZE != nth:
         _POOL = ThreadPoolExecutor(max_workers=nth, thread_name_prefix="dexel")
         _POOL_SIZE = nth
-    for fut in [_POOL.submit(fn, it) for it in items]:
+    futs = [_POOL.submit(fn, it) for it in items]
+    if poll is not None:
+        while wait(futs, timeout=0.1).not_done:
+            poll()
+    for fut in futs:
         fut.result()
 
 
@@ -513,20 +562,23 @@ def cut(stock: TriDexel, start, end, axis, shape: ToolShape, kind=None, *, bull_
 
 
 def simulate_moves(stock: TriDexel, start, end, axis, shape: ToolShape, kind, *, rapid_clearance_mm: float = 0.0,
-                   depth_cap_mm: float = DEPTH_CAP_MM, bull_tol_mm: float | None = None) -> MoveRun:
+                   depth_cap_mm: float = DEPTH_CAP_MM, bull_tol_mm: float | None = None,
+                   progress: Progress | None = None) -> MoveRun:
     """Run moves on ``stock`` in program order (in place): a FEED move cuts with the cutting part
     and measures its non-cutting pieces (shank, holder) against the stock (before its own cut
     when the tool moves towards the spindle, where the shank leads, else after it; both exact for
     the move's own sweep); a RAPID measures the whole tool, grown by ``rapid_clearance_mm``
     (radius and both ends), and cuts nothing. Depths saturate at ``depth_cap_mm``. See
-    :class:`MoveRun`."""
+    :class:`MoveRun`. ``progress(fraction of the moves done, message)``: after every chunk of
+    :data:`CHUNK` moves, at most ~10 times a second (the last call, 1.0, always)."""
     s, e, a = _as_moves(start, end, axis)
     P = s.shape[0]
     kind = np.asarray(kind).reshape(-1)
     tol = stock.res / 4 if bull_tol_mm is None else bull_tol_mm
     modes = _modes(kind, P, K.M_CUT | K.M_HOLDER, K.M_HOLDER | K.M_TOOL)
     grow = np.where(kind == RAPID, float(rapid_clearance_mm), 0.0)
-    removed, dep, visits = _run(stock, s, e, a, tool_pieces(shape, tol), modes, grow, depth_cap_mm)
+    removed, dep, visits = _run(stock, s, e, a, tool_pieces(shape, tol), modes, grow, depth_cap_mm,
+                                progress=None if progress is None else Throttled(progress))
     depth = _depth(dep, a)
     rapid = kind == RAPID
     return MoveRun(removed_mm3=np.where(rapid, 0.0, removed * stock.res ** 2 / 3.0),
@@ -535,12 +587,14 @@ def simulate_moves(stock: TriDexel, start, end, axis, shape: ToolShape, kind, *,
 
 
 def collide(model: TriDexel, start, end, axis, shape: ToolShape, which="holder", *, grow_mm: float = 0.0,
-            depth_cap_mm: float = DEPTH_CAP_MM, bull_tol_mm: float | None = None) -> np.ndarray:
+            depth_cap_mm: float = DEPTH_CAP_MM, bull_tol_mm: float | None = None,
+            progress: Progress | None = None) -> np.ndarray:
     """(P,) how far the swept tool is in ``model``'s material (the stock, or the obstacles: fixtures,
     riser, table), mm; 0 when clear (module docstring: "Collision depth"). ``which``: ``"holder"``
     (the non-cutting pieces only), ``"tool"`` (the whole tool), or a (P,) bool array (True: whole
     tool). ``grow_mm`` enlarges the measured pieces (radius and both ends). Depths saturate at
-    ``depth_cap_mm``. ``model`` is unchanged; only material inside its domain is seen."""
+    ``depth_cap_mm``. ``model`` is unchanged; only material inside its domain is seen.
+    ``progress``: as :func:`simulate_moves`'."""
     s, e, a = _as_moves(start, end, axis)
     P = s.shape[0]
     if isinstance(which, str):
@@ -553,7 +607,8 @@ def collide(model: TriDexel, start, end, axis, shape: ToolShape, which="holder",
             raise ValueError("which must be (P,)")
         modes = np.where(w, K.M_HOLDER | K.M_TOOL, K.M_HOLDER).astype(np.int64)
     tol = model.res / 4 if bull_tol_mm is None else bull_tol_mm
-    _, dep, _ = _run(model, s, e, a, tool_pieces(shape, tol), modes, np.full(P, float(grow_mm)), depth_cap_mm)
+    _, dep, _ = _run(model, s, e, a, tool_pieces(shape, tol), modes, np.full(P, float(grow_mm)), depth_cap_mm,
+                     progress=None if progress is None else Throttled(progress), what="collision checks")
     return _depth(dep, a)
 
 

@@ -747,6 +747,7 @@ def run_task(t, lo, res, n, base, sbase, nseg, seg_lo, seg_hi, tbase, tile_lo, t
         if st != 0:
             break
         q += 1
+        t_next[t] = q              # read by the caller's progress while the task runs
     visits[t] += nvis
     t_next[t] = q
     t_status[t] = st

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planning.simulate.dexel import TriDexel, collide, simulate_moves
+from planning.simulate.dexel import Progress, Throttled, TriDexel, collide, simulate_moves
 from planning.simulate.kinematics import MachineModel, arc_chords
 from planning.simulate.motion import FEED as SIM_FEED
 from planning.simulate.motion import RAPID as SIM_RAPID
@@ -145,16 +145,54 @@ class Offences:
         return {k: int(getattr(self, k).sum()) for k in ("rapid", "holder", "fixture", "travel")}
 
 
+class _FixtureMemo:
+    """The obstacle check of :func:`run_on_stock` per part move, kept across the repair rounds of one
+    operation: it depends on the move alone (the obstacles do not change, the tool and its axis are
+    the operation's), so a round checks only the moves the previous rounds did not."""
+
+    def __init__(self):
+        self.keys = np.zeros((0, 6))
+        self.hit = np.zeros(0, dtype=bool)
+
+    def check(self, obstacles: TriDexel, pm: PartMoves, ax: np.ndarray, shape: ToolShape, progress=None):
+        key = np.ascontiguousarray(np.concatenate([pm.start, pm.end], axis=1))
+        n = key.shape[0]
+        out = np.zeros(n, dtype=bool)
+        known = np.zeros(n, dtype=bool)
+        if self.keys.shape[0]:
+            row = np.dtype((np.void, key.dtype.itemsize * 6))
+            old = self.keys.view(row).ravel()
+            new = key.view(row).ravel()
+            order = np.argsort(old, kind="stable")
+            pos = np.searchsorted(old[order], new)
+            pos = np.minimum(pos, old.shape[0] - 1)
+            known = old[order][pos] == new
+            out[known] = self.hit[order[pos[known]]]
+        todo = np.flatnonzero(~known)
+        if todo.size:
+            out[todo] = collide(obstacles, pm.start[todo], pm.end[todo], ax[todo], shape, which="tool",
+                                progress=progress) > 0
+        self.keys, self.hit = key, out
+        return out
+
+
 def run_on_stock(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriDexel, obstacles: TriDexel | None,
-                 machine: SetupMachine | None, *, rapid_clearance_mm: float) -> tuple[Offences, TriDexel, np.ndarray]:
+                 machine: SetupMachine | None, *, rapid_clearance_mm: float, progress: Progress | None = None,
+                 _fixtures: _FixtureMemo | None = None) -> tuple[Offences, TriDexel, np.ndarray]:
     """Steps 1-2 of the module docstring: ``(offences per toolpath move, the stock after the moves
-    (a copy; ``stock`` is unchanged), removed volume per toolpath move mm^3)``."""
+    (a copy; ``stock`` is unchanged), removed volume per toolpath move mm^3)``. ``progress``:
+    ``progress(fraction, message)`` (unthrottled: the caller's)."""
     pm = part_moves(tp, frame)
     P = tp.n_moves
     n = pm.start.shape[0]
     ax = np.broadcast_to(pm.axis, (n, 3))
     after = stock.copy()
-    run = simulate_moves(after, pm.start, pm.end, ax, shape, pm.kind, rapid_clearance_mm=rapid_clearance_mm)
+    sim_part = fix_part = None
+    if progress is not None:
+        sim_part = lambda f, msg: progress(0.8 * f, f"stock: {msg}")            # noqa: E731
+        fix_part = lambda f, msg: progress(0.8 + 0.2 * f, f"fixtures: {msg}")   # noqa: E731
+    run = simulate_moves(after, pm.start, pm.end, ax, shape, pm.kind, rapid_clearance_mm=rapid_clearance_mm,
+                         progress=sim_part)
 
     def per_move(flag: np.ndarray) -> np.ndarray:
         out = np.zeros(P, dtype=bool)
@@ -163,7 +201,7 @@ def run_on_stock(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriDex
 
     fixture = np.zeros(n, dtype=bool)
     if obstacles is not None:
-        fixture = collide(obstacles, pm.start, pm.end, ax, shape, which="tool") > 0
+        fixture = (_FixtureMemo() if _fixtures is None else _fixtures).check(obstacles, pm, ax, shape, fix_part)
     travel = np.zeros(n, dtype=bool)
     if machine is not None:
         travel = ~machine.travel_ok(pm.end, shape.gauge_length_mm)
@@ -325,7 +363,7 @@ def _truncate(tp: Toolpath, pass_index, first_bad: int, safe_z_mm: float):
 
 def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriDexel, obstacles: TriDexel | None,
                    machine: SetupMachine | None, *, safe_z_mm: float, pass_index=None, rapid_clearance_mm: float = 0.5,
-                   max_rounds: int = 4) -> GuardOutcome:
+                   max_rounds: int = 4, progress: Progress | None = None) -> GuardOutcome:
     """Guard one operation (module docstring). ``tp``: the toolpath in ``frame``; ``shape``: the
     tool that runs it (simulation shape, its gauge length for the travel); ``stock``: the stock
     before it (unchanged: the outcome carries the stock after); ``obstacles``: fixtures, riser and
@@ -333,16 +371,35 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
     ``safe_z_mm``: the retract height of the toolpath's reference point (area frame);
     ``pass_index``: (P,) kept aligned through the cuts; ``rapid_clearance_mm``: a rapid must stay
     this far from material (mm; a margin over the verification's own clearance, so the posted
-    programs' rounding does not turn a grazing rapid into an offence)."""
+    programs' rounding does not turn a grazing rapid into an offence); ``progress``:
+    ``progress(fraction in [0, 1], message)`` while the rounds run (the first round takes the
+    first 70 %, each further one half of what is left; 1.0 at the end), at most ~10 calls a
+    second."""
     from planning.toolpath.safety import cut_moves
+
+    prog = Throttled(progress)
+    fixtures = _FixtureMemo()
+    lo, span = 0.0, 0.7
+
+    def round_progress(rnd: int):
+        if progress is None:
+            return None
+        part = prog.part(lo, lo + span)
+        return lambda f, msg: part(f, f"guard round {rnd + 1}, {msg}")
+
+    def finish(out: GuardOutcome) -> GuardOutcome:
+        prog(1.0, f"guard done in {out.rounds} round(s)")
+        return out
 
     out = GuardOutcome(toolpath=tp, pass_index=pass_index, stock=stock)
     for rnd in range(max_rounds + 1):
         if tp.n_moves == 0:                    # nothing (left) to run
             out.toolpath, out.pass_index, out.rounds = tp, pass_index, rnd
-            return out
+            return finish(out)
         off, after, removed = run_on_stock(tp, frame, shape, stock, obstacles, machine,
-                                           rapid_clearance_mm=rapid_clearance_mm)
+                                           rapid_clearance_mm=rapid_clearance_mm, progress=round_progress(rnd),
+                                           _fixtures=fixtures)
+        lo, span = lo + span, 0.5 * (1.0 - lo - span)
         out.rounds = rnd + 1
         if rnd == 0:
             out.found = off.counts()
@@ -352,7 +409,7 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
             tp, pass_index = _without_null_moves(tp, pass_index)
             out.toolpath, out.pass_index, out.stock = tp, pass_index, after
             out.removed_mm3 = float(removed.sum())
-            return out
+            return finish(out)
         if rnd == max_rounds:
             break
         rapid_only = off.rapid & ~(off.holder | off.fixture | off.travel)
@@ -381,7 +438,8 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
     tp, pass_index = _truncate(tp, pass_index, first, safe_z_mm)
     tp, pass_index = _without_null_moves(tp, pass_index)
     off, after, removed = run_on_stock(tp, frame, shape, stock, obstacles, machine,
-                                       rapid_clearance_mm=rapid_clearance_mm)
+                                       rapid_clearance_mm=rapid_clearance_mm,
+                                       progress=round_progress(max_rounds + 1), _fixtures=fixtures)
     out.toolpath, out.pass_index, out.stock = tp, pass_index, after
     out.removed_mm3 = float(removed.sum())
-    return out
+    return finish(out)

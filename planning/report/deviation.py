@@ -41,13 +41,22 @@ def write_deviation_ply(path, points: np.ndarray, dev: np.ndarray, limit_mm: flo
 
 
 def write_mesh_ply(path, vertices: np.ndarray, faces: np.ndarray) -> None:
-    """A triangle mesh (vertices (V,3) mm, faces (F,3) indices) as binary PLY."""
-    v = np.empty(vertices.shape[0], dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    """A triangle mesh (vertices (V,3) mm, faces (F,3) indices) as binary PLY: plyfile's header
+    (float ``x y z``; ``list uchar int vertex_indices``) and the bytes its writer would give, packed
+    by numpy in one go (plyfile writes a list property row by row)."""
+    v = np.empty(vertices.shape[0], dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
     v["x"], v["y"], v["z"] = vertices[:, 0], vertices[:, 1], vertices[:, 2]
-    f = np.empty(faces.shape[0], dtype=[("vertex_indices", "i4", (3,))])
+    f = np.empty(faces.shape[0], dtype=[("vertex_indices", "<i4", (3,))])
     f["vertex_indices"] = faces.astype(np.int32)
+    header = PlyData([PlyElement.describe(v, "vertex"), PlyElement.describe(f, "face")], byte_order="<").header
+    rows = np.empty(faces.shape[0], dtype=[("n", "u1"), ("vertex_indices", "<i4", (3,))])   # packed: 13 bytes
+    rows["n"] = 3
+    rows["vertex_indices"] = f["vertex_indices"]
     with atomic_path(path) as tmp:
-        PlyData([PlyElement.describe(v, "vertex"), PlyElement.describe(f, "face")], byte_order="<").write(str(tmp))
+        with open(tmp, "wb") as fh:
+            fh.write(header.encode("ascii") + b"\n")
+            fh.write(v.tobytes())
+            fh.write(rows.tobytes())
 
 
 def render_deviation_png(path, points: np.ndarray, dev: np.ndarray, limit_mm: float, title: str = "") -> None:

@@ -211,3 +211,15 @@ def test_lp_prices_prove_a_clear_infeasibility_at_the_root(monkeypatch):
     r = select_setups(V, coverage=0.95, max_setups=2)
     assert (r.status, r.covered, r.selected.tolist()) == ("infeasible", 20, [0, 1])
     assert not any(first for _, _, first in runs)  # no existence search was needed
+
+
+@pytest.mark.parametrize("seed", range(60))
+def test_searches_restarted_with_prices_keep_the_exact_answer(seed, monkeypatch):
+    """With no probe budget every existence search of the feasible case restarts with the prices at
+    once, and the least-overlap search always has them: the same answers."""
+    monkeypatch.setattr(search, "_PROBE_NODES", 0)
+    monkeypatch.setattr(search, "_NEAR_CEILING", 1.0)
+    rng = np.random.default_rng(seed)
+    V, params = hard_instance(1000 + seed)
+    params.update(coverage=float(rng.choice([0.4, 0.6, 0.75])), max_setups=int(rng.integers(3, 6)))
+    assert_same(V, **params)

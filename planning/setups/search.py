@@ -65,6 +65,20 @@ class _Found(Exception):
     pass
 
 
+class _Budget(Exception):
+    """A probe search without prices visited more nodes than ``max_nodes``: worth the LP."""
+
+
+# nodes an existence search runs without prices before the price bound is computed and the search
+# restarted with it (a search that needs more is a hard one; the LP then costs less than the nodes
+# it saves, and often settles the search at the root)
+_PROBE_NODES = 40
+# the least-overlap search at k* gets the prices where greedy's k* axes cover at most this share of
+# the points more than required: near the largest coverage the price bound prunes most subtrees
+# (femur-like, 0.94: 677 -> 93 nodes), far below it it prunes little and costs a Gram product a node
+_NEAR_CEILING = 0.005
+
+
 class _Search:
     """Exact DFS over k-subsets of reduced axes (one run = one k, one mode).
 
@@ -82,7 +96,7 @@ class _Search:
     """
 
     def __init__(self, prob: _Problem, k: int, mode: str, floor: float, deadline: float,
-                 incumbent=None, stop_at_first=False, progress=None, prices=None):
+                 incumbent=None, stop_at_first=False, progress=None, prices=None, max_nodes=None):
         self.p = prob
         # Lagrangian prices of the classes (planning.setups.lagrange), or None: no price bound
         self.mu = None if prices is None else np.asarray(prices, dtype=prob.ftype)
@@ -106,6 +120,7 @@ class _Search:
         self.nodes = 0
         self.progress = progress
         self.timeout_bound = None
+        self.max_nodes = max_nodes
 
     # incumbent handling -------------------------------------------------------------------
     def _offer(self, sel, cov, ov):
@@ -173,6 +188,8 @@ class _Search:
 
     def _node(self, node, r):
         self.nodes += 1
+        if self.max_nodes is not None and self.nodes > self.max_nodes:
+            raise _Budget
         if r == 1:
             self._leaves1(node)
         elif r == 2:
@@ -462,15 +479,21 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
     Where greedy does not reach the coverage with K axes, the price bound of
     :mod:`planning.setups.lagrange` (the LP dual of max coverage with K axes) is tried first: below
     ``prob.required`` it proves at once that no k <= K reaches it (coverage never falls as axes are
-    added, and the bound holds for fewer axes too), and its prices then bound every search."""
+    added, and the bound holds for fewer axes too), and its prices then bound every search.  Where
+    greedy reaches it, the existence searches first run without prices; one that needs more than
+    ``_PROBE_NODES`` nodes is restarted with the prices for its k (often settled by the root bound
+    then).  The least-overlap search gets the prices for k* where the required coverage lies within
+    ``_NEAR_CEILING`` of greedy's (see there)."""
     req = prob.required
     heur = _heuristics(prob, K)
     kmax = min(K, prob.m)
     prices = bound = None
+    price_r = None  # the number of axes the prices were computed for
     if kmax >= 1 and not (kmax in heur and heur[kmax][1] >= req):
         if progress:
             progress(0.05, f"can {kmax} set-ups reach the coverage at all?")
         prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0])
+        price_r = kmax
         if bound < req:
             sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound)
             return _Outcome("infeasible", sel, None, note)
@@ -481,22 +504,36 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
         if k in heur and heur[k][1] >= req:
             kstar, found = k, heur[k][0]
             break
-        s = _Search(prob, k, "cover", req, deadline, stop_at_first=True, prices=prices)
+        s = _Search(prob, k, "cover", req, deadline, stop_at_first=True, prices=prices,
+                    max_nodes=None if prices is not None else _PROBE_NODES)
         try:
-            s.run()
+            try:
+                s.run()
+            except _Budget:  # a hard proof: the prices for k, then the search again with them
+                prices, _ = _prices(prob, k, heur.get(k, (None,))[0])
+                price_r = k
+                s_all = prob.AT.astype(np.float64) @ prices
+                if float(prob.w.sum()) - float(prices.sum()) + _top_r_sum(s_all, k) < req:
+                    continue  # proven at the root: no k axes reach the coverage
+                s = _Search(prob, k, "cover", req, deadline, stop_at_first=True, prices=prices)
+                s.run()
         except _Timeout:
             return _timeout_fallback(prob, heur, k, kmax)
         if s.best_sel is not None:
             kstar, found = k, s.best_sel
             break
     if kstar is None:
-        if prices is None:
+        if price_r != kmax:
             prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0])
         sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound)
         return _Outcome("infeasible", sel, None, note)
     # stage 2: least overlap at k*
     inc = _local_search(prob, found, "overlap", req)
+    if price_r != kstar and kstar in heur and heur[kstar][1] - req <= _NEAR_CEILING * prob.n:
+        prices, _ = _prices(prob, kstar, heur[kstar][0])
+        price_r = kstar
     s = _Search(prob, kstar, "overlap", req, deadline, incumbent=inc,
+                prices=prices if price_r == kstar else None,
                 progress=_progress_fn(progress, 0.3, 1.0, f"least overlap with {kstar} set-ups"))
     try:
         s.run()

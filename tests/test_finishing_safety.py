@@ -352,6 +352,27 @@ def test_unmachined_points_equal_the_brute_force_reference():
     assert not unmachined_points(np.array([[R + reach, 0, 0]]), np.zeros((1, 3)), R, reach)[0]
 
 
+def test_unmachined_points_grid_equals_the_kd_tree_on_many_points_and_at_the_reach():
+    # the parallel kernel (>= 20000 points), points far outside the centres' box, and points on the
+    # sphere of radius R + reach about a centre (within rounding, both sides) as a KD-tree decides
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(11)
+    R, reach = 3.0, 0.04
+    lim = R + reach
+    g = np.arange(-30, 30, 0.7)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    cen = np.stack([X.ravel(), Y.ravel(), 0.1 * np.sin(X.ravel())], 1)
+    u = rng.normal(size=(5000, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    on_sphere = cen[rng.integers(0, cen.shape[0], 5000)] + u * lim * (1 + rng.uniform(-1e-12, 1e-12, (5000, 1)))
+    pts = np.concatenate([rng.uniform(-40, 40, (30000, 3)) * [1, 1, 0.15], on_sphere, [[500.0, 0, 0], [0, 0, -99.0]]])
+    d, _ = cKDTree(cen).query(pts, k=1, distance_upper_bound=lim * (1 + 1e-12) + 1e-12)
+    got = unmachined_points(pts, cen, R, reach)
+    np.testing.assert_array_equal(got, ~(d <= lim))
+    assert got.any() and not got.all()
+
+
 # ------------------------------------------------------------------------------------------- guard_finishing
 
 def test_guard_shortens_pieces_whose_link_column_meets_an_overhang():

@@ -54,6 +54,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from planning.errors import ParameterError
@@ -62,6 +63,7 @@ from planning.geometry.fixtures import fixture_collision_free
 from planning.geometry.tool import ToolAssembly
 from planning.toolpath.finishing import FinishingPath
 from planning.toolpath.frames import AreaFrame
+from planning.toolpath.verify import serial_twin
 from planning.toolpath.moves import (
     ARC_CCW,
     ARC_CW,
@@ -409,16 +411,100 @@ def unmachined_points(area_points_frame, kept_centres_frame, radius_mm: float, r
     finished when some centre ``c`` has ``|p - c| <= R + reach_mm``: ``|p - c| - R`` is how far
     ``p`` lies outside the ball at ``c``, i.e. the material the ball leaves at ``p`` at most.
     ``reach_mm`` therefore is the material allowed to remain plus the slack of sampling the
-    moves at their CL points only (see :func:`finished_reach_mm`). KD-tree, vectorised."""
-    pts = np.asarray(area_points_frame, dtype=np.float64).reshape(-1, 3)
+    moves at their CL points only (see :func:`finished_reach_mm`). The centres are binned on a
+    cubic grid of cells a little over half ``R + reach_mm`` wide; each point looks at the centres
+    of the cells near enough and stops at the first centre near enough (numba, parallel over the
+    points; the same ``sqrt(dx^2 + dy^2 + dz^2) <= R + reach_mm`` as a KD-tree query)."""
+    pts = np.ascontiguousarray(np.asarray(area_points_frame, dtype=np.float64).reshape(-1, 3))
     cen = np.asarray(kept_centres_frame, dtype=np.float64).reshape(-1, 3)
     if pts.shape[0] == 0:
         return np.zeros(0, dtype=bool)
     if cen.shape[0] == 0:
         return np.ones(pts.shape[0], dtype=bool)
     lim = float(radius_mm) + float(reach_mm)
-    d, _ = cKDTree(cen).query(pts, k=1, distance_upper_bound=lim * (1 + 1e-12) + 1e-12)
-    return ~(d <= lim)
+    if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(cen)) and math.isfinite(lim) and lim > 0):
+        # the KD-tree's answer where the grid cannot be built
+        d, _ = cKDTree(cen).query(pts, k=1, distance_upper_bound=lim * (1 + 1e-12) + 1e-12)
+        return ~(d <= lim)
+    lo = cen.min(axis=0)
+    ext = cen.max(axis=0) - lo
+    # cells at least lim / _SUB wide (a centre within lim is at most _SUB cells off per axis), at most ~8M
+    h = max(lim * (1.0 + 1e-9) / _SUB, float(ext.max()) / 200.0, 1e-12)
+    n = (ext / h).astype(np.int64) + 1
+    key = ((np.floor((cen[:, 0] - lo[0]) / h).astype(np.int64) * n[1]
+            + np.floor((cen[:, 1] - lo[1]) / h).astype(np.int64)) * n[2]
+           + np.floor((cen[:, 2] - lo[2]) / h).astype(np.int64))
+    order = np.argsort(key, kind="stable")
+    start = np.searchsorted(key[order], np.arange(int(n.prod()) + 1))
+    out = np.empty(pts.shape[0], dtype=np.bool_)
+    kernel = _finished if pts.shape[0] >= _PARALLEL_MIN else _finished_serial
+    kernel(pts, np.ascontiguousarray(cen[order]), start, lo[0], lo[1], lo[2], h, n[0], n[1], n[2], lim, out)
+    return ~out
+
+
+@njit(parallel=True, cache=True)
+def _finished(pts, cen, start, x0, y0, z0, h, nx, ny, nz, lim, out):
+    """out[k]: some centre of ``cen`` (sorted by cell, ``start`` per cell) lies within ``lim`` of
+    pts[k]. Cells are at least lim / _SUB wide: the cells within _SUB of the point's own per axis
+    are looked at, those whose box is farther than lim from the point skipped."""
+    lim2 = lim * lim
+    lo2 = lim2 * (1.0 - 1e-9)                   # surely within lim (the sqrt only between lo2 and hi2)
+    hi2 = lim2 * (1.0 + 1e-9)
+    for k in prange(pts.shape[0]):
+        px, py, pz = pts[k, 0], pts[k, 1], pts[k, 2]
+        fx, fy, fz = math.floor((px - x0) / h), math.floor((py - y0) / h), math.floor((pz - z0) / h)
+        found = False
+        if -_SUB - 1.0 < fx < nx + _SUB and -_SUB - 1.0 < fy < ny + _SUB and -_SUB - 1.0 < fz < nz + _SUB:
+            ix, iy, iz = int(fx), int(fy), int(fz)
+            for ax in range(max(ix - _SUB, 0), min(ix + _SUB, nx - 1) + 1):
+                gx = _gap1(px, x0 + ax * h, h)
+                if gx * gx > hi2:
+                    continue
+                for ay in range(max(iy - _SUB, 0), min(iy + _SUB, ny - 1) + 1):
+                    gy = _gap1(py, y0 + ay * h, h)
+                    gxy = gx * gx + gy * gy
+                    if gxy > hi2:
+                        continue
+                    base = (ax * ny + ay) * nz
+                    for az in range(max(iz - _SUB, 0), min(iz + _SUB, nz - 1) + 1):
+                        gz = _gap1(pz, z0 + az * h, h)
+                        if gxy + gz * gz > hi2:
+                            continue
+                        c = base + az
+                        for s in range(start[c], start[c + 1]):
+                            dx = px - cen[s, 0]
+                            dy = py - cen[s, 1]
+                            dz = pz - cen[s, 2]
+                            d2 = dx * dx + dy * dy + dz * dz
+                            if d2 <= lo2 or (d2 <= hi2 and math.sqrt(d2) <= lim):
+                                found = True
+                                break
+                        if found:
+                            break
+                    if found:
+                        break
+                if found:
+                    break
+        out[k] = found
+
+
+@njit(cache=True, nogil=True)
+def _gap1(v, a, w):
+    """Distance from v to [a, a + w], a little short (the cell bounds' rounding): 0 inside."""
+    if v < a:
+        return max(a - v - 1e-9 * w, 0.0)
+    if v > a + w:
+        return max(v - (a + w) - 1e-9 * w, 0.0)
+    return 0.0
+
+
+#: Cells per lim of :func:`_finished`'s grid.
+_SUB = 2
+
+
+#: Fewer points than this are checked on one thread.
+_PARALLEL_MIN = 20000
+_finished_serial = serial_twin(_finished, "_finished_serial")
 
 
 def finished_reach_mm(radius_mm: float, *, tol_mm: float, scallop_mm: float, spacing_mm: float) -> float:
@@ -625,9 +711,10 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
 
     # 3. what the cut leaves unfinished
     pts = np.asarray(area_points_frame, dtype=np.float64).reshape(-1, 3)
-    before = unmachined_points(pts, cutting_positions(tp, step), R, reach)
-    after = unmachined_points(pts, cutting_positions(c.toolpath, step), R, reach)
-    unm = after & ~before
+    # what the result leaves, and of that what the input left too (asked only about those points)
+    unm = unmachined_points(pts, cutting_positions(c.toolpath, step), R, reach)
+    if unm.any():
+        unm[unm] = ~unmachined_points(pts[unm], cutting_positions(tp, step), R, reach)
     figures = FinishingSafety(blocked=on_pts.counts, n_blocked_points=on_pts.n_blocked,
                               n_blocked_moves=n_bad_moves, n_column_dropped=int(drop.sum()) - n_first,
                               n_dropped_points=int(drop.sum()), n_cut_points_lost=c.n_cut_points_lost,

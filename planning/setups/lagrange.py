@@ -23,6 +23,8 @@ price), so that every sum the search forms, in float32 as in
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from planning.setups.problem import _Problem
@@ -51,7 +53,7 @@ def _price_step(prob: _Problem) -> float:
     return 2.0 ** -q
 
 
-def _solve_dual(prob: _Problem, cols: np.ndarray, r: int, presolve: bool):
+def _solve_dual(prob: _Problem, cols: np.ndarray, r: int, presolve: bool, seconds: float | None):
     """HiGHS dual simplex on the LP dual restricted to the classes ``cols`` (the others priced 0):
     (prices of ``cols``, axis values x of the primal LP) or None."""
     from scipy import sparse
@@ -65,9 +67,12 @@ def _solve_dual(prob: _Problem, cols: np.ndarray, r: int, presolve: bool):
     cost = np.concatenate([-np.ones(cols.size), np.ones(m), [float(r)]])
     upper = np.concatenate([prob.w[cols].astype(np.float64), np.full(m + 1, np.inf)])
     bounds = np.stack([np.zeros(cols.size + m + 1), upper], axis=1)
+    options = {"presolve": presolve}
+    if seconds is not None:
+        options["time_limit"] = max(0.01, seconds)
     try:
         res = linprog(cost, A_ub=A_ub, b_ub=np.zeros(m), bounds=bounds, method="highs-ds",
-                      options={"presolve": presolve})
+                      options=options)
     except Exception:  # noqa: BLE001  # pragma: no cover - any solver failure: no prices
         return None
     if res.status != 0 or res.x is None:
@@ -75,7 +80,8 @@ def _solve_dual(prob: _Problem, cols: np.ndarray, r: int, presolve: bool):
     return res.x[: cols.size], -np.asarray(res.ineqlin.marginals, dtype=np.float64)
 
 
-def _prices(prob: _Problem, r: int, start=None, rounds: int = 4) -> tuple[np.ndarray, float]:
+def _prices(prob: _Problem, r: int, start=None, rounds: int = 4, deadline: float | None = None
+            ) -> tuple[np.ndarray, float]:
     """Prices (C,) in [0, w] on a dyadic grid from the LP dual for r axes, and the root bound.
 
     The LP runs on a subset of the classes (column generation): the classes that ``start`` (a good
@@ -84,7 +90,7 @@ def _prices(prob: _Problem, r: int, start=None, rounds: int = 4) -> tuple[np.nda
     added and the LP solved again, at most ``rounds`` times.  On the femur-like case the first
     subset is already optimal (12k of 31k classes; 0.3-0.4 s instead of 2-4 s for the whole LP
     with presolve).  Any prices are valid, so stopping early only weakens the bound; zero prices
-    (bound: every seen point) if the solver fails."""
+    (bound: every seen point) if the solver fails or ``deadline`` (``time.perf_counter()``) passes."""
     C, m = prob.C, prob.m
     mu = np.zeros(C)
     if C == 0 or m == 0:
@@ -95,9 +101,13 @@ def _prices(prob: _Problem, r: int, start=None, rounds: int = 4) -> tuple[np.nda
         cols = np.arange(C)
     Af = None
     for _ in range(rounds):
-        got = _solve_dual(prob, cols, r, presolve=False) if cols.size else None
+        left = None if deadline is None else deadline - time.perf_counter()
+        if left is not None and left <= 0:
+            break
+        got = _solve_dual(prob, cols, r, False, left) if cols.size else None
         if got is None and cols.size:
-            got = _solve_dual(prob, cols, r, presolve=True)
+            left = None if deadline is None else deadline - time.perf_counter()
+            got = _solve_dual(prob, cols, r, True, left) if left is None or left > 0 else None
         if got is None:
             break
         mu[:] = 0.0

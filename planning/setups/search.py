@@ -492,7 +492,7 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
     if kmax >= 1 and not (kmax in heur and heur[kmax][1] >= req):
         if progress:
             progress(0.05, f"can {kmax} set-ups reach the coverage at all?")
-        prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0])
+        prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=deadline)
         price_r = kmax
         if bound < req:
             sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound)
@@ -510,7 +510,7 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
             try:
                 s.run()
             except _Budget:  # a hard proof: the prices for k, then the search again with them
-                prices, _ = _prices(prob, k, heur.get(k, (None,))[0])
+                prices, _ = _prices(prob, k, heur.get(k, (None,))[0], deadline=deadline)
                 price_r = k
                 s_all = prob.AT.astype(np.float64) @ prices
                 if float(prob.w.sum()) - float(prices.sum()) + _top_r_sum(s_all, k) < req:
@@ -524,13 +524,13 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
             break
     if kstar is None:
         if price_r != kmax:
-            prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0])
+            prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=deadline)
         sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound)
         return _Outcome("infeasible", sel, None, note)
     # stage 2: least overlap at k*
     inc = _local_search(prob, found, "overlap", req)
     if price_r != kstar and kstar in heur and heur[kstar][1] - req <= _NEAR_CEILING * prob.n:
-        prices, _ = _prices(prob, kstar, heur[kstar][0])
+        prices, _ = _prices(prob, kstar, heur[kstar][0], deadline=deadline)
         price_r = kstar
     s = _Search(prob, kstar, "overlap", req, deadline, incumbent=inc,
                 prices=prices if price_r == kstar else None,

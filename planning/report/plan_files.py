@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +35,21 @@ def npz_arrays(outcome: PlanOutcome) -> dict[str, np.ndarray]:
     return dict(outcome.arrays)
 
 
+#: zlib level of plan.npz: 1 takes about a third of the time of np.savez_compressed's default (6) for
+#: ~13 % more bytes (femur plan: 0.67 s / 8.96 MB against 1.83 s / 7.93 MB); the arrays are the same.
+NPZ_LEVEL = 1
+
+
+def savez_compressed(file, arrays: dict[str, np.ndarray], level: int = NPZ_LEVEL) -> None:
+    """:func:`numpy.savez_compressed` (one ``<name>.npy`` member per array, deflated, zip64) at zlib
+    ``level``; :func:`numpy.load` reads it back the same."""
+    with zipfile.ZipFile(file, mode="w", compression=zipfile.ZIP_DEFLATED, allowZip64=True,
+                         compresslevel=level) as zf:
+        for name, val in arrays.items():
+            with zf.open(name + ".npy", "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asanyarray(val), allow_pickle=True)
+
+
 def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike) -> dict[str, Path]:
     """Write the plan's artifacts into ``out_dir`` (created if needed); return their paths by kind."""
     out = Path(out_dir)
@@ -43,7 +59,7 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike) -> dict[str, Pa
              "preview_png": out / names.preview_png, "plan_json": out / "plan.json"}
 
     buf = io.BytesIO()
-    np.savez_compressed(buf, **npz_arrays(outcome))
+    savez_compressed(buf, npz_arrays(outcome))
     _atomic_bytes(paths["plan_npz"], buf.getvalue())
 
     labels = outcome.input_labels

@@ -17,3 +17,7 @@ docs/design.md "The pipeline" describes each):
 stage and uses none; ``errors`` holds the typed errors every stage raises; ``budget`` estimates the
 memory a plan will need from its parameters, before it runs.
 """
+
+# First, before any module here defines an @njit(cache=True) kernel: numba's cache directory (outside the
+# source tree) and threading layer (planning/kernel_cache.py).
+from planning import kernel_cache as _kernel_cache  # noqa: E402, F401

@@ -1,4 +1,4 @@
-"""The ``scanmill`` command line: plan a scan, write reference samples, print schemas and profiles.
+"""The ``scanmill`` command line: plan a scan, write reference samples, print schemas and profiles, warm up.
 
 Exit status: 0 planned; 2 bad input or parameters (a message says what to fix); 3 planned but
 infeasible or incomplete (no ``setups.max_setups`` orientations reach ``setups.coverage``, or the
@@ -195,6 +195,19 @@ def cmd_profiles(args) -> int:
     return EXIT_OK
 
 
+def cmd_warmup(args) -> int:
+    from planning.warmup import WARMUP_SAMPLE, warm
+
+    rep = warm(progress=_Progress(quiet=not args.verbose))
+    print(f"warmup: planned the {WARMUP_SAMPLE} sample in {rep.seconds:.1f} s, {rep.n_compiled} kernel "
+          f"compilation(s) ({len(set(rep.compiled))} distinct; 0: all were in the cache)")
+    print(f"numba cache: {rep.cache_dir}  threading layer: {rep.threading_layer}")
+    if args.list:
+        for name in sorted(set(rep.compiled)):
+            print(f"  compiled {name}")
+    return EXIT_OK
+
+
 def cmd_serve(args) -> int:
     from scanmill.serve import serve
     return serve(host=args.host, port=args.port, data_dir=args.data_dir, workers=args.workers,
@@ -240,6 +253,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     m = sub.add_parser("profiles", help="list the bundled machine profiles")
     m.set_defaults(func=cmd_profiles)
+
+    u = sub.add_parser("warmup", help="compile the numba kernels into the cache now (a small plan), so the first "
+                                      "plan does not compile them (cache: SCANMILL_CACHE_DIR)")
+    u.add_argument("--verbose", action="store_true", help="progress lines of the warm-up plan")
+    u.add_argument("--list", action="store_true", help="list the functions compiled")
+    u.set_defaults(func=cmd_warmup)
 
     v = sub.add_parser("serve", help="run the planning service (HTTP jobs API, docs/service.md)")
     v.add_argument("--host", help="address to bind (default 127.0.0.1; SCANMILL_HOST)")

@@ -52,11 +52,10 @@ def write_mesh_ply(path, vertices: np.ndarray, faces: np.ndarray) -> None:
     rows = np.empty(faces.shape[0], dtype=[("n", "u1"), ("vertex_indices", "<i4", (3,))])   # packed: 13 bytes
     rows["n"] = 3
     rows["vertex_indices"] = f["vertex_indices"]
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            fh.write(header.encode("ascii") + b"\n")
-            fh.write(v.tobytes())
-            fh.write(rows.tobytes())
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(header.encode("ascii") + b"\n")
+        fh.write(v.tobytes())
+        fh.write(rows.tobytes())
 
 
 def render_deviation_png(path, points: np.ndarray, dev: np.ndarray, limit_mm: float, title: str = "") -> None:

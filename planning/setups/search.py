@@ -30,11 +30,12 @@ an infeasible call (:func:`_bnb_best_cover`) is then one "cover" search at K fro
 incumbent (most covered, least overlap, smallest tuple), pruned by the prices (child bounds
 ``W - M + s_j + (r - 1 best s_l - Pm_jl)``, see :meth:`_Search._price_bounds`), then the smaller k
 that reach the same coverage (most ruled out by the price bound at the root); with zone conflicts a
-search per k.  Measured (``bench/bench_infeasible.py``, shared 2-core machine under load): the
-femur-like defaults (100k points x 145 axes, best 94.1 % against 95 %) in about 2-3 s instead of 12-26
-s, a 10k-point subsample in about 0.3 s instead of 9-30 s; the LP bound there is 94,878 points
-against the best 94,727 and the required 95,631.  On a time-out the best found is returned with the
-price bound as the most any selection can cover.
+search per k.  Measured (``bench/bench_infeasible.py --before 43c11a9``, shared 2-core machine under
+a load of 4-6): the femur-like defaults (100k points x 145 axes, best 94.1 % against 95 %) in 1.3 s
+instead of 47 s, a 10k-point subsample of it in 0.2 s instead of 16 s (same answers; the feasible
+0.90 in 3.2 s and 0.7 s); the LP bound there is 94,878 points against the best 94,727 and the
+required 95,631.  On a time-out the best found is returned with the price bound as the most any
+selection can cover.
 """
 
 from __future__ import annotations
@@ -483,7 +484,7 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
     greedy reaches it, the existence searches first run without prices; one that needs more than
     ``_PROBE_NODES`` nodes is restarted with the prices for its k (often settled by the root bound
     then).  The least-overlap search gets the prices for k* where the required coverage lies within
-    ``_NEAR_CEILING`` of greedy's (see there)."""
+    ``_NEAR_CEILING`` of greedy's and of the price bound (see there)."""
     req = prob.required
     heur = _heuristics(prob, K)
     kmax = min(K, prob.m)
@@ -530,8 +531,9 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
     # stage 2: least overlap at k*
     inc = _local_search(prob, found, "overlap", req)
     if price_r != kstar and kstar in heur and heur[kstar][1] - req <= _NEAR_CEILING * prob.n:
-        prices, _ = _prices(prob, kstar, heur[kstar][0], deadline=deadline)
-        price_r = kstar
+        prices, bound = _prices(prob, kstar, heur[kstar][0], deadline=deadline)
+        # kept only where the bound is near the coverage asked (it prunes nothing far above it)
+        price_r = kstar if bound - req <= _NEAR_CEILING * prob.n and bound < prob.w.sum() else None
     s = _Search(prob, kstar, "overlap", req, deadline, incumbent=inc,
                 prices=prices if price_r == kstar else None,
                 progress=_progress_fn(progress, 0.3, 1.0, f"least overlap with {kstar} set-ups"))

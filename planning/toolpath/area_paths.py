@@ -260,8 +260,8 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
             ap.roughing = None                 # rest roughing: nothing left above this area
         if carried is not None and ap.roughing is not None:
             t0 = time.perf_counter()
-            prog.step("guard_roughing")
-            _guard_roughing(ap, carried, top + paths_params.roughing.stock_margin_mm + paths_params.safe_clearance_mm)
+            _guard_roughing(ap, carried, top + paths_params.roughing.stock_margin_mm + paths_params.safe_clearance_mm,
+                            progress=prog.step("guard_roughing"))
             sec["guard_roughing"] = time.perf_counter() - t0
         if carried is not None and carried.normals is not None:
             # issue 16 item 1: the stock the finishing meets over this area (roughing allowance
@@ -282,8 +282,7 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
             sec["collisions"] = time.perf_counter() - t0
             if carried is not None and ap.finishing is not None:
                 t0 = time.perf_counter()
-                prog.step("guard_finishing")
-                _guard_finishing(ap, carried, area_f, fp)
+                _guard_finishing(ap, carried, area_f, fp, progress=prog.step("guard_finishing"))
                 sec["guard_finishing"] = time.perf_counter() - t0
             if carried is not None and ap.unmachined is not None:
                 ap.unmachined = np.flatnonzero(mine)[ap.unmachined]       # input point indices
@@ -401,23 +400,23 @@ def _entry_args(rp) -> dict:
             "ramp_length_mm": rp.ramp_length_mm}
 
 
-def _guard_roughing(ap: AreaPaths, carried, safe_tip_z: float) -> None:
+def _guard_roughing(ap: AreaPaths, carried, safe_tip_z: float, progress: Progress | None = None) -> None:
     """The roughing of ``ap`` run on the carried stock (:func:`planning.toolpath.guard.guard_toolpath`);
     the stock it leaves is carried on."""
     g = guard_toolpath(ap.roughing, ap.frame, carried.roughing_shape, carried.stock, carried.obstacles,
                        None if carried.machines is None else carried.machines[ap.area], safe_z_mm=safe_tip_z,
-                       rapid_clearance_mm=carried.rapid_clearance_mm)
+                       rapid_clearance_mm=carried.rapid_clearance_mm, progress=progress)
     ap.roughing, ap.roughing_guard = (g.toolpath if g.toolpath.n_moves else None), g
     carried.stock = g.stock
 
 
-def _guard_finishing(ap: AreaPaths, carried, area_f, fp) -> None:
+def _guard_finishing(ap: AreaPaths, carried, area_f, fp, progress: Progress | None = None) -> None:
     """The final finishing moves of ``ap`` run on the carried stock (the safety net after the CL
     cut of :func:`_cut_blocked`); the stock they leave is carried on, and the area's points that no
     kept finishing move reaches are the unmachined ones."""
     g = guard_toolpath(ap.finishing, ap.frame, carried.finishing_shape, carried.stock, carried.obstacles,
                        None if carried.machines is None else carried.machines[ap.area], safe_z_mm=ap.safe_z_mm,
-                       rapid_clearance_mm=carried.rapid_clearance_mm)
+                       rapid_clearance_mm=carried.rapid_clearance_mm, progress=progress)
     ap.finishing, ap.finishing_guard = (g.toolpath if g.toolpath.n_moves else None), g
     carried.stock = g.stock
 

@@ -33,4 +33,8 @@ echo "setup: installing scanmill and its dependencies into $VENV"
 "$VENV/bin/python" -m pip install -q -e '.[test]' 2>&1 | grep -v "^WARNING: Location" || true
 "$VENV/bin/python" -c "import open3d, ortools, numpy, scanmill" \
   || { echo "setup: the installation is incomplete (see the pip output above)" >&2; exit 1; }
+# Compile the numba kernels into their cache (SCANMILL_CACHE_DIR, default ~/.cache/scanmill/numba) with a
+# small plan, so that the first plan, `make run` and `make test` do not spend a minute and more compiling.
+echo "setup: compiling the planning kernels (scanmill warmup; once per change of the planning code)"
+"$VENV/bin/scanmill" warmup || echo "setup: warmup failed; the first plan will compile the kernels" >&2
 touch "$VENV/.installed"

@@ -622,11 +622,11 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
        position inside has both its ends dropped.
     2. :func:`cut_moves` (``approach_mm``). The new link columns (the vertical segment from the
        first or last point of a piece up to ``safe_z_mm``) are sampled the same way and checked.
-       Where one is blocked, the columns of every point of that piece are checked and the piece
-       is shortened from that end to its nearest point whose column is free (the whole piece goes
-       when none is); then the path is cut again. Every column is checked once, so this ends
-       after a round or two (``max_rounds`` bounds it: past it, a piece with a blocked link
-       column goes whole).
+       Where one is blocked, the columns of every point of that piece are checked (those of all
+       such pieces in one call) and the piece is shortened from that end to its nearest point
+       whose column is free (the whole piece goes when none is); then the path is cut again.
+       Every column is checked once, so this ends after a round or two (``max_rounds`` bounds
+       it: past it, a piece with a blocked link column goes whole).
     3. ``unmachined``: the points of ``area_points_frame`` (n,3: the area's scan points, area
        frame) that the input path finishes and the result does not (:func:`unmachined_points` on
        :func:`cutting_positions` of both paths at ``step_mm``, default R / 4, the finishing's
@@ -691,15 +691,17 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
         bad = ends[col[ends] == 2]
         if bad.size == 0:
             break
-        for a, e in c.pieces:
-            ends_here = bad[(bad >= a) & (bad <= e)]
-            if ends_here.size == 0:
-                continue
-            if rounds > max_rounds:
+        hit = [(a, e, bad[(bad >= a) & (bad <= e)]) for a, e in c.pieces]
+        hit = [(a, e, ends_here) for a, e, ends_here in hit if ends_here.size]
+        if rounds > max_rounds:
+            for a, e, _ in hit:
                 drop[a:e + 1] = True
-                continue
+            continue
+        # the columns of every point of those pieces, in one check (its cost is mostly per call)
+        if hit:
+            columns(np.unique(np.concatenate([np.arange(a, e + 1) for a, e, _ in hit])))
+        for a, e, ends_here in hit:
             idx = np.arange(a, e + 1)
-            columns(idx)
             free = np.flatnonzero(col[idx] == 1)
             if free.size == 0:
                 drop[a:e + 1] = True

@@ -132,7 +132,7 @@ def cmd_plan(args) -> int:
     base_dir = Path(args.config).resolve().parent if getattr(args, "config", None) else Path.cwd()
     outcome = run_plan(cloud, config, name=Path(args.input).name, progress=progress, base_dir=base_dir)
     progress("write", 0.0, str(args.out))
-    paths = write_plan(outcome, args.out)
+    paths = write_plan(outcome, args.out, progress=lambda f, m: progress("write", f, m))
     progress("write", 1.0, "done")
     r = outcome.result
     print(r.message)

@@ -179,3 +179,16 @@ def test_the_femur_like_make_run_plan_verifies_clean():
     outcome = run_plan(cloud, parse_config(json.loads(json.dumps(CONFIGS["femur_like"]))), name="femur_like")
     assert outcome.result.status == "planned"
     _assert_clean(outcome, "femur_like")
+
+
+def test_writing_the_plan_reports_each_artifact(light_plan, tmp_path):
+    name, outcome = light_plan
+    from planning.report.plan_files import write_plan
+
+    got: list[tuple[float, str]] = []
+    paths = write_plan(outcome, tmp_path, progress=lambda f, m: got.append((f, m)))
+    said = [m for _, m in got]
+    assert said[0] == "plan.npz" and said[-1] == "plan.json", (name, said)
+    assert {"segmentation.ply", "preview.png", "NC programs", "deviation.ply", "stock.ply"} <= set(said), (name, said)
+    assert all(b >= a for (a, _), (b, _) in zip(got, got[1:]))
+    assert paths["plan_json"].exists()

@@ -50,34 +50,42 @@ def savez_compressed(file, arrays: dict[str, np.ndarray], level: int = NPZ_LEVEL
                 np.lib.format.write_array(fh, np.asanyarray(val), allow_pickle=True)
 
 
-def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike) -> dict[str, Path]:
-    """Write the plan's artifacts into ``out_dir`` (created if needed); return their paths by kind."""
+def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike, progress=None) -> dict[str, Path]:
+    """Write the plan's artifacts into ``out_dir`` (created if needed); return their paths by kind.
+    ``progress(fraction, message)`` is told each artifact before it is written."""
+    say = progress or (lambda fraction, message="": None)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     names = outcome.result.artifacts
     paths = {"plan_npz": out / names.plan_npz, "segmentation_ply": out / names.segmentation_ply,
              "preview_png": out / names.preview_png, "plan_json": out / "plan.json"}
 
+    say(0.0, names.plan_npz)
     buf = io.BytesIO()
     savez_compressed(buf, npz_arrays(outcome))
     _atomic_bytes(paths["plan_npz"], buf.getvalue())
 
+    say(0.15, names.segmentation_ply)
     labels = outcome.input_labels
     colors = point_colors(labels, len(outcome.result.setups))
     write_ply(paths["segmentation_ply"], outcome.points, colors=colors, labels=labels, binary=True)
 
+    say(0.3, names.preview_png)
     a = outcome.arrays
     sampled_points = outcome.points[a["sample_index"]]
     render_preview(paths["preview_png"], sampled_points, a["labels"], outcome.selected_axes,
                    integrated=a["integrated"],
                    title=f"{outcome.result.input.name or 'cloud'}: {outcome.result.message}")
 
+    say(0.4, "NC programs")
     for name, text in outcome.extra.get("programs", {}).items():
         paths[name] = out / name
         _atomic_bytes(paths[name], text.encode())
 
-    paths.update(_write_simulation(outcome, out))
+    paths.update(_write_simulation(outcome, out, say))
+    say(0.9, "unmachined points")
     paths.update(_write_unmachined(outcome, out))
+    say(0.95, "plan.json")
     _atomic_bytes(paths["plan_json"], plan_json_text(outcome).encode())
     return paths
 
@@ -97,7 +105,7 @@ def _write_unmachined(outcome: PlanOutcome, out: Path) -> dict[str, Path]:
     return {"unmachined_png": path}
 
 
-def _write_simulation(outcome: PlanOutcome, out: Path) -> dict[str, Path]:
+def _write_simulation(outcome: PlanOutcome, out: Path, say=lambda fraction, message="": None) -> dict[str, Path]:
     """The verification's artifacts (deviation PLY and PNG, final stock mesh) when it ran."""
     from planning.report.deviation import render_deviation_png, write_deviation_ply, write_mesh_ply
 
@@ -109,12 +117,15 @@ def _write_simulation(outcome: PlanOutcome, out: Path) -> dict[str, Path]:
     fp = outcome.result.parameters.paths.finishing
     v = outcome.result.verification
     limit = fp.tolerance_mm + fp.scallop_mm + (v.measuring_bound_mm or 0.0)
+    say(0.5, names.deviation_ply)
     paths["deviation_ply"] = out / names.deviation_ply
     write_deviation_ply(paths["deviation_ply"], outcome.points, sim.deviation_mm, limit)
+    say(0.6, names.deviation_png)
     paths["deviation_png"] = out / names.deviation_png
     render_deviation_png(paths["deviation_png"], outcome.points, sim.deviation_mm, limit,
                          title=f"verification {v.status}: {v.message}"[:160])
     if sim.stock is not None and names.stock_ply:
+        say(0.75, names.stock_ply)
         from planning.simulate.mesh import stock_mesh
         vertices, faces = stock_mesh(sim.stock)
         paths["stock_ply"] = out / names.stock_ply

@@ -92,11 +92,13 @@ class WarmupReport:
 
 
 def warm_plan(progress=None):
-    """Plan the warm-up scan (:data:`WARMUP_SAMPLE`) with :data:`WARMUP_CONFIG`; return the plan outcome."""
+    """Plan the warm-up scan (:data:`WARMUP_SAMPLE`) with :data:`WARMUP_CONFIG` and write its files into a
+    temporary directory, as ``scanmill plan`` and a job do; return the plan outcome."""
     from planning.inputs.cloud import read_cloud
     from planning.inputs.samples import make_sample
     from planning.pipeline import run_plan
     from planning.report.files import write_ply
+    from planning.report.plan_files import write_plan
     from schemas.params import parse_config
 
     config = parse_config(WARMUP_CONFIG)
@@ -107,7 +109,9 @@ def warm_plan(progress=None):
         write_ply(path, sample.points, normals=sample.normals, binary=True)
         cloud = read_cloud(path, units=config.input.units, max_points=config.input.max_points,
                            max_extent_mm=config.input.max_extent_mm, min_points=config.input.min_points)
-    return run_plan(cloud, config, name=f"warmup-{WARMUP_SAMPLE}", progress=progress)
+        outcome = run_plan(cloud, config, name=f"warmup-{WARMUP_SAMPLE}", progress=progress)
+        write_plan(outcome, Path(tmp) / "plan")      # the artifacts run kernels too (the stock mesh)
+    return outcome
 
 
 def warm_stamp() -> str:

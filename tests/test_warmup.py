@@ -35,11 +35,16 @@ with CompileCounter() as counter:
         from planning.warmup import warm
         status = warm().status
     else:
+        import tempfile
         from planning.inputs.cloud import read_cloud
         from planning.pipeline import run_plan
+        from planning.report.plan_files import write_plan
         from schemas.params import parse_config
         config = parse_config(json.loads(sys.argv[3]))
-        status = run_plan(read_cloud(sys.argv[2]), config).result.status
+        outcome = run_plan(read_cloud(sys.argv[2]), config)
+        with tempfile.TemporaryDirectory() as out:
+            write_plan(outcome, out)                 # as scanmill plan and a job do
+        status = outcome.result.status
 paths, hits = set(), 0
 for name, mod in list(sys.modules.items()):
     if name.startswith("planning") and mod is not None:

@@ -4,8 +4,9 @@ It reads the same ``SCANMILL_*`` settings as ``scanmill serve`` (``SCANMILL_BROK
 ``SCANMILL_DATABASE_URL``, ``SCANMILL_DATA_DIR`` naming the shared directory, ``SCANMILL_WORKERS``
 jobs at once, ``SCANMILL_WORKER_THREADS`` BLAS threads per job). BLAS/OpenMP threads are pinned
 before numpy is imported, then the planning modules are imported once in the main process so that
-every child process the pool forks starts with them loaded. ``scanmill db upgrade`` migrates the job
-database without starting anything.
+every child process the pool forks starts with them loaded; unless the numba cache holds their kernels
+already, ``scanmill warmup`` compiles them first. ``scanmill db upgrade`` migrates the job database
+without starting anything.
 """
 
 from __future__ import annotations
@@ -47,6 +48,12 @@ def run_worker(*, concurrency: int | None = None, name: str | None = None, confi
     import importlib
     for mod in PRELOAD:
         importlib.import_module(mod)
+    from planning.warmup import is_warm
+    if not is_warm():   # compile the kernels into the numba cache before taking jobs; in a process of its own,
+        # so that this one (which the pool forks) never starts the OpenMP threads of a parallel kernel
+        import subprocess
+        print("scanmill worker: compiling the planning kernels first (scanmill warmup)", file=sys.stderr, flush=True)
+        subprocess.run([sys.executable, "-m", "scanmill.cli", "warmup"], check=False)
     from service.celery_app import configure
     app = configure(settings)
     import service.celery_tasks  # noqa: F401 - registers the task

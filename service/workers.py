@@ -6,6 +6,9 @@ store while fewer than ``SCANMILL_WORKERS`` run, and starts one worker process p
 milliseconds; ``spawn`` is the fallback). A supervisor thread per running job relays the worker's
 progress into the store, enforces the job's time limit, and publishes the artifacts when the
 worker reports success. Cancelling a job kills its process (SIGKILL) and waits until it is gone.
+At start, unless the numba cache already holds this code's kernels (:func:`planning.warmup.is_warm`,
+e.g. after ``scanmill warmup``), a first worker process compiles them with a small plan and the queued
+jobs wait for it, so that no job pays the compilation (``/healthz`` answers meanwhile).
 
 Worker processes pin their BLAS/OpenMP pools (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``,
 ``MKL_NUM_THREADS``, ... = ``SCANMILL_WORKER_THREADS``; set before numpy is imported in the fork
@@ -363,6 +366,16 @@ def _noop() -> None:
     """Started once at startup so the fork server is up (and has imported the planning code) early."""
 
 
+def _warm_kernels() -> None:
+    """Started once at startup, in place of :func:`_noop`, when the numba cache does not hold this code's
+    kernels: compile them (:func:`planning.warmup.warm`, a small plan) before the first job, which then
+    loads them. A process of its own: the fork server never runs a kernel (GNU OpenMP is not fork-safe)."""
+    from planning.warmup import warm
+    rep = warm()
+    print(f"scanmill serve: kernels warm in {rep.seconds:.1f} s ({rep.n_compiled} compiled; cache {rep.cache_dir})",
+          file=sys.stderr, flush=True)
+
+
 # ---------------------------------------------------------------------------------------------
 # the runner in the server
 # ---------------------------------------------------------------------------------------------
@@ -396,6 +409,8 @@ class _AttemptRef:
     attempts: int
 
 
+#: Longest the dispatcher holds the queue at start while the kernels compile (a cold cache: 1-3 min).
+WARMUP_TIMEOUT_S = 900.0
 #: Waits (seconds) between the tries of a job store write that ends an attempt (then kept for later).
 STORE_RETRY_DELAYS_S = (0.2, 0.5, 1.0, 2.0)
 #: Longest wait between two later tries of an unsettled outcome (the dispatcher retries it).
@@ -630,10 +645,21 @@ class JobRunner:
 
     # -- dispatching -----------------------------------------------------------------------------
     def _dispatch_loop(self) -> None:
-        try:   # bring the fork server up now, so that the first job starts without the import delay
-            p = self._ctx.Process(target=_noop, name="scanmill-warmup", daemon=True)
+        try:   # bring the fork server up now, so that the first job starts without the import delay; and
+            # unless the numba cache holds this code's kernels, compile them first: jobs wait (queued) meanwhile
+            from planning.warmup import is_warm
+            warm = is_warm()
+            if not warm:
+                log.info("compiling the planning kernels into the numba cache before the first job (scanmill warmup)")
+            p = self._ctx.Process(target=_noop if warm else _warm_kernels, name="scanmill-warmup", daemon=True)
             p.start()
-            p.join(120)
+            deadline = time.monotonic() + (120 if warm else WARMUP_TIMEOUT_S)
+            while p.is_alive() and not self._stopping.is_set() and time.monotonic() < deadline:
+                p.join(0.5)
+            if p.is_alive():       # stopping, or a warm-up past its time: jobs compile what is missing
+                p.kill()
+            elif not warm and p.exitcode != 0:
+                log.warning("the kernel warm-up failed (exit code %s); jobs compile what they need", p.exitcode)
         except Exception:  # noqa: BLE001 - the first job will try again and report a failure
             log.exception("could not start the worker fork server")
         while not self._stopping.is_set():

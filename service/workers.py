@@ -194,7 +194,7 @@ def plan_attempt(spec: dict[str, Any], report) -> tuple[dict[str, Any], list[str
     work = Path(spec["work_dir"])
     try:
         work.mkdir(parents=True, exist_ok=True)
-        write_plan(outcome, work)
+        write_plan(outcome, work, progress=lambda f, m: report("write", f, m))
     except OSError as exc:
         raise ArtifactWriteError.of(exc, work) from exc
     report("write", 1.0, "artifacts written")

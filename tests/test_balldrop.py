@@ -104,3 +104,15 @@ def test_agrees_with_opencamlib_on_the_same_mesh():
     diff = z_ocl - z
     assert np.all(diff >= -1e-6), diff.min()
     assert np.all(diff <= bound + 1e-6), (diff.max(), bound)
+
+
+def test_serial_kernels_have_their_own_cache_entries():
+    # numba's cache keys an entry by module, qualified name, line and signature, not by flags: a
+    # serial copy of a parallel kernel under the same name would load whichever compiled first
+    from planning.toolpath import balldrop, safety, verify
+
+    for par, ser in ((balldrop._drop, balldrop._drop_serial), (verify._prep, verify._prep_serial),
+                     (verify._clearance, verify._clearance_serial), (safety._finished, safety._finished_serial)):
+        assert par.targetoptions.get("parallel") and not ser.targetoptions.get("parallel")
+        assert ser.targetoptions.get("nogil") and ser.py_func.__qualname__ != par.py_func.__qualname__
+        assert ser.py_func.__code__ is par.py_func.__code__          # the same code

@@ -44,6 +44,7 @@ from scipy import ndimage
 
 from planning.errors import ParameterError
 from planning.geometry.basis import complete_basis
+from planning.geometry.raster import cell_of, new_cells, tally
 from planning.geometry.tool import ToolAssembly
 
 EPS_MM = 1e-6
@@ -221,27 +222,20 @@ def _project(x, u, v, t):
     reference's operation order. One row per point keeps the scan's reads in one place."""
     out = np.empty((x.shape[0], 6))
     for i in range(x.shape[0]):
-        a, b, c = x[i, 0], x[i, 1], x[i, 2]
-        out[i, 0] = a
-        out[i, 1] = b
-        out[i, 2] = c
-        out[i, 3] = a * u[0] + b * u[1] + c * u[2]
-        out[i, 4] = a * v[0] + b * v[1] + c * v[2]
-        out[i, 5] = a * t[0] + b * t[1] + c * t[2]
+        _put_row(out, i, x[i, 0], x[i, 1], x[i, 2], u, v, t)
     return out
 
-@njit(cache=True, nogil=True)
-def _bounds(a, b):
-    """Smallest and largest of the projections (columns 3 and 4) over the rows of ``a`` and ``b``."""
-    lo0 = lo1 = np.inf
-    hi0 = hi1 = -np.inf
-    for x in (a, b):
-        for i in range(x.shape[0]):
-            lo0 = min(lo0, x[i, 3])
-            hi0 = max(hi0, x[i, 3])
-            lo1 = min(lo1, x[i, 4])
-            hi1 = max(hi1, x[i, 4])
-    return lo0, lo1, hi0, hi1
+
+@njit(cache=True, nogil=True, inline="always")
+def _put_row(out, r, a, b, c, u, v, t):
+    """Row ``r`` of ``out``: the point (a, b, c) and its projections on u, v, t (:func:`_project`)."""
+    out[r, 0] = a
+    out[r, 1] = b
+    out[r, 2] = c
+    out[r, 3] = a * u[0] + b * u[1] + c * u[2]
+    out[r, 4] = a * v[0] + b * v[1] + c * v[2]
+    out[r, 5] = a * t[0] + b * t[1] + c * t[2]
+
 
 @njit(cache=True, nogil=True)
 def _query(spts, centres, rows, t, cx, cy, cz, lo, hi, bounded, r, start, cmax, cmin,
@@ -414,8 +408,8 @@ def _axis_hits(obst, cs, axis, segs, groups, cell_fraction, slack, tol, ext) -> 
     cproj = _project(cs, u, v, t_ref)
     cx, cy, cz = cproj[:, 3], cproj[:, 4], cproj[:, 5]
     o_lo0, o_lo1, o_hi0, o_hi1 = _projected_bounds(obst, u, v)
-    c_lo0, c_lo1, c_hi0, c_hi1 = _bounds(cproj, cproj)
-    bounds = (min(o_lo0, c_lo0), min(o_lo1, c_lo1), max(o_hi0, c_hi0), max(o_hi1, c_hi1))
+    bounds = (min(o_lo0, float(cx.min())), min(o_lo1, float(cy.min())), max(o_hi0, float(cx.max())),
+              max(o_hi1, float(cy.max())))
     hit = np.zeros(cs.shape[0], dtype=np.bool_)
     for group in groups:
         # one raster per group of radii, its cell set by the group's smallest radius
@@ -461,24 +455,15 @@ def _sorted_projection(x, u, v, t, x0, y0, h, nx, ny):
     sorting and gathering 48 MB per raster: the rasters were most of the collision test's time."""
     n = x.shape[0]
     ncell = nx * ny
-    cell = np.empty(n, np.int64)
-    start = np.zeros(ncell + 1, np.int64)
-    cmax = np.full(ncell, -np.inf)
-    cmin = np.full(ncell, np.inf)
+    cell, start, cmax, cmin = new_cells(n, ncell)
     for i in range(n):
         a, b, c = x[i, 0], x[i, 1], x[i, 2]
         pu = a * u[0] + b * u[1] + c * u[2]
         pv = a * v[0] + b * v[1] + c * v[2]
         pt = a * t[0] + b * t[1] + c * t[2]
-        ix = min(max(int(math.floor((pu - x0) / h)), 0), nx - 1)
-        iy = min(max(int(math.floor((pv - y0) / h)), 0), ny - 1)
-        cc = ix * ny + iy
+        cc = cell_of(pu, pv, x0, y0, h, nx, ny)
         cell[i] = cc
-        start[cc + 1] += 1
-        if pt > cmax[cc]:
-            cmax[cc] = pt
-        if pt < cmin[cc]:
-            cmin[cc] = pt
+        tally(cc, pt, start, cmax, cmin)
     for cc in range(ncell):
         start[cc + 1] += start[cc]
     fill = start[:-1].copy()
@@ -487,13 +472,7 @@ def _sorted_projection(x, u, v, t, x0, y0, h, nx, ny):
         cc = cell[i]
         r = fill[cc]
         fill[cc] = r + 1
-        a, b, c = x[i, 0], x[i, 1], x[i, 2]
-        out[r, 0] = a
-        out[r, 1] = b
-        out[r, 2] = c
-        out[r, 3] = a * u[0] + b * u[1] + c * u[2]
-        out[r, 4] = a * v[0] + b * v[1] + c * v[2]
-        out[r, 5] = a * t[0] + b * t[1] + c * t[2]
+        _put_row(out, r, x[i, 0], x[i, 1], x[i, 2], u, v, t)
     return out, start, cmax, cmin
 
 

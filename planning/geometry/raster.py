@@ -17,26 +17,43 @@ import numpy as np
 from numba import njit
 
 
+@njit(cache=True, nogil=True, inline="always")
+def cell_of(x, y, x0, y0, h, nx, ny):
+    """The cell ``ix * ny + iy`` of the point (x, y), indices clipped into the ``nx`` x ``ny`` grid."""
+    ix = min(max(int(math.floor((x - x0) / h)), 0), nx - 1)
+    iy = min(max(int(math.floor((y - y0) / h)), 0), ny - 1)
+    return ix * ny + iy
+
+
+@njit(cache=True, nogil=True, inline="always")
+def tally(c, z, start, cmax, cmin):
+    """Count a point of height ``z`` into cell ``c`` (``start[c + 1]``) and its highest and lowest z."""
+    start[c + 1] += 1
+    if z > cmax[c]:
+        cmax[c] = z
+    if z < cmin[c]:
+        cmin[c] = z
+
+
+@njit(cache=True, nogil=True, inline="always")
+def new_cells(n, ncell):
+    """The arrays of a counting sort of ``n`` points into ``ncell`` cells: (cell of each point,
+    start counts (ncell + 1,) zero, cmax -inf, cmin +inf)."""
+    return (np.empty(n, np.int64), np.zeros(ncell + 1, np.int64), np.full(ncell, -np.inf),
+            np.full(ncell, np.inf))
+
+
 @njit(cache=True, nogil=True)
 def bin_cells(x, y, z, x0, y0, h, nx, ny):
     """Counting sort of points (x, y, z) into square cells of side ``h``:
     (order, rank, start, cmax, cmin), ``order[rank[i]] == i``."""
     n = x.shape[0]
     ncell = nx * ny
-    cell = np.empty(n, np.int64)
-    start = np.zeros(ncell + 1, np.int64)
-    cmax = np.full(ncell, -np.inf)
-    cmin = np.full(ncell, np.inf)
+    cell, start, cmax, cmin = new_cells(n, ncell)
     for i in range(n):
-        ix = min(max(int(math.floor((x[i] - x0) / h)), 0), nx - 1)
-        iy = min(max(int(math.floor((y[i] - y0) / h)), 0), ny - 1)
-        c = ix * ny + iy
+        c = cell_of(x[i], y[i], x0, y0, h, nx, ny)
         cell[i] = c
-        start[c + 1] += 1
-        if z[i] > cmax[c]:
-            cmax[c] = z[i]
-        if z[i] < cmin[c]:
-            cmin[c] = z[i]
+        tally(c, z[i], start, cmax, cmin)
     for c in range(ncell):
         start[c + 1] += start[c]
     fill = start[:-1].copy()

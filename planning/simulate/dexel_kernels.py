@@ -870,6 +870,21 @@ def repack(off, cnt, cap, pool, t_fam, t_res, t_mod, base, n, t_top, t_end, t_st
     return noff, npool, ntop, nend
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _segment_bounds(row0, s, nu, off, cnt, pool):
+    """(lowest lower end, highest upper end) of the material of segment ``s`` (rays ``s * SEG`` to
+    ``(s + 1) * SEG``) of the ray row starting at ray ``row0``; (+inf, -inf) when empty."""
+    lo_ = _INF
+    hi_ = -_INF
+    for i in range(s * SEG, min(nu, (s + 1) * SEG)):
+        r = row0 + i
+        c = cnt[r]
+        if c > 0:
+            lo_ = min(lo_, pool[off[r], 0])
+            hi_ = max(hi_, pool[off[r] + c - 1, 1])
+    return lo_, hi_
+
+
 @njit(parallel=True, cache=True)
 def refresh_segments(n, base, sbase, nseg, off, cnt, pool, seg_lo, seg_hi, tbase, tile_lo, tile_hi):
     """Recompute every row segment's and tile's material bounds (the lowest lower end and highest
@@ -880,17 +895,8 @@ def refresh_segments(n, base, sbase, nseg, off, cnt, pool, seg_lo, seg_hi, tbase
         nv = n[(f + 2) % 3]
         for j in prange(nv):
             for s in range(nseg[f]):
-                lo_ = _INF
-                hi_ = -_INF
-                for i in range(s * SEG, min(nu, (s + 1) * SEG)):
-                    r = base[f] + j * nu + i
-                    c = cnt[r]
-                    if c > 0:
-                        lo_ = min(lo_, pool[off[r], 0])
-                        hi_ = max(hi_, pool[off[r] + c - 1, 1])
                 sg = sbase[f] + j * nseg[f] + s
-                seg_lo[sg] = lo_
-                seg_hi[sg] = hi_
+                seg_lo[sg], seg_hi[sg] = _segment_bounds(base[f] + j * nu, s, nu, off, cnt, pool)
     for f in range(3):
         nv = n[(f + 2) % 3]
         for tj in prange((nv + TROWS - 1) // TROWS):
@@ -927,16 +933,7 @@ def refresh_dirty(n, base, sbase, nseg, off, cnt, pool, seg_lo, seg_hi, tbase, t
                     dirty[sg] = 0
                     hit = True
                     done += 1
-                    lo_ = _INF
-                    hi_ = -_INF
-                    for i in range(s * SEG, min(nu, (s + 1) * SEG)):
-                        r = base[f] + j * nu + i
-                        c = cnt[r]
-                        if c > 0:
-                            lo_ = min(lo_, pool[off[r], 0])
-                            hi_ = max(hi_, pool[off[r] + c - 1, 1])
-                    seg_lo[sg] = lo_
-                    seg_hi[sg] = hi_
+                    seg_lo[sg], seg_hi[sg] = _segment_bounds(base[f] + j * nu, s, nu, off, cnt, pool)
                 if hit:
                     lo_ = _INF
                     hi_ = -_INF

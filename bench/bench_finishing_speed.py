@@ -30,7 +30,11 @@ from planning.errors import ParameterError
 from planning.toolpath.balldrop import DropSurface
 from planning.toolpath.finishing import finishing_passes
 from planning.toolpath.moves import USE_CUT, lines
-from planning.toolpath.safety import cutting_positions, finished_reach_mm, unmachined_points
+from planning.toolpath.safety import (
+    cutting_positions,
+    finished_reach_mm,
+    unmachined_points,
+)
 from planning.toolpath.verify import BinnedCloud, move_clearance
 
 
@@ -49,7 +53,7 @@ def _synthetic(half: float, spacing: float, regions: int, seed: int = 0) -> dict
         if sel.any():
             masks.append(np.flatnonzero(sel))
     fp = SimpleNamespace(scallop_mm=0.01, step_mm=None, margin_mm=1.0, pattern="zigzag", lead_mm=1.0)
-    return dict(cloud_f=pts, masks=masks, fp=fp, R=3.0, tol=1e-3, safe=10.0, max_slope_deg=87.0)
+    return {"cloud_f": pts, "masks": masks, "fp": fp, "R": 3.0, "tol": 1e-3, "safe": 10.0, "max_slope_deg": 87.0}
 
 
 def _finishing(d: dict, progress=None) -> list:
@@ -88,9 +92,9 @@ def main() -> None:
     area = pts[np.concatenate(d["masks"])]
     binned = BinnedCloud(pts, R / 4.0)
     for rep in range(args.repeat):
-        calls = []
+        calls: list[float] = []
         t0 = time.perf_counter()
-        fins = _finishing(d, progress=lambda f, m: calls.append(f))
+        fins = _finishing(d, progress=lambda f, m, calls=calls: calls.append(f))
         t1 = time.perf_counter()
         kept = np.concatenate([cutting_positions(f.toolpath, R / 4.0) for f in fins])
         reach = finished_reach_mm(R, tol_mm=d["tol"], scallop_mm=d["fp"].scallop_mm, spacing_mm=R / 4.0)

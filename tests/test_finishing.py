@@ -216,7 +216,7 @@ def test_progress_is_told_of_the_passes_and_changes_nothing(adaptive, monkeypatc
 
     pts = _plane()
     area = (np.abs(pts[:, 0]) <= 10) & (np.abs(pts[:, 1]) <= 5)
-    kw = dict(radius_mm=3.0, scallop_mm=0.01, margin_mm=1.0, adaptive=adaptive)
+    kw = {"radius_mm": 3.0, "scallop_mm": 0.01, "margin_mm": 1.0, "adaptive": adaptive}
     plain = finishing_passes(pts, area, **kw)
     calls = []
     monkeypatch.setattr(fin_mod, "PROGRESS_EVERY_S", 0.0)       # every pass reports

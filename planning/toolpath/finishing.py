@@ -77,7 +77,7 @@ class _Progress:
             return
         share = min((y - self.y0) / self.span, 1.0) if self.span > 0 else 1.0
         if total is None:
-            total = k + max(int(math.ceil((self.y0 + self.span - y) / self.s - 1e-9)), 0)
+            total = k + max(math.ceil((self.y0 + self.span - y) / self.s - 1e-9), 0)
         self._call(PASSES_SHARE * share, f"pass {k}/~{total}")
 
     def joining(self, n: int, share: float = 0.0, what: str = "making safe and linking") -> None:

@@ -63,7 +63,6 @@ from planning.geometry.fixtures import fixture_collision_free
 from planning.geometry.tool import ToolAssembly
 from planning.toolpath.finishing import FinishingPath
 from planning.toolpath.frames import AreaFrame
-from planning.toolpath.verify import serial_twin
 from planning.toolpath.moves import (
     ARC_CCW,
     ARC_CW,
@@ -77,6 +76,7 @@ from planning.toolpath.moves import (
     densify,
     path_length_mm,
 )
+from planning.toolpath.verify import serial_twin
 
 #: The reasons :func:`blocked_cl` reports, in this order.
 REASONS = ("cloud", "fixture", "stock", "travel", "underside")

@@ -273,7 +273,8 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
                 masks.append(np.concatenate([extra, np.zeros(cloud_f.shape[0] - extra.shape[0], dtype=bool)]))
             _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec,
                            blocked=None if carried is None else
-                           (lambda fin: _cut_blocked(ap, fin, carried, obstacles, axes[i], tool, fixtures, area_f, fp)),
+                           (lambda fin, prg: _cut_blocked(ap, fin, carried, obstacles, axes[i], tool, fixtures, area_f, fp,
+                                                               progress=prg)),
                            progress=prog)
             # cutter, shank and holder above the ball at every CL point of the cut
             t0 = time.perf_counter()
@@ -422,7 +423,7 @@ def _guard_finishing(ap: AreaPaths, carried, area_f, fp, progress: Progress | No
 
 
 def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, tool: ToolAssembly, fixtures,
-                 area_f, fp) -> FinishingPath:
+                 area_f, fp, progress: Progress | None = None) -> FinishingPath:
     """Issue 16 item 3 on the dense finishing CL points, before reduction
     (:func:`planning.toolpath.safety.guard_finishing`): the points (and the insides of the moves)
     where the cutter, shank or holder would meet the cloud, the carried stock, a fixture or the
@@ -438,7 +439,7 @@ def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, to
                                 safe_z_mm=ap.safe_z_mm, fixtures=fixtures, stock=carried.stock,
                                 stock_shape=carried.finishing_shape, travel_ok=travel,
                                 floor_z_part_mm=carried.footprint, tol_mm=fp.tolerance_mm, scallop_mm=fp.scallop_mm,
-                                step_mm=fp.step_mm)
+                                step_mm=fp.step_mm, progress=progress)
     ap.blocked = dict(figs.blocked)
     ap.unmachined = figs.unmachined
     if out is None:                            # the set-up cannot finish any of its area
@@ -449,7 +450,7 @@ def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, to
 def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, max_slope_deg: float,
                    sec: dict, blocked=None, progress: _PathsProgress | None = None) -> None:
     """Step 4 and the gouge check of step 5 into ``ap``: finishing passes per region
-    (:func:`_region_finishing`), the blocked CL points cut out (``blocked``: FinishingPath ->
+    (:func:`_region_finishing`), the blocked CL points cut out (``blocked``: (FinishingPath, progress) ->
     FinishingPath, or None), arc fitting or CL reduction of the joined path, and the minimal
     clearance of the final moves (capped at R)."""
     R, tol = ap.radius_mm, ap.tolerance_mm
@@ -462,8 +463,7 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
     sec["finishing"] = time.perf_counter() - t0
     if blocked is not None:
         t0 = time.perf_counter()
-        step("cut_blocked")
-        fin = blocked(fin)
+        fin = blocked(fin, step("cut_blocked"))
         sec["cut_blocked"] = time.perf_counter() - t0
         if fin is None:                        # nothing of the area can be finished from this set-up
             return

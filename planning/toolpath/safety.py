@@ -129,7 +129,8 @@ def _unit_axis(axis, frame: AreaFrame) -> np.ndarray:
 def blocked_cl(centres_frame, frame: AreaFrame, axis=None, *, tool: ToolAssembly, obstacles_part,
                fixtures: Sequence = (), stock=None, stock_shape=None,
                travel_ok: Callable[[np.ndarray], np.ndarray] | None = None,
-               floor_z_part_mm: float | None = None, tol_mm: float = 1e-3) -> BlockedCL:
+               floor_z_part_mm: float | None = None, tol_mm: float = 1e-3,
+               progress: Callable[[float, str], None] | None = None) -> BlockedCL:
     """Which ball-centre positions the tool may not take (module docstring, step 1).
 
     ``centres_frame`` (n,3): ball centres in the area frame ``frame``; ``axis`` (3,): the tool axis
@@ -143,8 +144,9 @@ def blocked_cl(centres_frame, frame: AreaFrame, axis=None, *, tool: ToolAssembly
     within the machine's travel (None: not checked); ``floor_z_part_mm``: the part's underside
     (part frame z; None: not checked), or a :class:`planning.toolpath.carried.Footprint` (only a ball
     reaching below the underside INSIDE the part's footprint counts); ``tol_mm``: how far below the
-    underside the ball may reach.
-    Vectorised: one call of each check for all points."""
+    underside the ball may reach. ``progress(fraction, message)``: each check as it starts (the
+    stock's inside it). Vectorised: one call of each check for all points."""
+    say = progress or (lambda fraction, message="": None)
     c_f = np.asarray(centres_frame, dtype=np.float64).reshape(-1, 3)
     n = c_f.shape[0]
     if not np.all(np.isfinite(c_f)):
@@ -158,8 +160,10 @@ def blocked_cl(centres_frame, frame: AreaFrame, axis=None, *, tool: ToolAssembly
     tips = c_p - R * t
     obst = None if obstacles_part is None else np.asarray(obstacles_part, dtype=np.float64).reshape(-1, 3)
     if obst is not None and obst.shape[0]:
+        say(0.0, f"{n} positions: cloud")
         reasons["cloud"] = ~centres_collision_free(obst, c_p, t[None, :], tool)[:, 0]
     if fixtures:
+        say(0.3, f"{n} positions: fixtures")
         reasons["fixture"] = ~fixture_collision_free(c_p, t[None, :], tool, list(fixtures))[:, 0]
     if stock is not None:
         from planning.simulate.dexel import collide
@@ -169,9 +173,13 @@ def blocked_cl(centres_frame, frame: AreaFrame, axis=None, *, tool: ToolAssembly
             from planning.simulate.tools import finishing_shape
 
             shape = finishing_shape(tool, 0, flute_length_mm(tool))
-        depth = collide(stock, tips, tips, np.broadcast_to(t, (n, 3)), shape, which="holder")
+        say(0.4, f"{n} positions: stock")
+        depth = collide(stock, tips, tips, np.broadcast_to(t, (n, 3)), shape, which="holder",
+                        progress=None if progress is None else
+                        (lambda f, m: say(0.4 + 0.55 * f, f"{n} positions: stock, {m}")))
         reasons["stock"] = np.asarray(depth) > 0
     if travel_ok is not None:
+        say(0.95, f"{n} positions: travel")
         ok = np.asarray(travel_ok(tips), dtype=bool).reshape(-1)
         if ok.shape[0] != n:
             raise ParameterError(f"travel_ok must return one bool per tip ({n}), got {ok.shape[0]}")
@@ -612,7 +620,8 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
                     travel_ok: Callable[[np.ndarray], np.ndarray] | None = None,
                     floor_z_part_mm: float | None = None, tol_mm: float = 1e-3, scallop_mm: float = 0.01,
                     step_mm: float | None = None, reach_mm: float | None = None, approach_mm: float = 1.0,
-                    sample_mm: float | None = None, max_rounds: int = 8) -> tuple[FinishingPath | None, FinishingSafety]:
+                    sample_mm: float | None = None, max_rounds: int = 8,
+                    progress: Callable[[float, str], None] | None = None) -> tuple[FinishingPath | None, FinishingSafety]:
     """Steps 1 to 3 of the module docstring for one area's finishing ``fin``, best on the dense CL
     points before CL reduction and arc fitting (arcs are handled too).
 
@@ -639,7 +648,9 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
     and ``n_retracts`` (plus :attr:`CutResult.n_new_retracts`): ``fin`` itself when nothing is
     blocked, None when no piece is left; ``min_clearance_mm`` stays the input's (a lower bound:
     the kept moves are the input's, the new ones run straight up over ball-drop points); and
-    :class:`FinishingSafety`."""
+    :class:`FinishingSafety`. ``progress(fraction, message)``: the check of step 1 takes the first
+    70 %, the rounds of step 2 the next 20 %, step 3 the rest."""
+    say = progress or (lambda fraction, message="": None)
     tp = fin.toolpath
     R = float(tool.radius_mm)
     P = tp.n_moves
@@ -662,7 +673,8 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
     moves = np.arange(1, P)
     moves = moves[low[moves] | low[moves - 1]]
     inner, owner = _move_samples(tp, moves, spacing)
-    b = blocked_cl(np.concatenate([xyz, inner]), frame, axis, **kw)
+    b = blocked_cl(np.concatenate([xyz, inner]), frame, axis, **kw,
+                   progress=None if progress is None else (lambda f, m: say(0.7 * f, f"check of {m}")))
     on_pts = BlockedCL(mask=b.mask[:P], reasons={k: v[:P] for k, v in b.reasons.items()})
     drop = on_pts.mask.copy()
     bad_moves = np.unique(owner[b.mask[P:]])
@@ -684,6 +696,7 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
 
     rounds = 0
     while True:
+        say(min(0.7 + 0.05 * rounds, 0.9), f"cut, round {rounds + 1}")
         c = cut_moves(tp, drop, safe_z_mm=safe, pass_index=fin.pass_index, approach_mm=approach_mm)
         rounds += 1
         ends = np.unique(c.source[c.anchor[c.anchor >= 0]])
@@ -712,6 +725,7 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
                 drop[a + free[-1] + 1:e + 1] = True
 
     # 3. what the cut leaves unfinished
+    say(0.9, "unmachined points")
     pts = np.asarray(area_points_frame, dtype=np.float64).reshape(-1, 3)
     # what the result leaves, and of that what the input left too (asked only about those points)
     unm = unmachined_points(pts, cutting_positions(c.toolpath, step), R, reach)

@@ -96,6 +96,8 @@ RAMP_DIAMETERS = 2.0    #: default longest ramp leg / cutter diameter
 FAR_RADII = 8.0        #: helices away from the piece's start are sought within this many tool radii of it
 FAR_TRIES = 32         #: of those, the cheapest this many are tried
 _DIRS_DEG = (0.0, 30.0, -30.0, 60.0, -60.0, 90.0, -90.0, 120.0, -120.0, 150.0, -150.0, 180.0)
+_DIR_COS = np.array([math.cos(math.radians(a)) for a in _DIRS_DEG])   #: cos / sin of _DIRS_DEG (as
+_DIR_SIN = np.array([math.sin(math.radians(a)) for a in _DIRS_DEG])   #: _helix_centres computes them)
 
 
 @dataclass(frozen=True)
@@ -271,6 +273,123 @@ def _helix_in(flat, x0, y0, h, nx, ny, cx, cy, r, phi_end, L, ex, ey):
     return True
 
 
+@njit(cache=True, nogil=True)
+def _start_z(T, z, gap, safe):
+    """Where a helix or ramp starts (mm): ``gap`` above the material ``T`` (at least the level z), at
+    most ``safe`` (:meth:`_Entries._start_height`, with Python's ``max`` / ``min`` on ties)."""
+    m = T
+    if z > m:
+        m = z
+    m = m + gap
+    if safe < m:
+        m = safe
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _helix_end(qx, qy, cx, cy, r):
+    """Where the helix about (cx, cy) of radius r ends (mm): at q when q lies on its circle (within
+    1e-12 r), else at the circle's point nearest q: (ex, ey, phi the end's angle about the centre,
+    whether it ends at q)."""
+    dq = math.hypot(qx - cx, qy - cy)
+    if dq <= r * (1 + 1e-12):
+        return qx, qy, math.atan2(qy - cy, qx - cx), True
+    ex = cx + r * (qx - cx) / dq
+    ey = cy + r * (qy - cy) / dq
+    return ex, ey, math.atan2(ey - cy, ex - cx), False
+
+
+@njit(cache=True, nogil=True)
+def _near_helix(flat, nx, ny, qx, qy, ux, uy, r, Rt, z, safe, gap, tan, good, cap, dcos, dsin,
+                top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h):
+    """The cheapest helix of radius r about a centre near q (module docstring, 2.; the centres of
+    :func:`_helix_centres` in its order, direction k at cos / sin ``dcos[k]`` / ``dsin[k]`` off u):
+    every chord in the region (:func:`_helix_in`), the link e -> q (when it does not end at q) in
+    sight (:func:`planning.toolpath.roughing.links._seg_in`), its cost (descent length from the
+    start height over the material within r + Rt of the centre, plus the link; mm) below ``cap``
+    and below the best one so far; the first one starting at most ``good`` + 1e-9 is taken at once.
+    Returns (found, centre x, y, end x, y, end angle, start height zs, cost, ends at q, taken at
+    once)."""
+    found = False
+    b_cx = b_cy = b_ex = b_ey = b_phi = b_zs = b_cost = 0.0
+    b_atq = False
+    for i in range(4):
+        if i == 0:
+            rho = r
+        elif i == 1:
+            rho = r + 2.0 * h
+        elif i == 2:
+            rho = r + 0.5 * Rt
+        else:
+            rho = r + Rt
+        for j in range(dcos.shape[0]):
+            ca = dcos[j]
+            sa = dsin[j]
+            px = qx + rho * (ca * ux - sa * uy)
+            py = qy + rho * (sa * ux + ca * uy)
+            T = _material_at(top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h, px, py, r + Rt)
+            zs = _start_z(T, z, gap, safe)
+            dq = math.hypot(qx - px, qy - py) - r
+            if 0.0 > dq:
+                dq = 0.0
+            lim = cap
+            if found and b_cost < lim:
+                lim = b_cost
+            if (zs - z) / tan + dq >= lim:
+                continue
+            ex, ey, phi, atq = _helix_end(qx, qy, px, py, r)
+            dz = zs - z
+            if 0.0 > dz:
+                dz = 0.0
+            if not _helix_in(flat, x0, y0, h, nx, ny, px, py, r, phi, dz / tan, ex, ey):
+                continue
+            cost = (zs - z) / tan
+            if not atq:
+                if not _seg_in(flat, x0, y0, h, nx, ny, ex, ey, qx, qy):
+                    continue
+                cost += math.hypot(qx - ex, qy - ey)
+            found = True
+            b_cx, b_cy, b_ex, b_ey, b_phi, b_zs, b_cost, b_atq = px, py, ex, ey, phi, zs, cost, atq
+            if zs <= good + 1e-9:
+                return True, b_cx, b_cy, b_ex, b_ey, b_phi, b_zs, b_cost, b_atq, True
+    return found, b_cx, b_cy, b_ex, b_ey, b_phi, b_zs, b_cost, b_atq, False
+
+
+@njit(cache=True, nogil=True)
+def _far_helix(flat, nx, ny, x0, y0, h, qx, qy, r, z, safe, gap, tan, bound, sites, order, start):
+    """The first of the far helices (rows of :func:`_helix_sites`, tried in ``order`` from position
+    ``start``, while their cost bound is below ``bound``) whose chords lie in the region
+    (:func:`_helix_in`) and that ends at q or in sight of it with its cost (descent length plus the
+    straight link, mm) below ``bound``, or whose end needs a path in the region to q (the caller
+    seeks it). Returns (status: 0 none, 1 found, 2 needs a path; position in ``order``, end x, y, end
+    angle, start height zs, cost without a path, ends at q)."""
+    for m in range(start, order.shape[0]):
+        k = order[m]
+        if sites[k, 3] >= bound:
+            break
+        px = sites[k, 0]
+        py = sites[k, 1]
+        ex, ey, phi, atq = _helix_end(qx, qy, px, py, r)
+        zs = _start_z(sites[k, 2], z, gap, safe)
+        dz = zs - z
+        if 0.0 > dz:
+            dz = 0.0
+        if not _helix_in(flat, x0, y0, h, nx, ny, px, py, r, phi, dz / tan, ex, ey):
+            continue
+        cost = (zs - z) / tan
+        if atq:
+            if cost < bound:
+                return 1, m, ex, ey, phi, zs, cost, atq
+            continue
+        if _seg_in(flat, x0, y0, h, nx, ny, ex, ey, qx, qy):
+            cost += math.hypot(qx - ex, qy - ey)
+            if cost < bound:
+                return 1, m, ex, ey, phi, zs, cost, atq
+            continue
+        return 2, m, ex, ey, phi, zs, cost, atq
+    return 0, -1, 0.0, 0.0, 0.0, 0.0, 0.0, False
+
+
 # ----------------------------------------------------------------------------------------------
 # Geometry of helices and ramps
 # ----------------------------------------------------------------------------------------------
@@ -428,84 +547,64 @@ class _Entries:
         w.add(np.column_stack([plan.link[1:], np.full(plan.link.shape[0] - 1, z)]), USE_CUT)
         return [plan.link]
 
-    def _helix_plan(self, lv, c, r, q, z, safe, T=None):
-        """The helix about c of radius r ending at the circle's point nearest q (or at q), if it lies
-        in the region: (plan without its link, end point) or None."""
-        dq = float(np.hypot(*(q - c)))
-        e = q if dq <= r * (1 + 1e-12) else c + r * (q - c) / dq
-        phi = math.atan2(e[1] - c[1], e[0] - c[0])
-        if T is None:
-            T = self.material(lv, c, r + self.Rt)
-        zs = self._start_height(T, z, safe)
-        if not _helix_in(lv.flat, lv.x0, lv.y0, lv.h, lv.nx, lv.ny, float(c[0]), float(c[1]), float(r), phi,
-                         max(zs - z, 0.0) / self.cfg.tan, float(e[0]), float(e[1])):
-            return None
+    def _helix_at(self, c, r, e, phi, zs, z, cost, link) -> _Plan:
+        """The helix plan about c (mm) of radius r ending at e (angle ``phi``) at level z from zs."""
         hx = _helix_xyz(c, r, phi, zs, z, self.cfg.tan)
         hx[-1, :2] = e
-        return _Plan("helix", hx, zs, None, (zs - z) / self.cfg.tan), e
+        return _Plan("helix", hx, zs, link, cost)
 
     def _helix(self, lv, q, qcell, u, z, safe, cap):
         """The cheapest helix found (module docstring, 2.), no dearer than ``cap``; None when none
-        fits."""
+        fits. The candidates are tried by :func:`_near_helix` (the centres near q) and
+        :func:`_far_helix` (those of :func:`_helix_sites`); only the paths in the region for far
+        helices out of sight of q are sought here."""
         cfg = self.cfg
         u = np.array([1.0, 0.0]) if u is None else u
         good = self._good(z)
+        qx, qy = float(q[0]), float(q[1])
         best = None
         for r in (cfg.radius, 0.5 * cfg.radius):
-            for c in _helix_centres(q, u, r, self.Rt, lv.h):
-                T = self.material(lv, c, r + self.Rt)
-                zs = self._start_height(T, z, safe)
-                dq = max(float(np.hypot(*(q - c))) - r, 0.0)
-                if (zs - z) / cfg.tan + dq >= min(cap, math.inf if best is None else best.cost):
-                    continue
-                got = self._helix_plan(lv, c, r, q, z, safe, T)
-                if got is None:
-                    continue
-                plan, e = got
-                if e is not q:
-                    if not lv.visible(e, q):
-                        continue
-                    plan.link = np.array([e, q])
-                    plan.cost += float(np.hypot(*(q - e)))
-                best = plan
-                if zs <= good + 1e-9:
+            found, cx, cy, ex, ey, phi, zs, cost, atq, now = _near_helix(
+                lv.flat, lv.nx, lv.ny, qx, qy, float(u[0]), float(u[1]), float(r), float(self.Rt), float(z),
+                float(safe), GAP_MM, cfg.tan, float(good), float(cap), _DIR_COS, _DIR_SIN, *self._margs(lv))
+            if found:
+                e = q if atq else np.array([ex, ey])
+                best = self._helix_at(np.array([cx, cy]), r, e, phi, zs, z, cost, None if atq else np.array([e, q]))
+                if now:
                     return best
-            if best is not None:
                 break
         # farther: a helix where the map is lower (away from the part's walls), linked to q at the level
         for r in (cfg.radius, 0.5 * cfg.radius):
             lim = min(cap, math.inf if best is None else best.cost)
-            sites = _helix_sites(lv.flat, lv.nx, lv.ny, float(q[0]), float(q[1]), FAR_RADII * self.Rt,
+            sites = _helix_sites(lv.flat, lv.nx, lv.ny, qx, qy, FAR_RADII * self.Rt,
                                  max(1, int(round(0.5 * r / lv.h))), float(r + self.Rt), float(z), GAP_MM,
                                  float(safe), cfg.tan, float(lim), *self._margs(lv))
             if sites.shape[0] == 0:
                 continue
-            for k in np.argsort(sites[:, 3], kind="stable")[:FAR_TRIES]:
-                if sites[k, 3] >= min(lim, math.inf if best is None else best.cost):
+            order = np.ascontiguousarray(np.argsort(sites[:, 3], kind="stable")[:FAR_TRIES])
+            bound = min(lim, math.inf if best is None else best.cost)
+            m = 0
+            while True:
+                st, m, ex, ey, phi, zs, cost, atq = _far_helix(lv.flat, lv.nx, lv.ny, lv.x0, lv.y0, lv.h, qx, qy,
+                                                               float(r), float(z), float(safe), GAP_MM, cfg.tan,
+                                                               float(bound), sites, order, m)
+                if st == 0:
                     break
-                c = sites[k, :2].copy()
-                got = self._helix_plan(lv, c, r, q, z, safe, float(sites[k, 2]))
-                if got is None:
-                    continue
-                plan, e = got
-                budget = min(lim, math.inf if best is None else best.cost) - plan.cost
-                if e is q:
-                    link = None
-                elif lv.visible(e, q):
-                    link = np.array([e, q])
-                else:
+                e = q if atq else np.array([ex, ey])
+                link = None if atq else np.array([e, q])
+                if st == 2:                    # out of sight of q: a shortest path in the region
                     ce = _region_cell(lv, e)
-                    if ce < 0:
-                        continue
-                    link = lv.grid_path(e, ce, q, qcell, budget)
+                    link = None if ce < 0 else lv.grid_path(e, ce, q, qcell, bound - cost)
                     if link is None:
+                        m += 1
                         continue
-                if link is not None:
-                    plan.link = link
-                    plan.cost += float(np.hypot(*np.diff(link, axis=0).T).sum())
-                if plan.cost < min(lim, math.inf if best is None else best.cost):
-                    best = plan
-                    break
+                    cost = cost + float(np.hypot(*np.diff(link, axis=0).T).sum())
+                    if not cost < bound:
+                        m += 1
+                        continue
+                k = order[m]
+                best = self._helix_at(sites[k, :2].copy(), r, e, phi, zs, z, cost, link)
+                break
             if best is not None:
                 break
         return best

@@ -278,10 +278,10 @@ def _start_z(T, z, gap, safe):
     """Where a helix or ramp starts (mm): ``gap`` above the material ``T`` (at least the level z), at
     most ``safe`` (:meth:`_Entries._start_height`, with Python's ``max`` / ``min`` on ties)."""
     m = T
-    if z > m:
+    if z > m:  # noqa: PLR1730 (Python's max / min on ties, as the callers had)
         m = z
     m = m + gap
-    if safe < m:
+    if safe < m:  # noqa: PLR1730 (Python's max / min on ties, as the callers had)
         m = safe
     return m
 
@@ -330,7 +330,7 @@ def _near_helix(flat, nx, ny, qx, qy, ux, uy, r, Rt, z, safe, gap, tan, good, ca
             T = _material_at(top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h, px, py, r + Rt)
             zs = _start_z(T, z, gap, safe)
             dq = math.hypot(qx - px, qy - py) - r
-            if 0.0 > dq:
+            if 0.0 > dq:  # noqa: PLR1730 (Python's max / min on ties, as the callers had)
                 dq = 0.0
             lim = cap
             if found and b_cost < lim:
@@ -339,7 +339,7 @@ def _near_helix(flat, nx, ny, qx, qy, ux, uy, r, Rt, z, safe, gap, tan, good, ca
                 continue
             ex, ey, phi, atq = _helix_end(qx, qy, px, py, r)
             dz = zs - z
-            if 0.0 > dz:
+            if 0.0 > dz:  # noqa: PLR1730 (Python's max / min on ties, as the callers had)
                 dz = 0.0
             if not _helix_in(flat, x0, y0, h, nx, ny, px, py, r, phi, dz / tan, ex, ey):
                 continue
@@ -372,7 +372,7 @@ def _far_helix(flat, nx, ny, x0, y0, h, qx, qy, r, z, safe, gap, tan, bound, sit
         ex, ey, phi, atq = _helix_end(qx, qy, px, py, r)
         zs = _start_z(sites[k, 2], z, gap, safe)
         dz = zs - z
-        if 0.0 > dz:
+        if 0.0 > dz:  # noqa: PLR1730 (Python's max / min on ties, as the callers had)
             dz = 0.0
         if not _helix_in(flat, x0, y0, h, nx, ny, px, py, r, phi, dz / tan, ex, ey):
             continue

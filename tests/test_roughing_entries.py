@@ -364,3 +364,28 @@ def test_roughing_params_entries():
 def test_bad_entry_arguments_raise(kwargs, words):
     with pytest.raises(ParameterError, match=words):
         roughing_paths(_dome(), tool_radius_mm=RT, **kwargs)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_helix_sites_keeps_the_cheapest_in_order(seed):
+    """The far helix sites look the material up cheapest first and stop early (issue 17): the
+    FAR_TRIES cheapest in the stable order by cost are those of looking every site up (a huge
+    ``ntop``), bit for bit, also with ties (material heights on a 0.5 mm grid, a wall) and a finite cap."""
+    from planning.toolpath.roughing.entries import FAR_TRIES, _helix_sites
+
+    rng = np.random.default_rng(seed)
+    nx, ny, h, H = 80, 70, 0.5, 2.0
+    ncx, ncy = int(nx * h / H), int(ny * h / H)
+    top = np.round(rng.uniform(-2.0, 0.5, (ncx, ncy)) * 2) / 2       # cut down
+    top[(np.arange(ncx) + 0.5) * H < 14.0] = 6.0                   # a wall beside q
+    cx, cy = (np.arange(ncx) + 0.5) * H, (np.arange(ncy) + 0.5) * H
+    hx, hy = np.full(ncx, 0.5 * H), np.full(ncy, 0.5 * H)
+    fine = np.full((1, 1), np.inf)
+    region = rng.random(nx * ny) < 0.6
+    for cap in (math.inf, 25.0):
+        args = (region, nx, ny, 20.3, 17.1, 24.0, 2, 4.5, 0.0, GAP_MM, 10.0, math.tan(math.radians(5.0)), cap)
+        rest = (top, cx, cy, hx, hy, 0.0, 0.0, H, fine, False, 0.0, 0.0, h)
+        fast, full = _helix_sites(*args, FAR_TRIES, *rest), _helix_sites(*args, 10**5, *rest)
+        assert fast.shape[0] < full.shape[0]
+        pick = [s[np.argsort(s[:, 3], kind="stable")[:FAR_TRIES]] for s in (fast, full)]
+        assert np.array_equal(pick[0], pick[1])

@@ -205,18 +205,26 @@ def _side_start(region, G, thr, win, use_win, nx, ny, qx, qy, ux, uy, dmax, z, R
 
 
 @njit(cache=True, nogil=True)
-def _helix_sites(region, nx, ny, qx, qy, dmax, stride, R, z, gap, safe, tan, cap,
+def _helix_sites(region, nx, ny, qx, qy, dmax, stride, R, z, gap, safe, tan, cap, ntop,
                  top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h):
     """Candidate helix centres away from q: the region cells every ``stride`` cells within ``dmax``
     of q whose lower bound of cost (the helix's descent length from GAP above the material within R
-    of the centre, plus the straight distance to q) is below ``cap``: rows (x, y, material top,
-    cost bound)."""
+    of the centre, plus the straight distance to q; mm) is below ``cap``: rows (x, y, material top,
+    cost bound), in the order of the cells (x, then y). Only the ``ntop`` cheapest matter (a
+    stable sort by cost then takes them), so not every row is returned: the material is looked up
+    cheapest first by the bound that ignores it (the descent from GAP above the level), and the
+    look-ups stop once that bound exceeds the ``ntop``-th cost found; every row whose cost is at most
+    that is returned (the ``ntop`` cheapest in the stable order are among them)."""
     iq = int(math.floor((qx - x0) / h))
     jq = int(math.floor((qy - y0) / h))
     k = int(math.ceil(dmax / h))
-    cap_n = 1024
-    out = np.empty((cap_n, 4))
+    nc = 0
+    for i in range(max(iq - k, 0), min(iq + k, nx - 1) + 1, stride):
+        for j in range(max(jq - k, 0), min(jq + k, ny - 1) + 1, stride):
+            nc += 1
+    cand = np.empty((nc, 4))                  # x, y, distance to q, cost bound without the material
     n = 0
+    d0 = (min(z + gap, safe) - z) / tan       # least descent: zs >= min(z + gap, safe)
     for i in range(max(iq - k, 0), min(iq + k, nx - 1) + 1, stride):
         px = x0 + (i + 0.5) * h
         for j in range(max(jq - k, 0), min(jq + k, ny - 1) + 1, stride):
@@ -226,22 +234,48 @@ def _helix_sites(region, nx, ny, qx, qy, dmax, stride, R, z, gap, safe, tan, cap
             d = math.hypot(px - qx, py - qy)
             if d > dmax or d >= cap:
                 continue
-            T = _material_at(top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h, px, py, R)
-            zs = min(max(T, z) + gap, safe)
-            cost = (zs - z) / tan + max(d - R, 0.0)
-            if cost >= cap:
+            lb = d0 + max(d - R, 0.0)
+            if lb >= cap:
                 continue
-            if n == cap_n:
-                cap_n *= 2
-                o2 = np.empty((cap_n, 4))
-                o2[:n] = out[:n]
-                out = o2
-            out[n, 0] = px
-            out[n, 1] = py
-            out[n, 2] = T
-            out[n, 3] = cost
+            cand[n, 0] = px
+            cand[n, 1] = py
+            cand[n, 2] = d
+            cand[n, 3] = lb
             n += 1
-    return out[:n]
+    keep = np.zeros(n, np.bool_)
+    Ts = np.empty(n)
+    costs = np.empty(n)
+    best = np.full(max(ntop, 1), np.inf)      # the ntop least costs found, ascending
+    for m in np.argsort(cand[:n, 3]):
+        if cand[m, 3] > best[-1]:
+            break
+        px = cand[m, 0]
+        py = cand[m, 1]
+        d = cand[m, 2]
+        T = _material_at(top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h, px, py, R)
+        zs = min(max(T, z) + gap, safe)
+        cost = (zs - z) / tan + max(d - R, 0.0)
+        if cost >= cap:
+            continue
+        keep[m] = True
+        Ts[m] = T
+        costs[m] = cost
+        if cost < best[-1]:
+            a = best.shape[0] - 1
+            while a > 0 and best[a - 1] > cost:
+                best[a] = best[a - 1]
+                a -= 1
+            best[a] = cost
+    out = np.empty((int(keep.sum()), 4))
+    o = 0
+    for m in range(n):
+        if keep[m]:
+            out[o, 0] = cand[m, 0]
+            out[o, 1] = cand[m, 1]
+            out[o, 2] = Ts[m]
+            out[o, 3] = costs[m]
+            o += 1
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -578,7 +612,7 @@ class _Entries:
             lim = min(cap, math.inf if best is None else best.cost)
             sites = _helix_sites(lv.flat, lv.nx, lv.ny, qx, qy, FAR_RADII * self.Rt,
                                  max(1, int(round(0.5 * r / lv.h))), float(r + self.Rt), float(z), GAP_MM,
-                                 float(safe), cfg.tan, float(lim), *self._margs(lv))
+                                 float(safe), cfg.tan, float(lim), FAR_TRIES, *self._margs(lv))
             if sites.shape[0] == 0:
                 continue
             order = np.ascontiguousarray(np.argsort(sites[:, 3], kind="stable")[:FAR_TRIES])

@@ -34,7 +34,7 @@ from service_fixtures import HALF_SPHERE_PARAMS
 HUGE_MB = 1024 * 1024 * 1024          # a reserve of 1 PiB: no disk has that much free
 
 
-def write_plan_disk_full(outcome, out_dir):
+def write_plan_disk_full(outcome, out_dir, progress=None):
     """``write_plan`` on a disk that fills up: the first file is half written, then ENOSPC."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -47,6 +47,8 @@ Progress = Callable[[float, str], None]
 
 #: Offences of each class listed in ``verification.worst``.
 WORST_PER_CLASS = 5
+#: Scan points whose deviation is read in one call (the calls report progress between them).
+DEVIATION_CHUNK = 500_000
 
 
 @dataclass
@@ -272,8 +274,13 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
                                       detail=f"{t['axis']} {t['value']:.3f} beyond {t['limit']:.3f}")
                   for t in sorted(travel, key=lambda t: -t["excess"])[:WORST_PER_CLASS]]
         say(n_done, 1.0, f"{name}: {motion.n_moves} moves simulated")
-    say(len(names), 0.0, "deviation of the scan from the simulated stock")
-    dev, dev_high = deviation_pair(models.stock, points, normals, max_mm=10.0)
+    # the deviation of every scan point, in chunks so that a large scan still reports (per point: the same)
+    dev, dev_high = np.empty(points.shape[0]), np.empty(points.shape[0])
+    for a in range(0, max(points.shape[0], 1), DEVIATION_CHUNK):
+        b = min(points.shape[0], a + DEVIATION_CHUNK)
+        say(len(names), 0.8 * a / max(points.shape[0], 1), f"deviation of the scan from the simulated stock: "
+                                                             f"points {a + 1}-{b} of {points.shape[0]}")
+        dev[a:b], dev_high[a:b] = deviation_pair(models.stock, points[a:b], normals[a:b], max_mm=10.0)
     fp = config.paths.finishing
     limit = fp.tolerance_mm + fp.scallop_mm + models.measuring_bound_mm
     gouge = fp.tolerance_mm + models.measuring_bound_mm
@@ -283,6 +290,7 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
     if suspect.size:
         from planning.simulate.gouge import penetration_mm
 
+        say(len(names), 0.8, f"{suspect.size} points read below the scan: measured exactly")
         exact[suspect] = penetration_mm(points[suspect], motions, tools)
     exact_limit = fp.tolerance_mm + READER_CHORD_TOL_MM + 10.0 ** -config.post.decimals
     v.deviation = deviation_figures(dev, limit, gouge, dev_high, exact, exact_limit)

@@ -664,8 +664,9 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
     kw = {"tool": tool, "obstacles_part": obstacles_part, "fixtures": fixtures, "stock": stock,
           "stock_shape": stock_shape, "travel_ok": travel_ok, "floor_z_part_mm": floor_z_part_mm, "tol_mm": tol_mm}
 
-    def check(points):
-        return blocked_cl(points, frame, axis, **kw).mask
+    def check(points, message):
+        return blocked_cl(points, frame, axis, **kw,
+                          progress=None if progress is None else (lambda f, m: say(round_at[0], f"{message}: {m}"))).mask
 
     # 1. the points and the insides of the moves (not those along the safe height)
     xyz = tp.xyz_mm
@@ -691,12 +692,14 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
         if idx.size:
             samples, own = _columns(xyz[idx], safe, spacing)
             hit = np.zeros(idx.size, dtype=bool)
-            hit[np.unique(own[check(samples)])] = True
+            hit[np.unique(own[check(samples, f"link columns of {idx.size} points")])] = True
             col[idx] = np.where(hit, 2, 1)
 
     rounds = 0
+    round_at = [0.7]                # the progress of the round under way (its column checks report there)
     while True:
-        say(min(0.7 + 0.05 * rounds, 0.9), f"cut, round {rounds + 1}")
+        round_at[0] = min(0.7 + 0.05 * rounds, 0.9)
+        say(round_at[0], f"cut, round {rounds + 1}")
         c = cut_moves(tp, drop, safe_z_mm=safe, pass_index=fin.pass_index, approach_mm=approach_mm)
         rounds += 1
         ends = np.unique(c.source[c.anchor[c.anchor >= 0]])

@@ -10,7 +10,9 @@ size's own; the kernels come from the numba cache (run ``scanmill warmup`` or an
 Per size and stage it prints the seconds and the peak resident memory while the stage ran (RSS
 sampled every 20 ms by a thread); then, between consecutive sizes, each stage's growth exponent
 ``log(t2/t1) / log(n2/n1)`` (1.0 is linear; n log n reads about 1.05-1.1 over a doubling at these
-sizes). A stage whose exponent exceeds ``--flag-exponent`` (default 1.25) is marked ``*``.
+sizes). A stage whose exponent exceeds ``--flag-exponent`` (default 1.25) is marked ``*``. It also
+prints, per size, the longest wait between two progress reports of the same stage (issue 17 item 3:
+every stage reports at least every 2 s of work).
 
     .venv/bin/python bench/bench_scaling.py                              # 0.25 .. 4 M points
     .venv/bin/python bench/bench_scaling.py --sizes 250000 500000 --plot /tmp/scaling.png
@@ -93,7 +95,16 @@ def run_one(n_points: int) -> dict:
     base = sampler.rss_mb()
     sampler.start()
 
+    last = {"t": None, "stage": None}
+    silence: dict[str, tuple[float, str]] = {}     # per stage: the longest wait between two reports
+
     def progress(stage, fraction, message):
+        now = time.perf_counter()
+        if last["t"] is not None and last["stage"] == stage:
+            gap = now - last["t"]
+            if gap > silence.get(stage, (0.0, ""))[0]:
+                silence[stage] = (gap, str(message)[:120])
+        last["t"], last["stage"] = now, stage
         if stage != sampler.stage:
             sampler.mark()
             sampler.stage = stage
@@ -115,7 +126,8 @@ def run_one(n_points: int) -> dict:
     return {"n_points": n_points, "n_sampled": int(r.normals.n_sampled), "k": int(r.selection.k),
             "status": r.status, "verdict": None if r.verification is None else r.verification.status,
             "seconds": seconds, "plan_s": t_plan, "total_s": t_plan + t_write,
-            "peak_rss_mb": sampler.peak, "base_rss_mb": base, "overall_peak_mb": max(sampler.peak.values())}
+            "peak_rss_mb": sampler.peak, "base_rss_mb": base, "overall_peak_mb": max(sampler.peak.values()),
+            "longest_silence_s": {k: [round(v[0], 3), v[1]] for k, v in silence.items()}}
 
 
 def _table(rows: list[dict], flag: float) -> str:
@@ -140,6 +152,9 @@ def _table(rows: list[dict], flag: float) -> str:
         lines.append(f"| {st} | " + " | ".join(cells) + " | " + " ".join(exps) + " |")
     lines.append("| total | " + " | ".join(f"{r['total_s']:.2f} ({r['overall_peak_mb']:.0f})" for r in rows)
                  + " | |")
+    lines.append("| longest wait between two progress reports, s (stage) | "
+                 + " | ".join("{:.2f} ({})".format(*max(((v[0], k) for k, v in r["longest_silence_s"].items()),
+                                                        default=(0.0, "-"))) for r in rows) + " | |")
     lines.append("| sampled points / set-ups / verdict | "
                  + " | ".join(f"{r['n_sampled']:,} / {r['k']} / {r['verdict']}" for r in rows) + " | |")
     return "\n".join(lines)
@@ -154,7 +169,7 @@ def _plot(rows: list[dict], path: str) -> None:
     stages = [s for s in ("normals", "visibility", "setups", "areas", "paths", "post", "simulate", "write")
               if any(r["seconds"].get(s, 0) > 0 for r in rows)]
     n = [r["n_points"] / 1e6 for r in rows]
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 4.5), gridspec_kw={"width_ratios": [1.6, 1.0]})
     for st in stages:
         ax.plot(n, [max(r["seconds"].get(st, 0.0), 1e-3) for r in rows], marker="o", label=st)
     ax.plot(n, [r["total_s"] for r in rows], marker="s", color="k", lw=2, label="total")
@@ -162,13 +177,16 @@ def _plot(rows: list[dict], path: str) -> None:
     ax.plot(n, [ref * x / n[0] for x in n], ls=":", color="grey", label="linear (from the first total)")
     ax.set_xscale("log")
     ax.set_yscale("log")
+    for a in (ax, ax2):
+        a.set_xscale("log")
+        a.set_xticks(n, [f"{x:g}" for x in n])
+        a.minorticks_off()
     ax.set_xlabel("points (millions)")
     ax.set_ylabel("seconds")
     ax.set_title("femur-like plan: seconds per stage")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.grid(True, which="both", alpha=0.3)
     ax2.plot(n, [r["overall_peak_mb"] for r in rows], marker="o", color="C3")
-    ax2.set_xscale("log")
     ax2.set_xlabel("points (millions)")
     ax2.set_ylabel("peak RSS (MB)")
     ax2.set_title("peak memory of the whole plan")
@@ -186,11 +204,16 @@ def main() -> int:
     ap.add_argument("--plot", default=None, help="write the plot (PNG) here")
     ap.add_argument("--json", default=None, help="write the raw figures (JSON) here")
     ap.add_argument("--flag-exponent", type=float, default=1.25)
+    ap.add_argument("--replot", default=None, help="print the table and plot from a --json file; plan nothing")
     args = ap.parse_args()
     if args.one is not None:
         print("RESULT " + json.dumps(run_one(args.one)), flush=True)
         return 0
     rows = []
+    if args.replot:
+        with open(args.replot) as fh:
+            rows = json.load(fh)
+        args.sizes = []
     for n in args.sizes:
         load = os.getloadavg()[0]
         t = time.perf_counter()

@@ -123,7 +123,8 @@ def test_paths_report_every_step_of_every_area(light_plan):
         assert {"finishing", "cut blocked", "reduce arcs", "verify", "collisions", "guard finishing"} <= steps, \
             (name, area, steps)
         assert f"area {area}: paths done" in msgs
-    assert any(re.search(r": roughing, level \d+/\d+", m) for m in msgs), name
+    # a step's start is always told; what it reports inside is throttled (0.1 s), so on a light plan
+    # it may all fall inside one interval: tests/test_progress.py checks the mapping inside the steps
     assert any(re.search(r": guard roughing", m) for m in msgs), name
 
 

@@ -32,7 +32,7 @@ material, plunge at feed). Otherwise, in this order:
    shorter). It ends at q (the circle passes through q), or at the circle's point e nearest q and
    the tool then feeds on to q at the level. Near q: centres at the radius from q, then that + 2 h,
    + Rt / 2 and + Rt, each in the piece's first direction and then 30, 60, ..., 180 degrees off it
-   (:func:`_helix_centres`; e -> q straight in the region). The cheapest (descent + link length)
+   (:func:`_near_helix`, in that order; e -> q straight in the region). The cheapest (descent + link length)
    whose every chord lies in the level's clearing region (cells the forbidden map allows, inside
    the region's limits: sampled h / 4 apart like the links; :func:`_helix_in`) is taken, with the
    configured diameter, then half of it. Where that helix must start higher than GAP_MM above the
@@ -96,8 +96,8 @@ RAMP_DIAMETERS = 2.0    #: default longest ramp leg / cutter diameter
 FAR_RADII = 8.0        #: helices away from the piece's start are sought within this many tool radii of it
 FAR_TRIES = 32         #: of those, the cheapest this many are tried
 _DIRS_DEG = (0.0, 30.0, -30.0, 60.0, -60.0, 90.0, -90.0, 120.0, -120.0, 150.0, -150.0, 180.0)
-_DIR_COS = np.array([math.cos(math.radians(a)) for a in _DIRS_DEG])   #: cos / sin of _DIRS_DEG (as
-_DIR_SIN = np.array([math.sin(math.radians(a)) for a in _DIRS_DEG])   #: _helix_centres computes them)
+_DIR_COS = np.array([math.cos(math.radians(a)) for a in _DIRS_DEG])   #: cos / sin of _DIRS_DEG, the
+_DIR_SIN = np.array([math.sin(math.radians(a)) for a in _DIRS_DEG])   #: directions of the near centres
 
 
 @dataclass(frozen=True)
@@ -333,11 +333,25 @@ def _helix_end(qx, qy, cx, cy, r):
     return ex, ey, math.atan2(ey - cy, ex - cx), False
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _helix_fits(flat, x0, y0, h, nx, ny, qx, qy, px, py, r, zs, z, tan):
+    """The helix about (px, py) of radius r from zs down to z towards q: where it ends
+    (:func:`_helix_end`), whether every chord lies in the region (:func:`_helix_in`) and its descent
+    length (mm). Returns (fits, end x, y, end angle, ends at q, descent length)."""
+    ex, ey, phi, atq = _helix_end(qx, qy, px, py, r)
+    dz = zs - z
+    if 0.0 > dz:  # noqa: PLR1730 (Python's max / min on ties, as the callers had)
+        dz = 0.0
+    fits = _helix_in(flat, x0, y0, h, nx, ny, px, py, r, phi, dz / tan, ex, ey)
+    return fits, ex, ey, phi, atq, (zs - z) / tan
+
+
 @njit(cache=True, nogil=True)
 def _near_helix(flat, nx, ny, qx, qy, ux, uy, r, Rt, z, safe, gap, tan, good, cap, dcos, dsin,
                 top, cx, cy, hx, hy, X0, Y0, H, fine, use_fine, x0, y0, h):
     """The cheapest helix of radius r about a centre near q (module docstring, 2.; the centres of
-    :func:`_helix_centres` in its order, direction k at cos / sin ``dcos[k]`` / ``dsin[k]`` off u):
+    at distance r, r + 2 h, r + Rt / 2 and r + Rt from q, each in direction k = 0, 1, ... at cos / sin
+    ``dcos[k]`` / ``dsin[k]`` off u, in that order):
     every chord in the region (:func:`_helix_in`), the link e -> q (when it does not end at q) in
     sight (:func:`planning.toolpath.roughing.links._seg_in`), its cost (descent length from the
     start height over the material within r + Rt of the centre, plus the link; mm) below ``cap``
@@ -371,13 +385,9 @@ def _near_helix(flat, nx, ny, qx, qy, ux, uy, r, Rt, z, safe, gap, tan, good, ca
                 lim = b_cost
             if (zs - z) / tan + dq >= lim:
                 continue
-            ex, ey, phi, atq = _helix_end(qx, qy, px, py, r)
-            dz = zs - z
-            if 0.0 > dz:  # noqa: PLR1730 (Python's max / min on ties, as the callers had)
-                dz = 0.0
-            if not _helix_in(flat, x0, y0, h, nx, ny, px, py, r, phi, dz / tan, ex, ey):
+            fits, ex, ey, phi, atq, cost = _helix_fits(flat, x0, y0, h, nx, ny, qx, qy, px, py, r, zs, z, tan)
+            if not fits:
                 continue
-            cost = (zs - z) / tan
             if not atq:
                 if not _seg_in(flat, x0, y0, h, nx, ny, ex, ey, qx, qy):
                     continue
@@ -403,14 +413,10 @@ def _far_helix(flat, nx, ny, x0, y0, h, qx, qy, r, z, safe, gap, tan, bound, sit
             break
         px = sites[k, 0]
         py = sites[k, 1]
-        ex, ey, phi, atq = _helix_end(qx, qy, px, py, r)
         zs = _start_z(sites[k, 2], z, gap, safe)
-        dz = zs - z
-        if 0.0 > dz:  # noqa: PLR1730 (Python's max / min on ties, as the callers had)
-            dz = 0.0
-        if not _helix_in(flat, x0, y0, h, nx, ny, px, py, r, phi, dz / tan, ex, ey):
+        fits, ex, ey, phi, atq, cost = _helix_fits(flat, x0, y0, h, nx, ny, qx, qy, px, py, r, zs, z, tan)
+        if not fits:
             continue
-        cost = (zs - z) / tan
         if atq:
             if cost < bound:
                 return 1, m, ex, ey, phi, zs, cost, atq
@@ -670,19 +676,6 @@ def _region_cell(lv: _Level, xy) -> int:
             if 0 <= ix < lv.nx and 0 <= iy < lv.ny and lv.flat[ix * lv.ny + iy]:
                 return ix * lv.ny + iy
     return -1
-
-
-def _helix_centres(q, u, r, Rt, h):
-    """Candidate helix centres near a piece starting at q in direction u, in the order tried: at
-    distance r, r + 2 h, r + Rt / 2 and r + Rt from q (the helix ends at q, or at the circle's point
-    nearest q and the tool feeds on to q at the level), each in the piece's direction and then 30,
-    60, ..., 180 degrees off it."""
-    out = []
-    for rho in (r, r + 2.0 * h, r + 0.5 * Rt, r + Rt):
-        for a in _DIRS_DEG:
-            ca, sa = math.cos(math.radians(a)), math.sin(math.radians(a))
-            out.append(q + rho * np.array([ca * u[0] - sa * u[1], sa * u[0] + ca * u[1]]))
-    return out
 
 
 def _first_dir(xy):

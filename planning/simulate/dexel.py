@@ -49,7 +49,6 @@ shows that much, so a buried holder does not cost every ray of its footprint.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
@@ -57,6 +56,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from planning.progress import Progress, Throttled
 from planning.simulate import dexel_kernels as K
 from planning.simulate.motion import FEED, RAPID, ToolShape
 
@@ -400,38 +400,6 @@ def _as_moves(start, end, axis):
     if np.any(~(nrm > 1e-9)):
         raise ValueError("every tool axis must be non-zero")
     return s, e, np.ascontiguousarray(a / nrm)
-
-
-#: A progress callback: ``progress(fraction done in [0, 1], short message)``.
-Progress = Callable[[float, str], None]
-
-
-class Throttled:
-    """``progress`` passed on at most once per ``min_interval_s`` (the first and the last call, 1.0,
-    always), the fraction clipped to [0, 1] and never going back. A None ``progress`` makes every
-    call a no-op."""
-
-    def __init__(self, progress: Progress | None, min_interval_s: float = 0.1):
-        self.progress = progress
-        self.min_interval_s = float(min_interval_s)
-        self.last_t = -math.inf
-        self.last_f = 0.0
-
-    def __call__(self, fraction: float, message: str) -> None:
-        if self.progress is None:
-            return
-        f = max(self.last_f, min(1.0, max(0.0, float(fraction))))
-        now = time.monotonic()
-        if f < 1.0 and now - self.last_t < self.min_interval_s:
-            return
-        if f >= 1.0 and self.last_f >= 1.0:
-            return
-        self.last_t, self.last_f = now, f
-        self.progress(f, message)
-
-    def part(self, lo: float, hi: float) -> Progress:
-        """A callback mapping [0, 1] onto [lo, hi] of this one (same throttle)."""
-        return lambda f, msg: self(lo + (hi - lo) * min(1.0, max(0.0, float(f))), msg)
 
 
 def _run(model: TriDexel, start, end, axis, pieces, mode, grow=None, depth_cap_mm: float = math.inf,

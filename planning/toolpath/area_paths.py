@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -44,6 +44,7 @@ from planning.geometry.fixtures import (
     fixture_collision_free,
 )
 from planning.geometry.tool import ToolAssembly
+from planning.progress import Throttled
 from planning.toolpath.balldrop import DropSurface
 from planning.toolpath.finishing import FinishingPath, finishing_passes
 from planning.toolpath.frames import AreaFrame, area_frame
@@ -51,7 +52,12 @@ from planning.toolpath.guard import guard_toolpath
 from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath, concatenate
 from planning.toolpath.reduce import fit_arcs, reduce_cl
 from planning.toolpath.roughing import roughing_paths
-from planning.toolpath.safety import cutting_positions, finished_reach_mm, guard_finishing, unmachined_points
+from planning.toolpath.safety import (
+    cutting_positions,
+    finished_reach_mm,
+    guard_finishing,
+    unmachined_points,
+)
 from planning.toolpath.verify import BinnedCloud, move_clearance
 
 Progress = Callable[[float, str], None]
@@ -162,18 +168,20 @@ class _PathsProgress:
              "verify": (0.85, 0.87), "collisions": (0.87, 0.89), "guard_finishing": (0.89, 1.0)}
 
     def __init__(self, progress: Progress | None, k: int, min_interval_s: float = 0.1):
-        self.progress, self.k, self.min_interval_s = progress, max(int(k), 1), float(min_interval_s)
-        self.n_done, self.area, self.last_t, self.last_f = 0, -1, -math.inf, 0.0
+        self.progress, self.k = progress, max(int(k), 1)
+        self.n_done, self.area = 0, -1
+        self._emit = Throttled(progress, min_interval_s)
+
+    @property
+    def min_interval_s(self) -> float:
+        return self._emit.min_interval_s
+
+    @min_interval_s.setter
+    def min_interval_s(self, seconds: float) -> None:
+        self._emit.min_interval_s = float(seconds)
 
     def start_area(self, n_done: int, area: int) -> None:
         self.n_done, self.area = int(n_done), int(area)
-
-    def _emit(self, fraction: float, message: str, force: bool) -> None:
-        now = time.perf_counter()
-        if not force and now - self.last_t < self.min_interval_s:
-            return
-        self.last_t, self.last_f = now, max(self.last_f, min(1.0, fraction))
-        self.progress(self.last_f, message)
 
     def step(self, name: str) -> Callable[[float, str], None] | None:
         """Announce step ``name`` of the current area; return the callback of its own progress

@@ -30,7 +30,6 @@ every cloud point at z <= 0). Parallel planes y = const (passes along X), zig-za
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -38,6 +37,7 @@ import numpy as np
 from scipy import ndimage
 
 from planning.errors import ParameterError
+from planning.progress import Throttled
 from planning.toolpath.balldrop import DropSurface
 from planning.toolpath.moves import (
     FEED,
@@ -63,13 +63,7 @@ class _Progress:
 
     def __init__(self, fn, y0: float, y1: float, s: float):
         self.fn, self.y0, self.span, self.s = fn, y0, max(y1 - y0, 0.0), s
-        self.last = -math.inf
-
-    def _call(self, fraction: float, message: str, force: bool = False) -> None:
-        now = time.monotonic()
-        if force or now - self.last >= PROGRESS_EVERY_S:
-            self.last = now
-            self.fn(min(max(float(fraction), 0.0), 1.0), message)
+        self._call = Throttled(fn, PROGRESS_EVERY_S)
 
     def passed(self, k: int, y: float, total: int | None = None) -> None:
         """Pass ``k`` (1-based) made at ``y``; ``total`` when known, else estimated from the step-over."""

@@ -33,7 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planning.simulate.dexel import Progress, Throttled, TriDexel, collide, simulate_moves
+from planning.progress import Progress, Throttled
+from planning.simulate.dexel import TriDexel, collide, simulate_moves
 from planning.simulate.kinematics import MachineModel, arc_chords
 from planning.simulate.motion import FEED as SIM_FEED
 from planning.simulate.motion import RAPID as SIM_RAPID

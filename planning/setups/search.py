@@ -54,7 +54,7 @@ from planning.setups.bounds import (
     _top_sums,
 )
 from planning.setups.heuristics import _heuristics, _local_search, _timeout_fallback
-from planning.setups.lagrange import _prices, _top_r_sum
+from planning.setups.lagrange import _price_bound, _prices
 from planning.setups.problem import _key_cover, _key_overlap, _Outcome, _Problem, _wgram
 
 
@@ -438,10 +438,8 @@ def _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound):
             return [], ""
         cstar = best[0]
         if not prob.has_conflicts:  # the smallest k that reaches C* too
-            W, M = float(prob.w.sum()), float(prices.sum())
-            s_all = prob.AT.astype(np.float64) @ prices
             for k in range(1, kmax):
-                if W - M + _top_r_sum(s_all, k) < cstar:
+                if _price_bound(prob, prices, k) < cstar:
                     continue  # the price bound: no k axes reach C*
                 if progress:
                     progress(0.9, f"do {k} set-up(s) reach the best coverage?")
@@ -513,8 +511,7 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
             except _Budget:  # a hard proof: the prices for k, then the search again with them
                 prices, _ = _prices(prob, k, heur.get(k, (None,))[0], deadline=deadline)
                 price_r = k
-                s_all = prob.AT.astype(np.float64) @ prices
-                if float(prob.w.sum()) - float(prices.sum()) + _top_r_sum(s_all, k) < req:
+                if _price_bound(prob, prices, k) < req:
                     continue  # proven at the root: no k axes reach the coverage
                 s = _Search(prob, k, "cover", req, deadline, stop_at_first=True, prices=prices)
                 s.run()

@@ -24,6 +24,34 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
 
+class ReliefParams(_Strict):
+    """An image read as a relief (Sood 2015 ch. 3): one point per pixel, intensity mapped to height."""
+
+    size_mm: float = Field(
+        100.0, gt=0, le=10_000,
+        description="Length of the image's longer side on the part, in mm (aspect kept; pixel spacing = "
+                    "size_mm / (pixels along the longer side - 1)).")
+    z_min_mm: float = Field(
+        0.0, ge=-10_000, le=10_000, description="Height of the lowest relief point, in mm.")
+    z_max_mm: float = Field(
+        10.0, ge=-10_000, le=10_000,
+        description="Height of the highest relief point, in mm; the image's intensity range is mapped "
+                    "linearly onto [z_min_mm, z_max_mm] (Sood eq. 3.3).")
+    dark: Literal["low", "high"] = Field(
+        "low", description="'low': dark pixels are low and bright ones high (Sood's default); 'high': the "
+                           "reverse (dark engraved lines standing up).")
+    blur: Literal[0, 3, 5] = Field(
+        0, description="Gaussian blur before the mapping, kernel size in pixels: 0 (none), 3 (3x3) or 5 "
+                       "(5x5); smooths abrupt jumps between bright and dark pixels (Sood §3.2.2).")
+
+    @model_validator(mode="after")
+    def _z_range(self) -> "ReliefParams":
+        if not self.z_max_mm > self.z_min_mm:
+            raise ValueError(f"z_max_mm ({self.z_max_mm:g}) must be above z_min_mm ({self.z_min_mm:g}): the "
+                             "brightest and darkest pixels need different heights")
+        return self
+
+
 class InputParams(_Strict):
     """How the submitted cloud is read and what is accepted."""
 
@@ -37,6 +65,10 @@ class InputParams(_Strict):
         description="Largest accepted bounding-box side, in mm (catches files written in the wrong unit).")
     min_points: int = Field(
         10, ge=4, le=1_000_000, description="Smallest accepted cloud, in points.")
+    relief: ReliefParams = Field(
+        default_factory=ReliefParams,
+        description="How an image (PNG, JPEG, BMP, TIFF) is read as a relief; ignored for point clouds and "
+                    "meshes.")
 
 
 class NormalsParams(_Strict):

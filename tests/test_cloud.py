@@ -293,7 +293,7 @@ def test_unknown_units_name_allowed_values():
         read_cloud(b"1 2 3\n", units="cm")
     assert "'mm'" in info.value.message and "'in'" in info.value.message
     with pytest.raises(ParameterError):
-        read_cloud(b"1 2 3\n", fmt="las")
+        read_cloud(b"1 2 3\n", fmt="step")
 
 
 # ------------------------------------------------------------------------------------ errors
@@ -429,14 +429,26 @@ def test_extent_too_large_hints_at_units(tmp_path):
 
 
 @pytest.mark.parametrize("name,data", [
-    ("scan.las", b"LASF" + b"\0" * 300),
-    ("scan.e57", b"ASTM-E57" + b"\0" * 300),
-    ("part.stl", b"solid part\nfacet normal 0 0 1\n"),
+    ("part.off", b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
+    ("part.step", b"ISO-10303-21;\nHEADER;\n"),
+    ("scan.ptx", b"10\n10\n0 0 0\n"),
 ])
 def test_unsupported_formats(tmp_path, name, data):
     path = tmp_path / name
     path.write_bytes(data)
     expect_code("unsupported_format", read_cloud, path)
+
+
+@pytest.mark.parametrize("name,data,code", [
+    ("scan.las", b"LASF" + b"\0" * 300, "unreadable_file"),
+    ("scan.e57", b"ASTM-E57" + b"\0" * 300, "unreadable_file"),
+    ("part.stl", b"solid part\nfacet normal 0 0 1\n", "truncated_file"),
+])
+def test_formats_read_elsewhere_name_what_is_broken(tmp_path, name, data, code):
+    path = tmp_path / name
+    path.write_bytes(data)
+    err = expect_code(code, read_cloud, path)
+    assert name in err.message
 
 
 def test_validate_points_rejects_bad_shapes():

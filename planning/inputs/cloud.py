@@ -1,24 +1,39 @@
-"""Stage 1 of the pipeline: read a scanned point cloud and validate it.
+"""Stage 1 of the pipeline: read a scanned point cloud, mesh or relief image and validate it.
 
-``read_cloud`` turns file bytes (PLY ascii/binary, PCD ascii/binary/binary_compressed, XYZ/CSV/TXT)
-into a :class:`Cloud` whose points are ``(N, 3)`` float64 millimetres. Every failure is a typed
-:class:`~planning.errors.InputError` (or :class:`~planning.errors.InputTooLarge`) with a stable
-``code`` and a message that says what the machinist has to fix:
+``read_cloud`` turns file bytes into a :class:`Cloud` whose points are ``(N, 3)`` float64
+millimetres, with the file's normals and triangles where it has them:
+
+- point clouds: PLY ascii/binary (and its faces), PCD ascii/binary/binary_compressed, XYZ/CSV/TXT,
+  LAS/LAZ (:mod:`planning.inputs.las`), E57 (:mod:`planning.inputs.e57`: every scan by its pose,
+  grid faces of structured scans);
+- meshes: STL ascii/binary (:mod:`planning.inputs.stl`), OBJ (:mod:`planning.inputs.obj`);
+- images as reliefs: PNG, JPEG, BMP, TIFF (:mod:`planning.inputs.relief`, Sood 2015 ch. 3).
+
+:func:`read_input` is the entry every caller uses (the CLI, the service's submission check and
+worker, the warm-up): it reads with an :class:`~schemas.params.InputParams` (units, limits, relief).
+Every failure is a typed :class:`~planning.errors.InputError` (or
+:class:`~planning.errors.InputTooLarge`) with a stable ``code`` and a message that says what the
+machinist has to fix:
 
 ``unreadable_file``, ``truncated_file``, ``unsupported_format``, ``empty_cloud``, ``non_finite``,
 ``too_few_points``, ``degenerate_cloud``, ``extent_too_large``, ``missing_normals``,
 ``too_many_points`` (413) and ``file_too_large`` (413).
 
-Size limits are checked against the header (PLY element counts, PCD ``POINTS``, text row counts)
-before the body is decoded, so a header that claims billions of points fails at once.
-Decoding is vectorised (``numpy.frombuffer`` for binary bodies, ``numpy.fromstring`` for the
-fixed-width rows of ascii PLY/PCD, numpy's C ``loadtxt`` for XYZ/CSV); no Python loop per point.
+Size limits are checked against the header (PLY element counts, PCD ``POINTS``, text row counts,
+STL triangle counts, OBJ ``v`` lines, LAS and E57 point counts) before the body is decoded, so a
+header that claims billions of points fails at once; an image larger than ``max_points`` pixels is
+scaled down instead. Decoding is vectorised (``numpy.frombuffer`` for binary bodies,
+``numpy.fromstring`` for ascii rows, numpy's C ``loadtxt`` for XYZ/CSV); no Python loop per point
+or per face.
 
 This module checks the parameters, detects the format (magic bytes, then the file name extension,
-else text) and dispatches to the readers: :mod:`planning.inputs.ply`, :mod:`planning.inputs.pcd`
-and :mod:`planning.inputs.text` (the bytes and size limits in :mod:`planning.inputs.source`,
-shared row parsing in :mod:`planning.inputs.rows`); :mod:`planning.inputs.validate` checks the
-points. Writing a PLY file is :func:`planning.report.files.write_ply`.
+then the content: STL ``solid``/binary size, OBJ statements, else text) and dispatches to the
+readers: :mod:`planning.inputs.ply`, :mod:`planning.inputs.pcd`, :mod:`planning.inputs.text`,
+:mod:`planning.inputs.stl`, :mod:`planning.inputs.obj`, :mod:`planning.inputs.las`,
+:mod:`planning.inputs.e57` and :mod:`planning.inputs.relief` (the bytes and size limits in
+:mod:`planning.inputs.source`, shared row parsing in :mod:`planning.inputs.rows`, mesh helpers in
+:mod:`planning.inputs.mesh`); :mod:`planning.inputs.validate` checks the points and the faces.
+Writing a PLY file is :func:`planning.report.files.write_ply`.
 """
 
 from __future__ import annotations
@@ -26,21 +41,30 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from planning.errors import InputError, ParameterError
+from planning.inputs.obj import _looks_like_obj, _read_obj
 from planning.inputs.pcd import _read_pcd
 from planning.inputs.ply import _read_ply
+from planning.inputs.relief import IMAGE_FORMATS, _looks_like_image
 from planning.inputs.source import _check_count, _Source
+from planning.inputs.stl import _looks_like_stl, _read_stl
 from planning.inputs.text import _read_text
-from planning.inputs.validate import _unit_normals, validate_points
+from planning.inputs.validate import _unit_normals, validate_faces, validate_points
+
+if TYPE_CHECKING:
+    from schemas.params import InputParams, ReliefParams
 
 __all__ = [
-    "Cloud",
-    "UNIT_SCALE",
     "FORMATS",
+    "UNIT_SCALE",
+    "Cloud",
     "read_cloud",
+    "read_input",
+    "validate_faces",
     "validate_points",
 ]
 
@@ -49,24 +73,32 @@ __all__ = [
 UNIT_SCALE: dict[str, float] = {"mm": 1.0, "m": 1000.0, "in": 25.4}
 
 #: Values accepted for ``read_cloud(fmt=...)`` (``None`` detects the format).
-FORMATS = ("ply", "pcd", "xyz", "csv", "txt")
+FORMATS = ("ply", "pcd", "xyz", "csv", "txt", "stl", "obj", "las", "laz", "e57",
+           "png", "jpg", "jpeg", "bmp", "tif", "tiff")
 
 _TEXT_FORMATS = ("xyz", "csv", "txt")
+_IMAGE_FORMATS = tuple(ext.lstrip(".") for ext in IMAGE_FORMATS)
+_READER_OF_FORMAT = {"laz": "las", **{f: "image" for f in _IMAGE_FORMATS},
+                     **{f: "text" for f in _TEXT_FORMATS}}
 _EXTENSION_FORMATS = {
     ".ply": "ply", ".pcd": "pcd", ".xyz": "xyz", ".csv": "csv", ".txt": "txt",
     ".pts": "xyz", ".asc": "xyz", ".xyzn": "xyz", ".xyzrgb": "xyz",
+    ".stl": "stl", ".obj": "obj", ".las": "las", ".laz": "laz", ".e57": "e57",
+    **{ext: ext.lstrip(".") for ext in IMAGE_FORMATS},
 }
+#: File name extensions that select a reader (the service keeps them on stored uploads).
+EXTENSIONS = tuple(_EXTENSION_FORMATS)
 _UNSUPPORTED_EXTENSIONS = {
-    ".las": "LAS", ".laz": "LAZ", ".e57": "E57", ".stl": "STL mesh", ".obj": "OBJ mesh",
     ".off": "OFF mesh", ".3mf": "3MF", ".step": "STEP CAD", ".stp": "STEP CAD",
-    ".iges": "IGES CAD", ".igs": "IGES CAD", ".ptx": "PTX",
+    ".iges": "IGES CAD", ".igs": "IGES CAD", ".ptx": "PTX", ".gif": "GIF image",
+    ".webp": "WebP image",
 }
-_UNSUPPORTED_MAGIC = {b"LASF": "LAS/LAZ", b"ASTM-E57": "E57"}
+_SUPPORTED = "PLY, PCD, XYZ/CSV text, STL, OBJ, LAS/LAZ, E57 or a PNG/JPEG/BMP/TIFF relief image"
 
 
 @dataclass(frozen=True)
 class Cloud:
-    """A validated point cloud.
+    """A validated point cloud, with the triangles of a mesh where the file has them.
 
     ``points``: ``(N, 3)`` float64 coordinates in millimetres (already scaled from ``units``).
     ``normals``: ``(N, 3)`` float64 unit normals read from the file (PLY ``nx ny nz``, PCD
@@ -74,18 +106,30 @@ class Cloud:
     Rows whose stored normal is zero or not finite cannot be normalised and are NaN;
     :attr:`normals_valid` flags the usable rows.
     ``source_format``: ``ply-ascii``, ``ply-binary_little_endian``, ``ply-binary_big_endian``,
-    ``pcd-ascii``, ``pcd-binary``, ``pcd-binary_compressed``, ``xyz`` (whitespace separated text)
-    or ``csv`` (comma/semicolon separated text).
+    ``pcd-ascii``, ``pcd-binary``, ``pcd-binary_compressed``, ``xyz`` (whitespace separated text),
+    ``csv`` (comma/semicolon separated text), ``stl-ascii``, ``stl-binary``, ``obj``, ``las``,
+    ``laz``, ``e57``, ``image-png``, ``image-jpeg``, ``image-bmp`` or ``image-tiff``.
+    ``faces``: ``(T, 3)`` int64 indices into ``points``, one row per triangle (polygons fan
+    triangulated; STL corners merged into shared vertices; E57 structured-scan grids and image
+    pixel grids triangulated), every index in ``[0, N)`` and no degenerate triangle (a repeated index
+    or zero area); ``None`` for a plain cloud (a file that declares no faces). Winding is the file's
+    (image reliefs: counter-clockwise seen from +Z).
     """
 
     points: np.ndarray
     normals: np.ndarray | None
     source_format: str
+    faces: np.ndarray | None = None
 
     @property
     def n_points(self) -> int:
         """Number of points."""
         return int(self.points.shape[0])
+
+    @property
+    def n_faces(self) -> int:
+        """Number of triangles (0 for a plain cloud)."""
+        return 0 if self.faces is None else int(self.faces.shape[0])
 
     @property
     def normals_valid(self) -> np.ndarray | None:
@@ -109,16 +153,21 @@ def read_cloud(
     min_points: int = 10,
     max_bytes: int | None = None,
     xyz_normals: bool = False,
+    relief: ReliefParams | None = None,
 ) -> Cloud:
-    """Read a point cloud file (path or bytes) and return validated points in millimetres.
+    """Read a point cloud, mesh or relief image (path or bytes) and return it validated, in mm.
 
     ``fmt`` is one of :data:`FORMATS` or ``None`` to detect it from magic bytes (``ply``,
-    ``# .PCD``/``VERSION``) and the file name extension, falling back to text.
-    ``units`` is the unit of the file's coordinates (``mm``, ``m`` or ``in``); points are
-    scaled by :data:`UNIT_SCALE`. ``max_points`` and ``max_bytes`` are checked before the body
-    is decoded (:class:`InputTooLarge`); ``max_extent_mm`` bounds the largest side of the
-    bounding box in mm; ``min_points`` is the fewest points accepted. ``xyz_normals`` reads
-    columns 4-6 of a text file as normals. Raises :class:`InputError` / :class:`ParameterError`.
+    ``# .PCD``/``VERSION``, ``LASF``, ``ASTM-E57``, PNG/JPEG/BMP/TIFF signatures), then the file
+    name extension, then the content (an STL ``solid``/binary size, OBJ statements), falling back to
+    text. ``units`` is the unit of the file's coordinates (``mm``, ``m`` or ``in``); points are
+    scaled by :data:`UNIT_SCALE` (not for images, whose relief is sized in mm). ``max_points`` and
+    ``max_bytes`` are checked before the body is decoded (:class:`InputTooLarge`); an image with
+    more pixels than ``max_points`` is scaled down instead. ``max_extent_mm`` bounds the largest side
+    of the bounding box in mm; ``min_points`` is the fewest points accepted. ``xyz_normals`` reads
+    columns 4-6 of a text file as normals. ``relief`` (:class:`~schemas.params.ReliefParams`, None:
+    its defaults) maps an image to heights. Faces are checked by :func:`validate_faces`.
+    Raises :class:`InputError` / :class:`ParameterError`.
     """
     scale = _unit_scale(units)
     fmt = _check_read_parameters(fmt, max_points, max_extent_mm, min_points, max_bytes)
@@ -127,17 +176,61 @@ def read_cloud(
         raise InputError("The cloud file is empty (0 bytes).", code="empty_cloud")
     kind = _detect_format(src, fmt)
     if kind == "ply":
-        points, normals, label = _read_ply(src, max_points)
+        points, normals, faces, label = _read_ply(src, max_points)
     elif kind == "pcd":
         points, normals, label = _read_pcd(src, max_points)
+        faces = None
+    elif kind == "stl":
+        points, normals, faces, label = _read_stl(src, max_points)
+    elif kind == "obj":
+        points, normals, faces, label = _read_obj(src, max_points)
+    elif kind == "las":
+        from planning.inputs.las import _read_las
+        points, normals, faces, label = _read_las(src, max_points)
+    elif kind == "e57":
+        from planning.inputs.e57 import _read_e57
+        points, normals, faces, label = _read_e57(src, max_points)
+    elif kind == "image":
+        from planning.inputs.relief import _read_image
+        points, normals, faces, label = _read_image(src, max_points, _relief(relief))
+        scale = 1.0                                 # the relief parameters are millimetres
     else:
         points, normals, label = _read_text(src, max_points, xyz_normals)
+        faces = None
     _check_count(points.shape[0], max_points)
     if scale != 1.0:
         points = points * scale
     points = validate_points(points, max_extent_mm=max_extent_mm, min_points=min_points,
                              units=units)
-    return Cloud(points=points, normals=_unit_normals(normals), source_format=label)
+    return Cloud(points=points, normals=_unit_normals(normals), source_format=label,
+                 faces=validate_faces(faces, points))
+
+
+def read_input(
+    source: str | os.PathLike | bytes,
+    params: InputParams,
+    *,
+    fmt: str | None = None,
+    max_points: int | None = None,
+) -> Cloud:
+    """Read a submitted file with the plan configuration's ``input`` parameters.
+
+    The one entry of the CLI, the service (submission check and worker) and the warm-up:
+    :func:`read_cloud` with ``params.units``, ``params.max_points`` (capped by ``max_points``,
+    e.g. a service limit), ``params.max_extent_mm``, ``params.min_points`` and ``params.relief``.
+    """
+    limit = int(params.max_points) if max_points is None else min(int(params.max_points),
+                                                                   int(max_points))
+    return read_cloud(source, fmt=fmt, units=params.units, max_points=limit,
+                      max_extent_mm=params.max_extent_mm, min_points=params.min_points,
+                      relief=params.relief)
+
+
+def _relief(relief):
+    if relief is not None:
+        return relief
+    from schemas.params import ReliefParams
+    return ReliefParams()
 
 
 # --------------------------------------------------------------------------------------------
@@ -174,26 +267,33 @@ def _check_read_parameters(fmt, max_points, max_extent_mm, min_points, max_bytes
 
 
 def _detect_format(src: _Source, fmt: str | None) -> str:
-    """Return ``ply``, ``pcd`` or ``text``."""
+    """Return ``ply``, ``pcd``, ``stl``, ``obj``, ``las``, ``e57``, ``image`` or ``text``."""
     if fmt is not None:
-        return "text" if fmt in _TEXT_FORMATS else fmt
+        return _READER_OF_FORMAT.get(fmt, fmt)
     head = src.head
     if re.match(rb"ply\r?\n", head):
         return "ply"
     if _looks_like_pcd(head):
         return "pcd"
-    for magic, what in _UNSUPPORTED_MAGIC.items():
-        if head.startswith(magic):
-            raise InputError(f"{what} files are not supported yet; export the scan as PLY, PCD "
-                             "or XYZ/CSV text.", code="unsupported_format", format=what)
+    if head.startswith(b"LASF"):
+        return "las"
+    if head.startswith(b"ASTM-E57"):
+        return "e57"
+    if _looks_like_image(head, src.size):
+        return "image"
     ext = src.suffix
     if ext in _UNSUPPORTED_EXTENSIONS:
         what = _UNSUPPORTED_EXTENSIONS[ext]
-        raise InputError(f"{what} files ({ext}) are not supported; export the scan as a point "
-                         "cloud in PLY, PCD or XYZ/CSV text.", code="unsupported_format",
-                         format=what)
-    kind = _EXTENSION_FORMATS.get(ext, "text")
-    return "text" if kind in _TEXT_FORMATS else kind
+        raise InputError(f"{what} files ({ext}) are not supported; export the scan as {_SUPPORTED}.",
+                         code="unsupported_format", format=what)
+    if ext in _EXTENSION_FORMATS:
+        kind = _EXTENSION_FORMATS[ext]
+        return _READER_OF_FORMAT.get(kind, kind)
+    if _looks_like_stl(src):
+        return "stl"
+    if _looks_like_obj(head):
+        return "obj"
+    return "text"
 
 
 def _looks_like_pcd(head: bytes) -> bool:

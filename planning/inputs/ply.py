@@ -1,10 +1,15 @@
-"""Stage 1, the cloud: the PLY reader (ascii, binary little and big endian).
+"""Stage 1, the cloud: the PLY reader (ascii, binary little and big endian), vertices and faces.
 
 The header is parsed from the first MiB; the vertex element must hold ``x y z`` (any PLY scalar
-type) and may hold ``nx ny nz`` (read as file normals). Binary vertices are a
-``numpy.frombuffer`` view after the elements that precede them; ascii vertices are parsed in one
-``numpy.fromstring`` call (:mod:`planning.inputs.rows`). ``plyfile`` is used only when the vertex
-element holds a list property, or when a list property (faces) comes before it in a binary file.
+type) and may hold ``nx ny nz`` (read as file normals). A ``face`` element with a list property
+``vertex_indices`` (or ``vertex_index``) gives the faces: triangles as they are, polygons fan
+triangulated (:func:`planning.inputs.mesh._fan_triangles`); without one, ``faces`` is None.
+Binary elements are ``numpy.frombuffer`` views at offsets summed from the elements before them; an
+element with list properties is a view too when its lists are all of one length (checked on every
+record), else its records are walked by a compiled loop (:mod:`planning.inputs.ply_lists`). Ascii
+vertices are parsed in one ``numpy.fromstring`` call (:mod:`planning.inputs.rows`), ascii faces
+likewise with a cursor moved over the properties of every row at once. ``plyfile`` is used only
+when the vertex element itself holds a list property.
 Errors: ``unreadable_file`` (header or body damaged), ``truncated_file`` (body cut off),
 ``empty_cloud`` (0 vertices), ``too_many_points`` (declared count over ``max_points``, checked
 before the body is read).
@@ -19,7 +24,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from planning.errors import InputError
-from planning.inputs.rows import _line_block, _normals_from, _parse_numbers, _xyz
+from planning.inputs.mesh import _check_polygon_sizes, _fan_triangles
+from planning.inputs.rows import (
+    _fast_numbers,
+    _line_block,
+    _normals_from,
+    _parse_numbers,
+    _tokens_per_line,
+    _xyz,
+)
 from planning.inputs.source import _check_count, _Source
 
 _PLY_TYPES = {
@@ -29,6 +42,7 @@ _PLY_TYPES = {
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
 _PLY_FORMATS = {"ascii": "", "binary_little_endian": "<", "binary_big_endian": ">"}
+_FACE_LISTS = ("vertex_indices", "vertex_index")
 
 
 @dataclass
@@ -57,17 +71,33 @@ def _read_ply(src: _Source, max_points: int):
         raise InputError("The PLY file declares 0 vertices; the cloud is empty.",
                          code="empty_cloud")
     label = f"ply-{fmt}"
+    face, face_list = _find_faces(elements)
     data = src.data()
-    preceding = elements[: elements.index(vertex)]
-    if vertex.has_lists or (fmt != "ascii" and any(e.has_lists for e in preceding)):
-        table = _ply_vertices_plyfile(data)
+    if vertex.has_lists:
+        table, faces = _ply_plyfile(data, face_list)
     elif fmt == "ascii":
-        table = _ply_ascii_vertices(data, body_start, vertex, sum(e.count for e in preceding))
+        table = _ply_ascii_vertices(data, body_start, vertex, _lines_before(elements, vertex))
+        faces = None if face is None else _ply_ascii_faces(data, body_start, face, face_list,
+                                                           _lines_before(elements, face))
     else:
-        endian = _PLY_FORMATS[fmt]
-        offset = body_start + sum(e.count * e.dtype(endian).itemsize for e in preceding)
-        table = _ply_binary_vertices(data, offset, vertex, endian)
-    return _xyz(table), _normals_from(table, ("nx", "ny", "nz")), label
+        table, faces = _ply_binary(data, body_start, elements, vertex, face, face_list,
+                                   _PLY_FORMATS[fmt])
+    return _xyz(table), _normals_from(table, ("nx", "ny", "nz")), faces, label
+
+
+def _lines_before(elements, element) -> int:
+    return sum(e.count for e in elements[: elements.index(element)])
+
+
+def _find_faces(elements):
+    """The ``face`` element and the name of its vertex index list, or (None, None)."""
+    for e in elements:
+        if e.name != "face":
+            continue
+        for p in e.props:
+            if len(p) == 3 and p[0] in _FACE_LISTS:
+                return e, p[0]
+    return None, None
 
 
 def _parse_ply_header(head: bytes):
@@ -169,13 +199,130 @@ def _ply_ascii_vertices(data: bytes, body_start: int, vertex: _PlyElement,
     return np.ascontiguousarray(values).view(dtype).reshape(-1)
 
 
-def _ply_vertices_plyfile(data: bytes) -> np.ndarray:
-    """Vertex table via plyfile (list properties in or before the vertex element)."""
+def _ply_binary(data: bytes, body_start: int, elements, vertex: _PlyElement, face, face_list,
+                endian: str):
+    """Vertex table and faces of a binary PLY: each element located after the ones before it."""
+    last = max(elements.index(vertex), elements.index(face) if face is not None else -1)
+    offset, table, faces = body_start, None, None
+    for e in elements[: last + 1]:
+        if e is vertex:
+            table = _ply_binary_vertices(data, offset, vertex, endian)
+            offset += vertex.count * vertex.dtype(endian).itemsize
+            continue
+        dtype = e.dtype(endian) if not e.has_lists else _uniform_list_dtype(data, offset, e, endian)
+        if dtype is not None:
+            if e is face:
+                lists = np.frombuffer(data, dtype=dtype, count=e.count, offset=offset)[face_list]
+                faces = _polygons(lists.reshape(-1), np.full(e.count, lists.shape[1] if lists.ndim == 2
+                                                             else 0))
+            offset += e.count * dtype.itemsize
+            continue
+        from planning.inputs.ply_lists import walk_list_element
+
+        end, done, items, sizes = walk_list_element(data, offset, e.count, e.props, endian,
+                                                    face_list if e is face else None)
+        if end < 0:
+            raise _ply_error(f"the header declares {e.count:,} {e.name!r} records but the file ends "
+                             f"inside record {done + 1:,}; the file was cut off during transfer or "
+                             "export. Send the complete file.", code="truncated_file")
+        if e is face:
+            faces = _polygons(items, sizes)
+        offset = end
+    return table, faces
+
+
+def _uniform_list_dtype(data: bytes, offset: int, e: _PlyElement, endian: str) -> np.dtype | None:
+    """The record dtype of an element whose lists have, on every record, the first record's length.
+
+    None when some record differs (or the element does not fit in the file): the records must then
+    be walked one by one.
+    """
+    fields, pos, lists = [], offset, []
+    for p in e.props:
+        if len(p) == 2:
+            fields.append((p[0], endian + p[1]))
+            pos += np.dtype(p[1]).itemsize
+            continue
+        count_type = np.dtype(endian + p[1])
+        if e.count == 0 or pos + count_type.itemsize > len(data):
+            return None
+        n = int(np.frombuffer(data, dtype=count_type, count=1, offset=pos)[0])
+        if n < 0:
+            return None
+        fields += [("__count " + p[0], count_type), (p[0], endian + p[2], (n,))]
+        lists.append((p[0], n))
+        pos += count_type.itemsize + n * np.dtype(p[2]).itemsize
+    dtype = np.dtype(fields)
+    if offset + e.count * dtype.itemsize > len(data):
+        return None
+    table = np.frombuffer(data, dtype=dtype, count=e.count, offset=offset)
+    if all(bool(np.all(table["__count " + name] == n)) for name, n in lists):
+        return dtype
+    return None
+
+
+def _polygons(indices: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """Faces from concatenated vertex indices and sizes: triangles, polygons fan triangulated."""
+    sizes = np.asarray(sizes, dtype=np.int64)
+    _check_polygon_sizes(sizes, "PLY faces")
+    values = np.asarray(indices)
+    if values.dtype.kind == "f" and not np.array_equal(values, np.round(values)):
+        raise _ply_error("a face refers to a vertex index that is not a whole number.")
+    return _fan_triangles(values.astype(np.int64), sizes)
+
+
+def _ply_ascii_faces(data: bytes, body_start: int, face: _PlyElement, face_list: str,
+                     skip_lines: int) -> np.ndarray:
+    """Faces of an ascii PLY: one record per line, the properties walked for every line at once."""
+    if face.count == 0:
+        return np.zeros((0, 3), dtype=np.int64)
+    block, n_rows = _line_block(data, body_start, skip_lines, face.count)
+    if n_rows < face.count:
+        raise _ply_error(f"the header declares {face.count:,} faces but the file has only "
+                         f"{n_rows:,} face lines; the file is incomplete. Send the complete file.",
+                         code="truncated_file")
+    values = _fast_numbers(block)
+    counts = _tokens_per_line(block)
+    if values is None:
+        raise _ply_error("the face lines contain text that is not a number.")
+    if counts.size != face.count:
+        raise _ply_error(f"the header declares {face.count:,} faces but {counts.size:,} face lines "
+                         "hold values; a face line is empty.")
+    line_end = np.cumsum(counts)
+    cursor = line_end - counts
+    item_start = sizes = None
+    for p in face.props:
+        if len(p) == 2:
+            cursor = cursor + 1
+            continue
+        short = cursor >= line_end
+        if short.any():
+            row = int(np.argmax(short))
+            raise _ply_error(f"face line {row + 1} holds {int(counts[row])} values, fewer than its "
+                             "properties need.")
+        n = values[cursor]
+        if p[0] == face_list:
+            item_start, sizes = cursor + 1, n.astype(np.int64)
+        cursor = cursor + 1 + n.astype(np.int64)
+    wrong = np.flatnonzero(cursor != line_end)
+    if wrong.size:
+        row = int(wrong[0])
+        raise _ply_error(f"face line {row + 1} holds {int(counts[row])} values, but its list counts "
+                         f"call for {int(cursor[row] - line_end[row] + counts[row])}.")
+    _check_polygon_sizes(sizes, "PLY faces")
+    first = np.cumsum(sizes) - sizes
+    at = np.repeat(item_start, sizes) + (np.arange(int(sizes.sum())) - np.repeat(first, sizes))
+    return _polygons(values[at], sizes)
+
+
+def _ply_plyfile(data: bytes, face_list: str | None):
+    """Vertex table (and faces) via plyfile: for a vertex element that holds list properties."""
     import plyfile
 
     try:
         ply = plyfile.PlyData.read(io.BytesIO(data))
         table = ply["vertex"].data
+        lists = ply["face"].data[face_list] if face_list is not None else None
     except Exception as exc:  # plyfile raises several exception types
         text = str(exc)
         code = "truncated_file" if re.search(r"end.of.file|early end|truncat", text, re.I) \
@@ -183,4 +330,13 @@ def _ply_vertices_plyfile(data: bytes) -> np.ndarray:
         raise _ply_error(f"{text}. The file is damaged or incomplete.", code=code) from None
     dtype = table.dtype
     scalar = [n for n in dtype.names if dtype[n].shape == () and dtype[n] != object]
-    return np.asarray(table[scalar])
+    faces = None
+    if lists is not None:
+        if lists.dtype == object:
+            sizes = np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
+            items = np.concatenate(lists) if len(lists) else np.zeros(0, dtype=np.int64)
+        else:
+            sizes = np.full(lists.shape[0], lists.shape[1] if lists.ndim == 2 else 0)
+            items = lists.reshape(-1)
+        faces = _polygons(items, sizes)
+    return np.asarray(table[scalar]), faces

@@ -9,8 +9,13 @@ claims billions of points fails before the body is read. :func:`_check_bytes` (`
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 from planning.errors import InputError, InputTooLarge, ParameterError
 
@@ -25,7 +30,7 @@ class _Source:
         self.name, self.size, self.head, self._path, self._data = name, size, head, path, data
 
     @classmethod
-    def open(cls, source, max_bytes: int | None) -> "_Source":
+    def open(cls, source, max_bytes: int | None) -> _Source:
         if isinstance(source, (bytes, bytearray, memoryview)):
             data = bytes(source)
             _check_bytes(len(data), max_bytes)
@@ -53,6 +58,37 @@ class _Source:
                 raise InputError(f"Cannot read the cloud file {self.name!r}: {exc}.",
                                  code="unreadable_file") from exc
         return self._data
+
+    @contextlib.contextmanager
+    def file(self) -> Iterator[BinaryIO]:
+        """A binary file object of the whole input (the file itself, or the bytes in memory)."""
+        if self._data is not None or self._path is None:
+            yield io.BytesIO(self.data())
+            return
+        try:
+            fh = open(self._path, "rb")
+        except OSError as exc:
+            raise InputError(f"Cannot read the cloud file {self.name!r}: {exc}.",
+                             code="unreadable_file") from exc
+        with fh:
+            yield fh
+
+    @contextlib.contextmanager
+    def local_path(self, suffix: str = "") -> Iterator[Path]:
+        """A path on disk holding the input (for libraries that open files by name): the file
+        itself, or the bytes written to a temporary file that is removed afterwards."""
+        if self._path is not None:
+            yield self._path
+            return
+        with tempfile.TemporaryDirectory(prefix="scanmill-input-") as folder:
+            path = Path(folder) / f"input{suffix}"
+            path.write_bytes(self.data())
+            yield path
+
+    @property
+    def quoted(self) -> str:
+        """The file name quoted for messages, after a space (`` 'scan.e57'``); '' for bytes."""
+        return f" {self.name!r}" if self.name else ""
 
     @property
     def suffix(self) -> str:

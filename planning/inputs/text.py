@@ -56,9 +56,10 @@ def _reject_binary(data: bytes) -> None:
     sample = np.frombuffer(data[:65536], dtype=np.uint8)
     control = (sample < 32) & ~np.isin(sample, (9, 10, 11, 12, 13))
     if control.any():
-        raise InputError("The file is neither PLY, PCD nor text (it contains binary bytes); it "
-                         "is damaged or in an unsupported format. Export the scan as PLY, PCD or "
-                         "XYZ/CSV text.", code="unreadable_file")
+        raise InputError("The file is in no format that is read here (it is not text and has no "
+                         "known signature); it is damaged or in an unsupported format. Export the "
+                         "scan as PLY, PCD, XYZ/CSV text, STL, OBJ, LAS/LAZ or E57.",
+                         code="unreadable_file")
 
 
 def _text_layout(data: bytes):

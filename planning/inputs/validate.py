@@ -6,7 +6,9 @@ many and the first index), ``too_few_points``, ``extent_too_large`` (largest bou
 above ``max_extent_mm``, with a hint at the input units) or ``degenerate_cloud``: all points
 coincident (extent below 1e-9 x the coordinate magnitude) or on one straight line (second RMS
 spread along a principal axis below 1e-5 x the first, or below 1e-6 x the coordinate magnitude);
-a flat plane is accepted. :func:`_unit_normals` normalises the normals read from a file.
+a flat plane is accepted. :func:`validate_faces` checks the triangles of a mesh against its points
+(indices in range; degenerate triangles dropped). :func:`_unit_normals` normalises the normals read
+from a file.
 """
 
 from __future__ import annotations
@@ -15,13 +17,14 @@ import numpy as np
 
 from planning.errors import InputError
 
-__all__ = ["validate_points"]
+__all__ = ["validate_faces", "validate_points"]
 
 
 _COV_CHUNK = 1 << 20           # rows per chunk when accumulating the covariance
 _COINCIDENT_RTOL = 1e-9        # extent below this x coordinate magnitude: all points coincide
 _LINE_RTOL = 1e-5              # 2nd singular value below this x the 1st: all points on a line
 _LINE_ABS_RTOL = 1e-6          # ... or below this x coordinate magnitude (float32 rounding)
+_AREA_RTOL = 1e-15             # a triangle whose doubled area is below this x extent^2 has zero area
 
 
 def validate_points(points, *, max_extent_mm: float = 5_000.0, min_points: int = 10,
@@ -48,6 +51,44 @@ def validate_points(points, *, max_extent_mm: float = 5_000.0, min_points: int =
     _check_extent(lo, hi, max_extent_mm, units)
     _check_not_degenerate(pts, lo, hi)
     return pts
+
+
+def validate_faces(faces, points: np.ndarray) -> np.ndarray | None:
+    """Check the triangles of a mesh and return them as C-contiguous ``(T, 3)`` int64, or None.
+
+    ``faces`` holds indices into ``points`` (``(N, 3)`` mm, already validated); None stays None (a
+    plain cloud). An index outside ``[0, N)`` raises :class:`InputError` ``unreadable_file`` (naming
+    the first such face). Degenerate triangles are dropped: a repeated index, or zero area (doubled
+    area below 1e-15 x the squared largest side of the bounding box, i.e. collinear to rounding).
+    """
+    if faces is None:
+        return None
+    tri = np.asarray(faces)
+    if tri.size == 0:
+        return np.zeros((0, 3), dtype=np.int64)
+    if tri.ndim != 2 or tri.shape[1] != 3:
+        raise InputError(f"Faces must be an (T, 3) array of vertex indices; got shape {tri.shape}.",
+                         code="unreadable_file")
+    tri = np.ascontiguousarray(tri, dtype=np.int64)
+    n = points.shape[0]
+    bad = ((tri < 0) | (tri >= n)).any(axis=1)
+    if bad.any():
+        first = int(np.argmax(bad))
+        wrong = [int(v) for v in tri[first] if not 0 <= v < n]
+        raise InputError(
+            f"Face {first + 1} (counting from 1) refers to vertex {wrong[0]} (counting from 0), but the "
+            f"mesh has {n:,} vertices; {int(bad.sum()):,} face(s) point outside the vertex list. The "
+            "file is damaged; export the mesh again.", code="unreadable_file", face=first,
+            n_bad=int(bad.sum()))
+    keep = (tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])
+    lo, hi = _bounds(points)
+    extent = float((hi - lo).max())
+    for i in range(0, tri.shape[0], _COV_CHUNK):       # chunks bound the temporary arrays
+        t = tri[i:i + _COV_CHUNK]
+        p0 = points[t[:, 0]]
+        cross = np.cross(points[t[:, 1]] - p0, points[t[:, 2]] - p0)
+        keep[i:i + _COV_CHUNK] &= np.einsum("ij,ij->i", cross, cross) > (_AREA_RTOL * extent * extent) ** 2
+    return tri if keep.all() else np.ascontiguousarray(tri[keep])
 
 
 def _as_point_array(points) -> np.ndarray:

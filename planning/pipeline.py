@@ -19,6 +19,7 @@ import scanmill
 from planning.areas import Areas, assign_areas
 from planning.errors import InputError, ParameterError
 from planning.inputs import Cloud
+from planning.inputs.scale import check_normal_share, check_part_size
 from planning.normals import sphere_throwing
 from planning.orientations import (
     CandidateAxes,
@@ -140,6 +141,9 @@ def _normals(cloud: Cloud, config: PlanConfig, progress) -> _Normals:
         return _Normals(sample_index, normals, summary)
     res = sphere_throwing(cloud.points, sphere_diameter_mm=p.sphere_diameter_mm,
                           grid_spacing_mm=p.grid_spacing_mm, directions=p.directions, progress=progress)
+    check_normal_share(cloud.points, int(res.sample_index.size), units=config.input.units,
+                       sphere_diameter_mm=p.sphere_diameter_mm, tool_diameter_mm=config.tool.diameter_mm,
+                       max_extent_mm=config.input.max_extent_mm, accept_small_part=config.input.accept_small_part)
     if res.sample_index.size == 0:
         raise InputError("sphere throwing touched no point: check normals.sphere_diameter_mm and "
                          "normals.grid_spacing_mm against the part size", code="no_normals")
@@ -394,6 +398,9 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     """
     run = _Run(progress)
     points = cloud.points
+    check_part_size(points, units=config.input.units, tool_diameter_mm=config.tool.diameter_mm,
+                    min_tool_diameters=config.input.min_part_tool_diameters,
+                    max_extent_mm=config.input.max_extent_mm, accept_small_part=config.input.accept_small_part)
     profile = load_profile(config.machine.profile)
     tool = config.tool.assembly()          # cutter, shank and holder: visibility, paths and posts
     carry = config.paths.carry_stock and (config.paths.finishing.enabled or config.paths.roughing.enabled)

@@ -69,6 +69,13 @@ class InputParams(_Strict):
         default_factory=ReliefParams,
         description="How an image (PNG, JPEG, BMP, TIFF) is read as a relief; ignored for point clouds and "
                     "meshes.")
+    accept_small_part: bool = Field(
+        False, description="Plan a part whose largest side is under min_part_tool_diameters tool diameters, or "
+                           "on which sphere throwing finds almost no normals; by default such a cloud is refused "
+                           "as a likely unit mistake (a scan in metres read as mm).")
+    min_part_tool_diameters: float = Field(
+        2.0, ge=0, le=1000, description="The smallest accepted largest side of the part's bounding box, in tool "
+                                        "diameters (checked unless accept_small_part).")
 
 
 class NormalsParams(_Strict):

@@ -40,6 +40,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import Request
 
 from planning.errors import ParameterError
+from planning.inputs.cloud import FORMATS
+from planning.inputs.scale import check_part_size
 from schemas.api import InlineCloud
 from schemas.params import PlanConfig, parse_config
 from service.admission import check_job_budget
@@ -180,6 +182,9 @@ def _validate_cloud(path: Path, fmt: str | None, config: PlanConfig, settings: S
         raise ParameterError("normals.method is 'input' but the file carries no normals (PLY nx ny nz, PCD "
                              "normal_x normal_y normal_z); use normals.method = sphere_throwing",
                              code="missing_normals")
+    check_part_size(cloud.points, units=config.input.units, tool_diameter_mm=config.tool.diameter_mm,
+                    min_tool_diameters=config.input.min_part_tool_diameters,
+                    max_extent_mm=config.input.max_extent_mm, accept_small_part=config.input.accept_small_part)
     extent = [float(v) for v in cloud.points.max(axis=0) - cloud.points.min(axis=0)]
     check_job_budget(config, int(cloud.points.shape[0]), settings, extent_mm=extent)
     return {"format": cloud.source_format, "n_points": int(cloud.points.shape[0]),

@@ -3,7 +3,7 @@
 The kernels are ``@njit(cache=True)``: compiled at their first call with given argument types, then
 kept in numba's cache directory (:mod:`planning.kernel_cache`), from where later processes load them
 in milliseconds. :func:`warm` plans a small reference scan in-process, through the same path as
-``scanmill plan`` and the service (a binary PLY read by :func:`~planning.inputs.cloud.read_cloud`, the
+``scanmill plan`` and the service (a binary PLY read by :func:`~planning.inputs.cloud.read_input`, the
 default configuration: sphere-throwing normals, global visibility and travel, roughing, finishing,
 both posts and the simulation), so the kernels are compiled for the argument types of a real plan;
 the plan itself is discarded. :class:`CompileCounter` counts the compilations (numba's
@@ -94,7 +94,7 @@ class WarmupReport:
 def warm_plan(progress=None):
     """Plan the warm-up scan (:data:`WARMUP_SAMPLE`) with :data:`WARMUP_CONFIG` and write its files into a
     temporary directory, as ``scanmill plan`` and a job do; return the plan outcome."""
-    from planning.inputs.cloud import read_cloud
+    from planning.inputs.cloud import read_input
     from planning.inputs.samples import make_sample
     from planning.pipeline import run_plan
     from planning.report.files import write_ply
@@ -107,8 +107,7 @@ def warm_plan(progress=None):
         path = Path(tmp) / f"{WARMUP_SAMPLE}.ply"
         # written and read back as a user's file is: the same dtypes and layout reach the kernels
         write_ply(path, sample.points, normals=sample.normals, binary=True)
-        cloud = read_cloud(path, units=config.input.units, max_points=config.input.max_points,
-                           max_extent_mm=config.input.max_extent_mm, min_points=config.input.min_points)
+        cloud = read_input(path, config.input)
         outcome = run_plan(cloud, config, name=f"warmup-{WARMUP_SAMPLE}", progress=progress)
         write_plan(outcome, Path(tmp) / "plan")      # the artifacts run kernels too (the stock mesh)
     return outcome

@@ -116,7 +116,7 @@ def _print_verification(r) -> None:
 
 
 def cmd_plan(args) -> int:
-    from planning.inputs.cloud import read_cloud
+    from planning.inputs.cloud import read_input
     from planning.pipeline import run_plan
     from planning.report.plan_files import write_plan
     from scanmill.summary import format_summary
@@ -125,9 +125,7 @@ def cmd_plan(args) -> int:
     config = parse_config(_load_config(args))
     progress = _Progress(quiet=args.quiet)
     progress("read", 0.0, str(args.input))
-    cloud = read_cloud(args.input, fmt=args.format, units=config.input.units,
-                       max_points=config.input.max_points, max_extent_mm=config.input.max_extent_mm,
-                       min_points=config.input.min_points)
+    cloud = read_input(args.input, config.input, fmt=args.format)
     progress("read", 1.0, f"{cloud.points.shape[0]} points ({cloud.source_format})")
     base_dir = Path(args.config).resolve().parent if getattr(args, "config", None) else Path.cwd()
     outcome = run_plan(cloud, config, name=Path(args.input).name, progress=progress, base_dir=base_dir)
@@ -230,12 +228,14 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("plan", help="plan the 3+2 set-ups of a scan and write plan.json, plan.npz, PLY, PNG")
-    p.add_argument("input", help="point cloud: PLY (ascii/binary), PCD, XYZ/CSV/TXT")
+    p.add_argument("input", help="the scan: PLY (ascii/binary, faces kept), PCD, XYZ/CSV/TXT, STL, OBJ, LAS/LAZ, "
+                                 "E57, or a PNG/JPEG/BMP/TIFF image read as a relief (input.relief)")
     p.add_argument("--config", help="plan configuration JSON (docs/design.md parameter names)")
     p.add_argument("--set", action="append", metavar="PATH=VALUE",
                    help="override one parameter, e.g. --set setups.coverage=0.9 (value parsed as JSON)")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--format", choices=["ply", "pcd", "xyz", "csv", "txt"], help="input format (default: detect)")
+    from planning.inputs.cloud import FORMATS
+    p.add_argument("--format", choices=FORMATS, help="input format (default: detect)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_plan)
 

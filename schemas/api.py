@@ -24,7 +24,8 @@ FINISHED_STATUSES: tuple[str, ...] = ("succeeded", "failed", "cancelled")
 #: The stages a running job goes through, in order ("read" the cloud, the pipeline's seven, "write").
 JOB_STAGES: tuple[str, ...] = ("read", "normals", "orientations", "visibility", "setups", "areas", "paths", "post",
                                "simulate", "write")
-CloudFormat = Literal["ply", "pcd", "xyz", "csv", "txt"]
+CloudFormat = Literal["ply", "pcd", "xyz", "csv", "txt", "stl", "obj", "las", "laz", "e57", "png", "jpg", "jpeg", "bmp",
+                      "tif", "tiff"]
 
 
 class _Model(BaseModel):

@@ -2,14 +2,15 @@
 
 Two request forms:
 
-- ``multipart/form-data``: the scan as file part ``cloud``; optional ``parameters`` (the plan
-  configuration as JSON text), ``name``, ``format`` (ply, pcd, xyz, csv, txt), ``time_limit_s``,
-  and ``fixtures`` (zero or more fixture point-cloud files).
+- ``multipart/form-data``: the scan as file part ``cloud`` (a point cloud, a mesh or an image read as
+  a relief); optional ``parameters`` (the plan configuration as JSON text), ``name``, ``format`` (one
+  of ``planning.inputs.cloud.FORMATS``: ply, pcd, xyz, csv, txt, stl, obj, las, laz, e57, png, jpg,
+  jpeg, bmp, tif, tiff), ``time_limit_s``, and ``fixtures`` (zero or more fixture point-cloud files).
 - ``application/json``: :class:`schemas.api.JobCreateRequest`, a small inline cloud.
 
 Uploads are copied into a fresh staging folder under ``DATA_DIR/tmp`` (with their SHA-256), the
 parameters are validated by ``schemas.params.parse_config`` and the cloud is read once by
-``planning.inputs.cloud.read_cloud`` in a worker thread, so a truncated file, garbage, NaN, an empty
+``planning.inputs.cloud.read_input`` in a worker thread, so a truncated file, garbage, NaN, an empty
 cloud or a header claiming billions of points is answered at once with a 4xx problem naming what
 is wrong. On any error the staging folder is removed: nothing half-written stays behind.
 
@@ -41,6 +42,7 @@ from starlette.requests import Request
 
 from planning.errors import ParameterError
 from planning.inputs.cloud import FORMATS
+from planning.inputs.cloud import FORMATS
 from planning.inputs.scale import check_part_size
 from schemas.api import InlineCloud
 from schemas.params import PlanConfig, parse_config
@@ -52,7 +54,10 @@ from service.storage import Storage, UploadTooLarge, cloud_suffix, copy_stream
 from service.workers import read_job_cloud
 
 MULTIPART_FIELDS = {"cloud", "parameters", "name", "format", "time_limit_s", "fixtures"}
-FORMATS = ("ply", "pcd", "xyz", "csv", "txt")
+# image parts are scans too: an image is read as a relief (input.relief)
+_IMAGE_CLOUD_TYPES = {"image/png", "image/jpeg", "image/pjpeg", "image/bmp", "image/x-bmp", "image/x-ms-bmp",
+                      "image/tiff"}
+_SCAN_FORMATS = "PLY, PCD, XYZ/CSV text, STL, OBJ, LAS/LAZ, E57 or a PNG/JPEG/BMP/TIFF image"
 # media types that are certainly not a point cloud (a part sent with one of these is refused)
 _NOT_A_CLOUD_PREFIXES = ("image/", "audio/", "video/", "font/", "multipart/")
 _NOT_A_CLOUD = {"application/pdf", "application/zip", "application/gzip", "application/x-gzip",
@@ -99,10 +104,12 @@ def _clean_name(name: str | None) -> str | None:
 
 def _check_part_type(part: UploadFile, field_name: str) -> None:
     ct = (part.content_type or "").split(";")[0].strip().lower()
+    if field_name == "cloud" and ct in _IMAGE_CLOUD_TYPES:
+        return
     if ct.startswith(_NOT_A_CLOUD_PREFIXES) or ct in _NOT_A_CLOUD:
         raise ApiError(415, "unsupported_media_type",
                        f"The '{field_name}' part is sent as {ct}, which is not a point cloud. Send the scan file "
-                       "(PLY, PCD or XYZ/CSV text) as application/octet-stream.")
+                       f"({_SCAN_FORMATS}) as application/octet-stream.")
 
 
 def _parse_parameters(text: str | None) -> PlanConfig:
@@ -506,7 +513,7 @@ async def validate_submission(sub: Submission, settings: Settings, limiter: anyi
         except Exception as exc:  # noqa: BLE001 - a reader bug must not become a 500 for the client
             log.exception("reading the submitted %s failed unexpectedly", what)
             raise ApiError(422, "unreadable_file",
-                           f"The {what} file could not be read ({type(exc).__name__}); export it again as PLY, "
-                           "PCD or XYZ/CSV text.") from None
+                           f"The {what} file could not be read ({type(exc).__name__}); export it again as "
+                           f"{_SCAN_FORMATS}.") from None
 
     sub.input.update(await anyio.to_thread.run_sync(work, limiter=limiter))

@@ -76,7 +76,9 @@ JOB_CREATE_FORM = {
     "required": ["cloud"],
     "properties": {
         "cloud": {"type": "string", "format": "binary",
-                  "description": "The scan: PLY (ascii/binary), PCD, or XYZ/CSV/TXT text, in input.units."},
+                  "description": "The scan, in input.units: a point cloud (PLY ascii/binary, PCD, XYZ/CSV/TXT, "
+                                 "LAS/LAZ, E57), a mesh (STL, OBJ, PLY with faces) or a PNG/JPEG/BMP/TIFF image "
+                                 "read as a relief (input.relief, sizes in mm)."},
         "parameters": {"type": "string",
                        "description": "The plan configuration (docs/design.md parameter names) as JSON text; omitted "
                                       "groups take their defaults. See the PlanConfig schema.",

@@ -17,7 +17,7 @@ exits or is killed (plus a parent-death signal and a parent-pid check), so a kil
 no job running; at the next start the store's
 recovery re-queues or fails what was running (see :meth:`JobRunner.recover`).
 
-The worker function only calls ``planning.inputs.cloud.read_cloud``, ``planning.pipeline.run_plan`` and
+The worker function only calls ``planning.inputs.cloud.read_input``, ``planning.pipeline.run_plan`` and
 ``planning.report.plan_files.write_plan``: the service holds no geometry.
 
 Holding under pressure (issue 13):
@@ -112,9 +112,8 @@ def read_job_cloud(path: str | os.PathLike, fmt: str | None, config: PlanConfig,
 
     Submission validates the cloud with this very call, so the worker reads it the same way.
     """
-    from planning.inputs.cloud import read_cloud
-    return read_cloud(path, fmt=fmt, units=config.input.units, max_points=min(config.input.max_points, max_points),
-                      max_extent_mm=config.input.max_extent_mm, min_points=config.input.min_points)
+    from planning.inputs.cloud import read_input
+    return read_input(path, config.input, fmt=fmt, max_points=max_points)
 
 
 def pin_thread_env(threads: int, env: dict[str, str] | None = None) -> None:

@@ -130,8 +130,9 @@ def test_wrong_request_content_type(c, good_ply):
 
 
 def test_wrong_part_content_type(c, good_ply):
-    assert_problem(post_file(c, good_ply, filename="scan.png", content_type="image/png"), 415,
-                   "unsupported_media_type", "image/png")
+    # PNG, JPEG, BMP and TIFF parts are scans (read as reliefs); other images are not
+    assert_problem(post_file(c, good_ply, filename="scan.gif", content_type="image/gif"), 415,
+                   "unsupported_media_type", "image/gif")
 
 
 def test_missing_cloud_part(c):

@@ -21,7 +21,8 @@ covered and overlap point counts and the proof, :class:`SetupSelection`) in
 
 from planning.setups.bruteforce import brute_force_setups
 from planning.setups.result import SetupSelection
-from planning.setups.select import SOLVERS, select_setups
+from planning.setups.select import SOLVERS, CoverageBound, coverage_upper_bound, select_setups
 from planning.setups.zones import zone_mask
 
-__all__ = ["SOLVERS", "SetupSelection", "brute_force_setups", "select_setups", "zone_mask"]
+__all__ = ["SOLVERS", "CoverageBound", "SetupSelection", "brute_force_setups", "coverage_upper_bound", "select_setups",
+           "zone_mask"]

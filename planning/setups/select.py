@@ -49,6 +49,7 @@ import contextlib
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -56,11 +57,13 @@ from threadpoolctl import threadpool_limits
 from planning.errors import ParameterError
 from planning.setups.bruteforce import brute_force_setups
 from planning.setups.cpsat import _solve_cpsat
+from planning.setups.heuristics import _heuristics
+from planning.setups.lagrange import _prices
 from planning.setups.problem import _Problem, _validate
 from planning.setups.result import SetupSelection, _make_result
 from planning.setups.search import _solve_bnb
 
-__all__ = ["SOLVERS", "SetupSelection", "brute_force_setups", "select_setups"]
+__all__ = ["SOLVERS", "CoverageBound", "SetupSelection", "brute_force_setups", "coverage_upper_bound", "select_setups"]
 
 SOLVERS = ("auto", "branch_and_bound", "cpsat", "brute_force")
 
@@ -151,3 +154,47 @@ def select_setups(visibility, *, coverage=0.95, max_setups=5, min_points=1, zone
         lower_bound=out.lower_bound, solver=name, n_classes=prob.C, n_axes_kept=prob.n_axes_kept,
         seconds=time.perf_counter() - t0, note=out.note, min_points=min_points,
     )
+
+
+@dataclass(frozen=True)
+class CoverageBound:
+    """What :func:`coverage_upper_bound` proves: no ``max_setups`` axes of the matrix see more than
+    ``bound`` points (``greedy`` points are reached by greedy's axes, a lower bound on the best);
+    ``required`` = ``ceil(coverage * n_points)``; ``proven_infeasible``: ``bound < required``."""
+
+    bound: int
+    greedy: int
+    required: int
+    n_points: int
+    seconds: float
+
+    @property
+    def proven_infeasible(self) -> bool:
+        return self.bound < self.required
+
+
+def coverage_upper_bound(visibility, *, coverage=0.95, max_setups=5, min_points=1, zone_mask=None,
+                         time_limit_s=10.0) -> CoverageBound:
+    """An upper bound on the points any ``max_setups`` axes of ``visibility`` see together, without
+    a search: greedy max coverage first (where its ``max_setups`` axes reach ``ceil(coverage * n)``
+    no bound can rule the matrix out, and the number of points some axis sees is returned), else the
+    price bound of :mod:`planning.setups.lagrange` (the LP dual of max coverage with ``max_setups``
+    axes), the same proof :func:`select_setups` runs first. Zone conflicts are ignored (they only
+    remove subsets), so the bound holds with them. Used where many matrices are to be ruled out
+    quickly (:mod:`planning.placement.search`)."""
+    t0 = time.perf_counter()
+    V, _cov, K, min_points, zone, required = _validate(visibility, coverage, max_setups, min_points, zone_mask)
+    _validate_run("auto", time_limit_s, None)
+    with _single_threaded_blas():
+        prob = _Problem(V, zone, min_points, required)
+        seen = int(prob.w.sum())
+        kmax = min(K, prob.m)
+        if kmax == 0:
+            return CoverageBound(0, 0, required, prob.n, time.perf_counter() - t0)
+        heur = _heuristics(prob, K)
+        greedy = int(max((c for _, c, _ in heur.values()), default=0))
+        if greedy >= required:
+            return CoverageBound(seen, greedy, required, prob.n, time.perf_counter() - t0)
+        _mu, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=t0 + float(time_limit_s))
+    return CoverageBound(int(min(seen, math.floor(bound + 1e-9))), greedy, required, prob.n,
+                         time.perf_counter() - t0)

@@ -21,9 +21,10 @@ API_VERSION = "1"
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 #: Statuses of a job that is done: its worker has stopped and its files no longer change.
 FINISHED_STATUSES: tuple[str, ...] = ("succeeded", "failed", "cancelled")
-#: The stages a running job goes through, in order ("read" the cloud, the pipeline's seven, "write").
-JOB_STAGES: tuple[str, ...] = ("read", "normals", "orientations", "visibility", "setups", "areas", "paths", "post",
-                               "simulate", "write")
+#: The stages a running job goes through, in order ("read" the cloud, the pipeline's, "write"); "placement" runs
+#: with fixtures.placement = auto (and after "setups" for the hint of an infeasible as-scanned plan).
+JOB_STAGES: tuple[str, ...] = ("read", "normals", "placement", "orientations", "visibility", "setups", "areas", "paths",
+                               "post", "simulate", "write")
 CloudFormat = Literal["ply", "pcd", "xyz", "csv", "txt", "stl", "obj", "las", "laz", "e57", "png", "jpg", "jpeg", "bmp",
                       "tif", "tiff"]
 

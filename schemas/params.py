@@ -283,6 +283,21 @@ class FixturesParams(_Strict):
     items: list[FixtureItem] = Field(
         default_factory=list, max_length=100, description="Fixtures in part coordinates: boxes, cylinders, meshes, "
                                                           "forbidden points.")
+    placement: Literal["as_scanned", "auto"] = Field(
+        "as_scanned",
+        description="How the part is put on the table. 'as_scanned': as it lies in the scan's frame (z up). 'auto': "
+                    "try it as scanned, resting on each of its most stable convex-hull faces and with each principal "
+                    "axis up and down, and plan the placement that reaches setups.coverage with the fewest set-ups, "
+                    "then the least overlap, then the lowest part (docs/design.md 'Placement'); plan.json placement "
+                    "gives the rotation and translation applied to the scan, placed.ply the placed cloud. With "
+                    "'auto', placement_mm must be null and items are in the placed frame.")
+
+    @model_validator(mode="after")
+    def _auto_placement(self) -> "FixturesParams":
+        if self.placement == "auto" and self.placement_mm is not None:
+            raise ValueError("placement 'auto' chooses how the part sits on the table: leave placement_mm null "
+                             "(fixture_height_mm sets the riser)")
+        return self
 
 
 class IndexZone(_Strict):

@@ -253,6 +253,8 @@ class Artifacts(_Out):
     stock_ply: str | None = Field(None, description="The simulated final stock as a triangle mesh.")
     unmachined_png: str | None = Field(None, description="Views of the scan with the points no kept finishing move "
                                                          "reaches in red (plan.json unmachined).")
+    placed_ply: str | None = Field(None, description="fixtures.placement 'auto': every scan point as placed on the table "
+                                                     "(the plan's frame: rotation and translation in plan.json placement).")
 
 
 class VerificationOffence(_Out):
@@ -343,6 +345,71 @@ class UnmachinedSummary(_Out):
     message: str = Field("", description="Why, in one sentence.")
 
 
+Vec3Out = tuple[float, float, float]
+PoseKind = Literal["as_scanned", "hull_face", "principal_axis"]
+
+
+class PlacementCandidate(_Out):
+    """One placement the search tried (planning/placement/, docs/design.md 'Placement')."""
+
+    index: int = Field(..., ge=0, description="Order in which the candidates were listed.")
+    kind: PoseKind
+    label: str = Field(..., description="What it is, for the operator (e.g. 'resting on hull face 0').")
+    up: Vec3Out = Field(..., description="The scanned-frame direction that points up once placed.")
+    yaw_deg: float = Field(0.0, description="Extra turn about the vertical (only where the C axis is limited), deg.")
+    stability_deg: float | None = Field(None, description="Hull faces: tipping angle, deg (larger is steadier).")
+    part_height_mm: float = Field(..., description="Height of the placed part, mm.")
+    stage: Literal["bound", "screened", "confirmed"] = Field(
+        ..., description="How far it was evaluated: 'bound' = ruled out by the price bound on the pairs left by the "
+                         "cone, travel, fixtures and table; 'screened' = set-ups chosen with the sampled points as the "
+                         "only collision obstacles (a superset of the visible pairs); 'confirmed' = the plan's own "
+                         "visibility and set-up stages.")
+    feasible: bool | None = Field(
+        None, description="Reaches setups.coverage with setups.max_setups set-ups: proven false at any stage, true only "
+                          "when confirmed; null = not settled (screened feasible but not confirmed, or the set-up "
+                          "search's time limit came first).")
+    k: int | None = Field(None, description="Set-ups of the selection at the stage reached.")
+    overlap: int | None = Field(None, description="Overlap points of that selection.")
+    coverage: float | None = Field(None, description="Coverage of that selection (with max_setups set-ups where "
+                                                     "infeasible: the best reachable at that stage).")
+    coverage_bound: float | None = Field(
+        None, description="Proven: no max_setups set-ups cover more than this fraction of the sampled points here.")
+    seconds: float = Field(..., description="Time spent on this candidate, s.")
+
+
+class PlacementSummary(_Out):
+    """How the part is placed on the table (fixtures.placement): the rigid motion applied to the scan,
+    ``placed = R @ scanned + t``, and with 'auto' the candidates tried. Everything else in the plan is in
+    the placed frame."""
+
+    mode: Literal["as_scanned", "auto"]
+    kind: PoseKind = Field(..., description="The kind of placement used.")
+    candidate: int | None = Field(None, description="Index of the chosen candidate in candidates (null: none tried).")
+    label: str = Field(..., description="The placement used, for the operator.")
+    rotation: tuple[Vec3Out, Vec3Out, Vec3Out] = Field(..., description="R (3x3, rows), applied to scanned points.")
+    translation_mm: Vec3Out = Field(..., description="t, mm, added after the rotation.")
+    n_candidates: int = Field(0, ge=0, description="Candidates tried.")
+    candidates: list[PlacementCandidate] = Field(default_factory=list)
+    screening: str = Field("", description="What the screening evaluated, and on which points.")
+    seconds: float = Field(0.0, description="Time of the placement search, s.")
+    message: str = Field("", description="One sentence on the outcome.")
+
+
+class PathsSurface(_Out):
+    """What the finishing ball rested on (paths.surface; planning/toolpath/surface.py)."""
+
+    kind: Literal["points", "input_mesh", "scanner_grid", "reconstructed"] = Field(
+        ..., description="'points': the scan points; 'input_mesh': the file's triangles; 'scanner_grid': triangles "
+                         "from a structured scan's or a relief image's grid; 'reconstructed': ball-pivoting triangles "
+                         "through the points.")
+    n_triangles: int = Field(0, ge=0)
+    spacing_mm: float = Field(..., description="Estimated mean point spacing, mm.")
+    threshold_mm: float = Field(..., description="20 % of the tool radius: above it the points alone are too sparse, mm.")
+    dip_on_points_mm: float = Field(..., description="How far a ball sinks between points that far apart, mm.")
+    unmeshed_share: float = Field(0.0, description="Share of the points on no triangle.")
+    reason: str = ""
+
+
 class PlanResult(_Out):
     """Everything ``scanmill plan`` and a finished job report about a plan."""
 
@@ -370,6 +437,11 @@ class PlanResult(_Out):
                                           "stock is carried in this order; the programs run in it).")
     unmachined: UnmachinedSummary | None = Field(
         None, description="Scan points that no kept finishing move reaches (cut out for collisions or travel).")
+    placement: PlacementSummary | None = Field(
+        None, description="How the part sits on the table (fixtures.placement) and, with 'auto', the placements tried.")
+    paths_surface: PathsSurface | None = Field(
+        None, description="What the finishing ball rested on and the gouge clearance was measured to (null without "
+                          "finishing paths).")
     timings: list[Timing]
     warnings: list[str]
     artifacts: Artifacts = Field(default_factory=Artifacts)

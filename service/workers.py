@@ -85,8 +85,8 @@ PRELOAD = ["numpy", "planning.inputs.cloud", "planning.pipeline", "planning.repo
 # Share of a job's time per stage, from the femur-like plan of `make run` (2026-11-25, plan.json timings:
 # visibility 25 s, setups 3, areas 2, paths 58, post 1.5, simulate 43 s on a first run whose kernels
 # compiled, about 12 s warm; BENCHMARKS.md): the tool paths take about 45 %, the simulation 15-30 %.
-STAGE_WEIGHTS = {"read": 0.02, "normals": 0.02, "orientations": 0.01, "visibility": 0.18, "setups": 0.03,
-                 "areas": 0.02, "paths": 0.44, "post": 0.02, "simulate": 0.18, "write": 0.08}
+STAGE_WEIGHTS = {"read": 0.02, "normals": 0.02, "placement": 0.04, "orientations": 0.01, "visibility": 0.18,
+                 "setups": 0.03, "areas": 0.02, "paths": 0.40, "post": 0.02, "simulate": 0.18, "write": 0.08}
 _STAGE_START = {s: sum(STAGE_WEIGHTS[t] for t in JOB_STAGES[:i]) for i, s in enumerate(JOB_STAGES)}
 
 

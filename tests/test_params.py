@@ -17,7 +17,8 @@ def test_defaults_follow_design():
     d = c.to_json_dict()
     assert d["visibility"]["global"] is True and d["visibility"]["travel"] is True
     assert d["visibility"]["obstacles"] == "all"
-    assert d["fixtures"] == {"placement_mm": None, "fixture_height_mm": 50.0, "table": True, "items": []}
+    assert d["fixtures"] == {"placement_mm": None, "fixture_height_mm": 50.0, "table": True, "items": [],
+                             "placement": "as_scanned"}
     assert (c.tool.flute_length_mm, c.tool.stickout_mm) == (12.0, 30.0)
     # the default assembly: cutter + shank to the holder face, a collet nut and a flange
     a = c.tool.assembly()

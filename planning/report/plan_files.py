@@ -77,6 +77,11 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike, progress=None) 
                    integrated=a["integrated"],
                    title=f"{outcome.result.input.name or 'cloud'}: {outcome.result.message}")
 
+    if names.placed_ply:                 # fixtures.placement = auto: the cloud as the plan placed it
+        say(0.35, names.placed_ply)
+        paths["placed_ply"] = out / names.placed_ply
+        write_ply(paths["placed_ply"], outcome.points, binary=True)
+
     say(0.4, "NC programs")
     for name, text in outcome.extra.get("programs", {}).items():
         paths[name] = out / name

@@ -27,7 +27,7 @@ from planning.orientations import (
     load_profile,
     machine_visibility,
 )
-from planning.placement import apply_pose, full_yaw, search_placement, search_work
+from planning.placement import apply_pose, full_yaw, search_placement, search_work, turn
 from planning.placement.poses import MAX_HULL_POSES, YAWS_DEG
 from planning.placement.search import SCREENING
 from planning.post.programs import post_areas
@@ -444,8 +444,8 @@ def _placement(run: _Run, cloud: Cloud, nrm: _Normals, config: PlanConfig, profi
     pose = res.winner.pose
     R = pose.rotation
     placed = replace(cloud, points=apply_pose(cloud.points, pose),
-                     normals=None if cloud.normals is None else cloud.normals @ R.T)
-    return _Placed(placed, _Normals(nrm.sample_index, nrm.normals @ R.T, nrm.summary), cloud.points,
+                     normals=None if cloud.normals is None else turn(cloud.normals, R))
+    return _Placed(placed, _Normals(nrm.sample_index, turn(nrm.normals, R), nrm.summary), cloud.points,
                    _placement_summary("auto", res, pose), visibility=res.visibility)
 
 

@@ -7,8 +7,8 @@ part on the table and the search that plans the best one (``fixtures.placement =
   stages, cheapest proof first; the winner and every candidate's figures.
 """
 
-from planning.placement.poses import Pose, apply_pose, candidate_poses, stable_faces, stable_poses
+from planning.placement.poses import Pose, apply_pose, candidate_poses, stable_faces, stable_poses, turn
 from planning.placement.search import PlacementSearch, Tried, full_yaw, search_placement, search_work
 
 __all__ = ["PlacementSearch", "Pose", "Tried", "apply_pose", "candidate_poses", "full_yaw", "search_placement",
-           "search_work", "stable_faces", "stable_poses"]
+           "search_work", "stable_faces", "stable_poses", "turn"]

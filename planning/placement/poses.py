@@ -72,6 +72,7 @@ __all__ = [
     "principal_poses",
     "stable_faces",
     "stable_poses",
+    "turn",
 ]
 
 #: Hull facets whose outward normals lie within this of a face's largest facet form one face, deg.
@@ -229,10 +230,17 @@ def stable_faces(points, *, merge_deg: float = MERGE_DEG, min_stability_deg: flo
     height = support - fn @ g                                           # centroid height above it
     order = np.argsort(face, kind="stable")
     starts = np.searchsorted(face[order], np.arange(nface + 1))
+    # a necessary condition, for every face at once: the foot of the centroid lies within the sphere
+    # about the face's area centroid that holds its vertices (most faces of a curved hull fail it)
+    fc = np.zeros((nface, 3))
+    np.add.at(fc, face, tri.mean(axis=1) * area[:, None])
+    fc /= np.maximum(farea, 1e-300)[:, None]
+    reach = np.zeros(nface)
+    np.maximum.at(reach, face, np.linalg.norm(tri - fc[face][:, None, :], axis=2).max(axis=1))
+    foot3 = g + height[:, None] * fn
+    near = (height > 0) & (np.linalg.norm(foot3 - fc, axis=1) < reach)
     out: list[tuple[float, int, HullFace]] = []
-    for f in range(nface):
-        if height[f] <= 0:
-            continue
+    for f in np.flatnonzero(near):
         members = order[starts[f]:starts[f + 1]]
         verts = tri[members].reshape(-1, 3)
         n = fn[f]
@@ -264,23 +272,25 @@ def _sign_fixed(v: np.ndarray) -> np.ndarray:
     return v if v[i] >= 0 else -v
 
 
-def _principal_axes(points: np.ndarray) -> np.ndarray:
-    """Rows: the points' principal directions, largest variance first, signs fixed."""
+def _covariance(points: np.ndarray) -> np.ndarray:
+    """The points' covariance (3,3), mm^2: computed once per search, every pose's yaw reads it."""
     c = points - points.mean(axis=0)
-    cov = c.T @ c / max(points.shape[0], 1)
+    return c.T @ c / max(points.shape[0], 1)
+
+
+def _principal_axes(cov: np.ndarray) -> np.ndarray:
+    """Rows: the principal directions of covariance ``cov``, largest variance first, signs fixed."""
     w, v = np.linalg.eigh(cov)
     idx = np.argsort(-w, kind="stable")
     return np.array([_sign_fixed(v[:, i]) for i in idx])
 
 
-def _rotation_up(up: np.ndarray, points: np.ndarray, yaw_deg: float = 0.0) -> np.ndarray:
+def _rotation_up(up: np.ndarray, cov: np.ndarray, yaw_deg: float = 0.0) -> np.ndarray:
     """The rotation that turns ``up`` (scanned frame) to +Z and the longest horizontal principal
-    direction of the turned points to +X (then ``yaw_deg`` about +Z)."""
+    direction of the turned points (covariance ``cov``) to +X (then ``yaw_deg`` about +Z)."""
     up = up / np.linalg.norm(up)
     P = np.eye(3) - np.outer(up, up)
-    c = points - points.mean(axis=0)
-    cov = P @ (c.T @ c) @ P
-    w, v = np.linalg.eigh(cov)
+    w, v = np.linalg.eigh(P @ cov @ P)
     x = v[:, int(np.argmax(w))]
     x = x - (x @ up) * up
     if np.linalg.norm(x) < 1e-9:                                        # isotropic: any horizontal
@@ -305,13 +315,21 @@ def _standing_translation(points: np.ndarray, R: np.ndarray) -> tuple[np.ndarray
     return np.array([-0.5 * (lo[0] + hi[0]), -0.5 * (lo[1] + hi[1]), -lo[2]]), float(hi[2] - lo[2])
 
 
+def turn(vectors, rotation: np.ndarray) -> np.ndarray:
+    """``vectors @ rotation.T`` (N,3): einsum, 3-4x faster than BLAS's matmul on an (N,3) by (3,3) product
+    (measured on 1M points), and no thread pool to wake."""
+    return np.einsum("ij,kj->ik", np.asarray(vectors, dtype=np.float64), rotation)
+
+
 def apply_pose(points, pose: Pose) -> np.ndarray:
     """The placed points ``points @ rotation.T + translation_mm`` (N,3), mm."""
-    return np.asarray(points, dtype=np.float64) @ pose.rotation.T + pose.translation_mm
+    out = turn(points, pose.rotation)
+    out += pose.translation_mm
+    return out
 
 
-def _pose(kind, label, up, points, extent_pts, stability, yaw) -> Pose:
-    R = _rotation_up(up, points, yaw)
+def _pose(kind, label, up, cov, extent_pts, stability, yaw) -> Pose:
+    R = _rotation_up(up, cov, yaw)
     t, h = _standing_translation(extent_pts, R)
     return Pose(kind=kind, label=label, rotation=R, translation_mm=t, up=R[2].copy(), stability_deg=stability,
                 yaw_deg=float(yaw), part_height_mm=h)
@@ -322,24 +340,27 @@ def _extent_points(p: np.ndarray, hull) -> np.ndarray:
     return p if hull is None else hull.points[hull.vertices]
 
 
-def stable_poses(points, *, max_poses: int = MAX_HULL_POSES, merge_deg: float = MERGE_DEG, hull=None) -> list[Pose]:
+def stable_poses(points, *, max_poses: int = MAX_HULL_POSES, merge_deg: float = MERGE_DEG, hull=None,
+                 cov=None) -> list[Pose]:
     """The part resting on each of its most stable hull faces (:func:`stable_faces`), face down."""
     p = _as_points(points)
     hull = _hull(p) if hull is None else hull
     ext = _extent_points(p, hull)
-    return [_pose("hull_face", f"resting on hull face {i} (tipping angle {f.stability_deg:.1f} deg)", -f.normal, p,
+    cov = _covariance(p) if cov is None else cov
+    return [_pose("hull_face", f"resting on hull face {i} (tipping angle {f.stability_deg:.1f} deg)", -f.normal, cov,
                   ext, f.stability_deg, 0.0)
             for i, f in enumerate(stable_faces(p, merge_deg=merge_deg, hull=hull)[:max_poses])]
 
 
-def principal_poses(points, *, hull=None) -> list[Pose]:
+def principal_poses(points, *, hull=None, cov=None) -> list[Pose]:
     """Six poses: principal axis 1, 2, 3 (largest variance first) pointing up, then down."""
     p = _as_points(points)
     ext = _extent_points(p, _hull(p) if hull is None else hull)
+    cov = _covariance(p) if cov is None else cov
     out = []
-    for i, a in enumerate(_principal_axes(p)):
+    for i, a in enumerate(_principal_axes(cov)):
         for s, word in ((1.0, "up"), (-1.0, "down")):
-            out.append(_pose("principal_axis", f"principal axis {i + 1} {word}", s * a, p, ext, None, 0.0))
+            out.append(_pose("principal_axis", f"principal axis {i + 1} {word}", s * a, cov, ext, None, 0.0))
     return out
 
 
@@ -366,7 +387,9 @@ def candidate_poses(points, *, full_yaw: bool = True, max_hull_poses: int = MAX_
     (one yaw per pose); otherwise each pose is also turned by 90, 180 and 270 degrees."""
     p = _as_points(points)
     hull = _hull(p)
-    poses = [_identity(p)] + stable_poses(p, max_poses=max_hull_poses, hull=hull) + principal_poses(p, hull=hull)
+    cov = _covariance(p)
+    poses = ([_identity(p)] + stable_poses(p, max_poses=max_hull_poses, hull=hull, cov=cov)
+             + principal_poses(p, hull=hull, cov=cov))
     cos_s = math.cos(math.radians(same_up_deg))
     kept: list[Pose] = []
     for q in poses:

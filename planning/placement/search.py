@@ -59,7 +59,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from planning.geometry.collision import cloud_collision_free
-from planning.placement.poses import Pose, apply_pose, candidate_poses
+from planning.placement.poses import Pose, apply_pose, candidate_poses, turn
 from planning.setups import coverage_upper_bound
 from planning.visibility import cone_visibility, global_visibility
 
@@ -178,7 +178,7 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
         say(j / max(m, 1) * 0.8, f"candidate {j + 1} of {m}: {pose.label}")
         c0 = time.perf_counter()
         P = apply_pose(pts, pose)
-        N = nrm @ pose.rotation.T
+        N = turn(nrm, pose.rotation)
         cone = cone_visibility(N, ori.axes, vp.cone_deg)
         g0 = global_visibility(P, sidx, N, ori.axes, ori.angles_deg, cone, tool=tool, profile=profile,
                                fixtures_params=config.fixtures, check_global=vp.global_, check_travel=vp.travel,

@@ -168,7 +168,7 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
     ori = pl._orientations(config, profile)
     m = len(listed)
     tried: list[Tried] = []
-    survivors: list[tuple[Tried, np.ndarray, np.ndarray]] = []
+    survivors: list[Tried] = []        # screened feasible (the placed clouds are turned again to confirm)
 
     def setups(visible: np.ndarray, cone=None, gv=None):
         shim = pl._Visibility(cone, replace(gv, visible=visible), None)
@@ -189,7 +189,7 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
             t.seconds = time.perf_counter() - c0
             tried.append(t)
             if t.feasible:
-                survivors.append((t, P, N))
+                survivors.append(t)
             continue
         b = coverage_upper_bound(g0.visible, coverage=sp.coverage, max_setups=sp.max_setups, min_points=sp.min_points,
                                  zone_mask=zm)
@@ -204,14 +204,15 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
         t.seconds = time.perf_counter() - c0
         tried.append(t)
         if sel.status in _FEASIBLE:
-            survivors.append((t, P, N))
+            survivors.append(t)
 
     winner = None
     visibility = selection = None
-    order = sorted(survivors, key=lambda s: s[0].key())
-    for r, (t, P, N) in enumerate(order[:max(0, max_confirm)]):
+    order = sorted(survivors, key=Tried.key)
+    for r, t in enumerate(order[:max(0, max_confirm)]):
         say(0.8 + 0.2 * r / max(min(len(order), max_confirm), 1), f"confirming candidate {t.index}: {t.pose.label}")
         c0 = time.perf_counter()
+        P, N = apply_pose(pts, t.pose), turn(nrm, t.pose.rotation)
         cone, gv = pl._visibility(P, pl._Normals(sidx, N, None), ori, config, tool, profile, base_dir, None)
         sel = pl._setups(pl._Visibility(cone, gv, None), zm if zm is not None else np.zeros(n, bool), config, None)
         c = _from_selection(t.index, t.pose, "confirmed", sel, exact=True)

@@ -65,10 +65,10 @@ def stl_ascii(vertices, faces, name: str = "part", fmt: str = "{:.9g}") -> bytes
         a, b, c = v[tri]
         n = np.cross(b - a, c - a)
         n = n / (np.linalg.norm(n) or 1.0)
-        lines.append("  facet normal " + " ".join(fmt.format(x) for x in n))
+        lines.append("  facet normal " + " ".join(fmt.format(float(x)) for x in n))
         lines.append("    outer loop")
         for p in (a, b, c):
-            lines.append("      vertex " + " ".join(fmt.format(x) for x in p))
+            lines.append("      vertex " + " ".join(fmt.format(float(x)) for x in p))
         lines.append("    endloop")
         lines.append("  endfacet")
     lines.append(f"endsolid {name}")

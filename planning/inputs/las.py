@@ -1,9 +1,12 @@
 """Stage 1, the cloud: the LAS / LAZ reader (ASPRS lidar point files) via laspy.
 
-The header (``LASF`` signature) gives the point count, checked against ``max_points`` before any
+The header (``LASF`` signature, version 1.0 to 1.4, sizes and record counts checked first: laspy
+trusts them) gives the point count, checked against ``max_points`` before any
 point is decoded; ``x y z`` are the scaled coordinates (raw integers x scale + offset) as float64, in
-the unit of the file (``input.units``). LAZ (compressed) is decompressed by laspy's ``lazrs`` backend;
-the label says which (``las`` or ``laz``). No normals are read (``normals`` None), no faces.
+the unit of the file (``input.units``). LAZ (compressed) is decompressed by laspy's sequential ``lazrs``
+backend (the parallel one sizes its buffers from the chunk table unchecked: a damaged table made it
+abort the whole process); the LAZ chunk count is checked first for the same reason. The label says
+which (``las`` or ``laz``). No normals are read (``normals`` None), no faces.
 Errors: ``truncated_file`` (an uncompressed body shorter than the header's count needs, or a LAZ
 stream that ends early), ``unreadable_file`` (laspy cannot parse the header or the points; its
 message is passed on), ``unsupported_format`` (LAZ without a decompression backend),
@@ -13,12 +16,15 @@ message is passed on), ``unsupported_format`` (LAZ without a decompression backe
 from __future__ import annotations
 
 import re
+import struct
 
 import numpy as np
 
 from planning.errors import InputError, PlanningError
 from planning.inputs.source import _check_count, _Source
 
+_VLR_HEADER = 54                # bytes of a variable length record's header
+_EVLR_HEADER = 60               # ... and of an extended one's
 _TRUNCATED = re.compile(r"fill whole buffer|end of file|eof|unexpected end|truncat|not enough|"
                         r"multiple of element size", re.I)
 
@@ -32,15 +38,86 @@ def _first_line(exc: BaseException) -> str:
     return (text[0] if text else type(exc).__name__).rstrip(".")
 
 
+def _check_header(src: _Source) -> None:
+    """Check the public header block's sizes and counts before laspy reads it.
+
+    laspy trusts them: a damaged header that claims billions of VLRs would keep it reading past the
+    end of the file for hours. So the VLRs (54 bytes each at least) must fit between the header and
+    the point data, the EVLRs (60 bytes each) between their start and the end of the file.
+    """
+    head = src.head
+    if not head.startswith(b"LASF"):
+        raise _las_error(src, "it does not start with the 'LASF' signature; it is not a LAS file.")
+    if len(head) < 26 or head[24] != 1 or head[25] > 4:
+        version = f"{head[24]}.{head[25]}" if len(head) >= 26 else "unknown"
+        raise _las_error(src, f"its header says LAS version {version}; versions 1.0 to 1.4 are read. "
+                              "The file is damaged or not a LAS file.")
+    minor = head[25]
+    minimum = 375 if minor >= 4 else (235 if minor == 3 else 227)
+    if src.size < minimum:
+        raise _las_error(src, f"the file is {src.size} bytes, shorter than the {minimum}-byte LAS "
+                              f"1.{minor} header; it was cut off.", code="truncated_file")
+    header_size, point_offset, n_vlrs = struct.unpack_from("<HII", head, 94)
+    point_format = head[104] & 0x3F
+    if header_size < minimum or point_offset < header_size:
+        raise _las_error(src, f"its header size ({header_size}) or point data offset ({point_offset}) "
+                              "is impossible; the header is damaged.")
+    if point_offset > src.size:
+        raise _las_error(src, f"the point data should start at byte {point_offset:,} but the file holds "
+                              f"{src.size:,} bytes; it was cut off.", code="truncated_file")
+    if n_vlrs * _VLR_HEADER > point_offset - header_size:
+        raise _las_error(src, f"the header declares {n_vlrs:,} variable length records, which cannot fit "
+                              f"in the {point_offset - header_size:,} bytes before the point data; the "
+                              "header is damaged.")
+    if point_format > 10:
+        raise _las_error(src, f"point data format {point_format} does not exist (0 to 10); the header is "
+                              "damaged.")
+    n_points = struct.unpack_from("<I", head, 107)[0]
+    if minor >= 4:
+        evlr_start, n_evlrs, n_points_14 = struct.unpack_from("<QIQ", head, 235)
+        n_points = n_points_14 or n_points
+        if n_evlrs and (evlr_start > src.size or n_evlrs * _EVLR_HEADER > src.size - evlr_start):
+            raise _las_error(src, f"the header declares {n_evlrs:,} extended records from byte "
+                                  f"{evlr_start:,}, beyond the {src.size:,} bytes of the file; it is cut "
+                                  "off or damaged.", code="truncated_file")
+    if head[104] & 0x80:
+        _check_chunk_table(src, point_offset, n_points)
+
+
+def _check_chunk_table(src: _Source, point_offset: int, n_points: int) -> None:
+    """LAZ: the chunk table's chunk count must be possible (lazrs allocates it unchecked and aborts the
+    whole process when the allocation fails). Every chunk holds a point and at least a byte."""
+    with src.file() as fh:
+        fh.seek(point_offset)
+        raw = fh.read(8)
+        if len(raw) < 8:
+            raise _las_error(src, "the compressed point data is missing; the file was cut off.",
+                             code="truncated_file")
+        table = struct.unpack("<q", raw)[0]
+        if table == -1:                                 # written last: its offset ends the file
+            fh.seek(max(src.size - 8, 0))
+            table = struct.unpack("<q", fh.read(8).rjust(8, b"\0"))[0]
+        if not point_offset + 8 <= table <= src.size - 8:
+            raise _las_error(src, f"the LAZ chunk table should be at byte {table:,}, outside the "
+                                  f"{src.size:,} bytes of the file; the file is cut off or damaged.",
+                             code="truncated_file" if table > src.size else "unreadable_file")
+        fh.seek(table)
+        _, n_chunks = struct.unpack("<II", fh.read(8))
+    if n_chunks > max(1, min(n_points, src.size)):
+        raise _las_error(src, f"the LAZ chunk table declares {n_chunks:,} chunks for {n_points:,} points "
+                              f"in {src.size:,} bytes; the file is damaged.")
+
+
 def _read_las(src: _Source, max_points: int):
     import laspy
 
-    if not src.head.startswith(b"LASF"):
-        raise _las_error(src, "it does not start with the 'LASF' signature; it is not a LAS file.")
+    _check_header(src)
     with src.file() as fh:
         try:
-            reader = laspy.open(fh, closefd=False)
-        except Exception as exc:  # noqa: BLE001 - laspy raises LaspyException, ValueError, struct errors
+            reader = laspy.open(fh, closefd=False, laz_backend=laspy.LazBackend.Lazrs)
+        except (KeyboardInterrupt, SystemExit):
+            raise
+        except BaseException as exc:  # noqa: BLE001 - LaspyException, ValueError, lazrs' Rust panics
             raise _las_error(src, f"the header cannot be read ({_first_line(exc)}); the file is "
                                   "damaged. Export it again.") from None
         with reader:
@@ -60,12 +137,13 @@ def _read_las(src: _Source, max_points: int):
                                      code="truncated_file")
             try:
                 record = reader.read_points(n)
-                points = np.column_stack((np.asarray(record.x, dtype=np.float64),
-                                          np.asarray(record.y, dtype=np.float64),
-                                          np.asarray(record.z, dtype=np.float64)))
-            except PlanningError:
+                with np.errstate(over="ignore", invalid="ignore"):   # damaged scales: non_finite later
+                    points = np.column_stack((np.asarray(record.x, dtype=np.float64),
+                                              np.asarray(record.y, dtype=np.float64),
+                                              np.asarray(record.z, dtype=np.float64)))
+            except (PlanningError, KeyboardInterrupt, SystemExit):
                 raise
-            except Exception as exc:  # noqa: BLE001 - lazrs errors, ValueError from short buffers ...
+            except BaseException as exc:  # noqa: BLE001 - lazrs errors and Rust panics (BaseException)
                 text = _first_line(exc)
                 if "backend" in text.lower() and compressed:
                     raise InputError("LAZ (compressed LAS) needs the lazrs package to be decompressed; "

@@ -32,17 +32,26 @@ on the triangle):
 
 The maximum over the candidates that are kept is the exact answer (the set of centre heights at
 which the ball meets a convex triangle is an interval, and its top has its nearest point on a
-vertex, in an edge or in the facet). ``-inf`` where no triangle comes within R of the line.
+vertex, in an edge or in the facet). ``-inf`` where no triangle comes within R of the line. A
+facet contact, when kept, is the triangle's answer (the ball resting on the whole plane bounds
+every contact with the triangle), and a vertex is tried only where neither of its two edges keeps
+a contact (it lies on both edges' lines).
 
-:class:`TriangleDropSurface` bins the triangles once on a square xy raster, each triangle in every
-cell its xy bounding box grown by R touches, each cell's list sorted by the triangles' highest
-vertex (descending). A drop reads the one cell under its line and stops at the first triangle
-whose highest vertex + R cannot beat the best height so far; a triangle is also skipped when its
-highest vertex + the ball's height at the triangle's xy bounding box cannot. Compiled with numba,
-parallel over the lines (a serial twin for short batches). :func:`brute_force_triangle_drop` is the
-numpy reference (every line against every triangle). Contact: the index of the triangle the ball
-rests on (``faces`` row), -1 where none; among triangles giving the same height (as computed) the
-lowest index.
+:class:`TriangleDropSurface` bins the triangles once on a square xy raster: each triangle is listed
+in every cell its xy bounding box overlaps, each cell's list sorted by the triangles' highest
+vertex (descending), with a copy of each triangle's box beside its entry (read in cell order) and
+each cell's (and each 4 x 4 block's) highest vertex. A drop reads the cell under its line first,
+then the blocks and cells within R from the line's own outwards, as the point drop does
+(:mod:`planning.toolpath.balldrop`): a triangle's highest contact has its contact point in a cell
+where the triangle is listed, no nearer the line than that cell and no higher than the cell's
+highest vertex, so a cell (block) is skipped when its highest vertex + the ball's height at the
+cell's nearest edge cannot beat the best height so far; within a cell the scan stops at the first
+triangle whose highest vertex + R cannot, and skips a triangle when its highest vertex + the
+ball's height at its xy box cannot, or when the ball resting on the triangle's whole plane cannot
+(for facets with n_z >= 0.1). Compiled with numba, parallel over the lines (a serial twin for
+short batches). :func:`brute_force_triangle_drop` is the numpy reference (every line against
+every triangle, every candidate). Contact: the index of the triangle (row of ``faces``) the ball
+rests on, -1 where none; among triangles giving the same height (as computed) the lowest index.
 
 **Clearance.** :func:`triangle_clearance` measures, per straight move ``starts[k] -> ends[k]`` of a
 ball-centre path, the smallest distance to any triangle, capped: ``min(true distance, cap_mm)``.
@@ -50,11 +59,13 @@ Segment to triangle: 0 when the segment crosses the triangle, else the least of 
 its two end points to the triangle (Ericson's closest point on a triangle) and from the segment to
 the triangle's three edges (segment-segment, Ericson); exact in exact arithmetic (a closest pair
 with both points interior makes the segment parallel to the plane, and sliding along it reaches a
-boundary at the same distance). The same raster serves: the triangles near a move are in the cells
-its xy bounding box (grown by ``cap - R`` when the cap exceeds R) overlaps; each triangle is
-measured once per move (only in the first cell of the overlap of its cells with the move's), and
-skipped when its 3D bounding box is no nearer than the best distance so far. A ball of radius R
-following the move gouges no triangle when the clearance is >= R (minus a tolerance).
+boundary at the same distance). The same raster serves: the triangles within the cap of a move
+are listed in the cells its xy bounding box grown by the cap overlaps; a cell is skipped when the
+box holding its triangles (its square grown by how far they reach beyond it, between their lowest
+and highest z) is no nearer the move's bounding box than the best distance so far; each triangle
+is measured once per move (only in the first cell of the overlap of its cells with the move's),
+and skipped when its 3D bounding box is no nearer. A ball of radius R following the move gouges
+no triangle when the clearance is >= R (minus a tolerance).
 """
 
 from __future__ import annotations
@@ -72,7 +83,14 @@ from planning.toolpath.verify import serial_twin
 # shared by two triangles is computed from the same end, giving the same value in both), the
 # upward unit normal, the xy projection's doubled signed area, the z range and the xy box.
 _A, _B, _C, _N, _AR, _ZLO, _ZHI, _XLO, _XHI, _YLO, _YHI = 0, 3, 6, 9, 12, 13, 14, 15, 16, 17, 18
-_NF = 19
+# the plane's slopes dz/dx, dz/dy and 1/n_z where n_z >= _BOUND_NZ (else 0, 0, inf): the ball resting
+# on the whole plane is an upper bound of its rest on the triangle
+_PA, _PB, _INZ = 19, 20, 21
+_NF = 22
+# columns of each raster entry's copy of its triangle's box (read in cell order, not per triangle)
+_EZHI, _EZLO, _EXLO, _EXHI, _EYLO, _EYHI = 0, 1, 2, 3, 4, 5
+_BOUND_NZ = 0.1
+_BLOCK = 4      # raster cells per side of the blocks pruned as a whole (as in the point drop)
 
 
 def _as_mesh(vertices, faces):
@@ -109,9 +127,10 @@ def _check_xy(xy) -> np.ndarray:
 
 
 def triangle_table(vertices, faces) -> np.ndarray:
-    """(T, 19) float64 per triangle: vertices in increasing index order (9), upward unit normal (3,
+    """(T, 22) float64 per triangle: vertices in increasing index order (9), upward unit normal (3,
     zeros for a degenerate triangle), doubled signed area of the xy projection, z min, z max,
-    x min, x max, y min, y max."""
+    x min, x max, y min, y max, and for facets not steeper than n_z = 0.1 the plane's slopes
+    dz/dx, dz/dy and 1/n_z (else 0, 0, inf)."""
     V, F = _as_mesh(vertices, faces)
     Fs = np.sort(F, axis=1)
     P = V[Fs]                                            # (T,3,3)
@@ -132,6 +151,11 @@ def triangle_table(vertices, faces) -> np.ndarray:
     tab[:, _XHI] = P[:, :, 0].max(axis=1)
     tab[:, _YLO] = P[:, :, 1].min(axis=1)
     tab[:, _YHI] = P[:, :, 1].max(axis=1)
+    ok = n[:, 2] >= _BOUND_NZ
+    nz = np.where(ok, n[:, 2], 1.0)
+    tab[:, _PA] = np.where(ok, -n[:, 0] / nz, 0.0)
+    tab[:, _PB] = np.where(ok, -n[:, 1] / nz, 0.0)
+    tab[:, _INZ] = np.where(ok, 1.0 / nz, np.inf)
     return tab
 
 
@@ -174,21 +198,13 @@ def _edge_z(px, py, pz, qx, qy, qz, x, y, R2):
 
 @njit(cache=True, nogil=True)
 def _tri_z(tab, t, x, y, R, R2):
-    """Highest ball-centre height on the line (x, y) touching triangle ``t`` (-inf if none)."""
+    """Highest ball-centre height on the line (x, y) touching triangle ``t`` (-inf if none). The
+    ball on the facet rests as high as on the whole plane, which bounds every other contact, so a
+    facet contact is returned at once; a vertex lies on the lines of its two edges, so it is
+    needed only where neither edge's contact falls on the segment."""
     ax, ay, az = tab[t, 0], tab[t, 1], tab[t, 2]
     bx, by, bz = tab[t, 3], tab[t, 4], tab[t, 5]
     cx, cy, cz = tab[t, 6], tab[t, 7], tab[t, 8]
-    best = _vertex_z(ax, ay, az, x, y, R2)
-    z = _vertex_z(bx, by, bz, x, y, R2)
-    best = max(best, z)
-    z = _vertex_z(cx, cy, cz, x, y, R2)
-    best = max(best, z)
-    z = _edge_z(ax, ay, az, bx, by, bz, x, y, R2)
-    best = max(best, z)
-    z = _edge_z(ax, ay, az, cx, cy, cz, x, y, R2)
-    best = max(best, z)
-    z = _edge_z(bx, by, bz, cx, cy, cz, x, y, R2)
-    best = max(best, z)
     nz = tab[t, _N + 2]
     ar = tab[t, _AR]
     if nz > 0.0 and ar != 0.0:
@@ -199,9 +215,17 @@ def _tri_z(tab, t, x, y, R, R2):
         lb = ((cx - px) * (ay - py) - (cy - py) * (ax - px)) / ar
         lc = ((ax - px) * (by - py) - (ay - py) * (bx - px)) / ar
         if la >= 0.0 and lb >= 0.0 and lc >= 0.0:
-            s = la + lb + lc
-            z = (la * az + lb * bz + lc * cz) / s + R * nz
-            best = max(best, z)
+            return (la * az + lb * bz + lc * cz) / (la + lb + lc) + R * nz
+    eab = _edge_z(ax, ay, az, bx, by, bz, x, y, R2)
+    eac = _edge_z(ax, ay, az, cx, cy, cz, x, y, R2)
+    ebc = _edge_z(bx, by, bz, cx, cy, cz, x, y, R2)
+    best = max(eab, eac, ebc)
+    if eab == -np.inf and eac == -np.inf:
+        best = max(best, _vertex_z(ax, ay, az, x, y, R2))
+    if eab == -np.inf and ebc == -np.inf:
+        best = max(best, _vertex_z(bx, by, bz, x, y, R2))
+    if eac == -np.inf and ebc == -np.inf:
+        best = max(best, _vertex_z(cx, cy, cz, x, y, R2))
     return best
 
 
@@ -215,43 +239,116 @@ def _gap1(v, lo, hi):
     return 0.0
 
 
+@njit(cache=True, nogil=True)
+def _cell_scan(tab, orig, ent, ebox, s0, s1, x, y, R, R2, slack, best, bi):
+    """The triangles of one cell (highest first) against the line (x, y): (best, its face index)."""
+    margin = 1e-9 * R + 64.0 * slack        # rounding of the plane bound (slopes at most 10)
+    for e in range(s0, s1):
+        zt = ebox[e, _EZHI]
+        if zt + R < best:
+            break                           # sorted: no later triangle reaches higher
+        # no point of the triangle is nearer the line than its xy box (shrunk by the rounding
+        # margin), so none rises above its top + the ball's height there
+        gx = max(_gap1(x, ebox[e, _EXLO], ebox[e, _EXHI]) - slack, 0.0)
+        gy = max(_gap1(y, ebox[e, _EYLO], ebox[e, _EYHI]) - slack, 0.0)
+        g2 = gx * gx + gy * gy
+        if g2 > R2:
+            continue
+        if zt + math.sqrt(R2 - g2) + 1e-9 * R < best:
+            continue
+        t = ent[e]
+        # the ball on the triangle's whole plane rests no lower (inf for steep facets)
+        ax, ay = tab[t, 0], tab[t, 1]
+        if tab[t, 2] + tab[t, _PA] * (x - ax) + tab[t, _PB] * (y - ay) + R * tab[t, _INZ] + margin < best:
+            continue
+        z = _tri_z(tab, t, x, y, R, R2)
+        if z > best or (z == best and orig[t] < bi):
+            best = z
+            bi = orig[t]
+    return best, bi
+
+
 @njit(parallel=True, cache=True)
-def _drop(tab, ent, ezhi, start, x0, y0, h, nx, ny, xy, R, slack, z_out, idx_out):
+def _drop(tab, orig, ent, ebox, start, cmax, bmax, nby, x0, y0, h, nx, ny, xy, R, slack, z_out, idx_out):
     R2 = R * R
+    rr = R * (1.0 + 1e-12) + 1e-12          # reach, a hair wide: the exact tests decide
+    hb = _BLOCK * h
+    nbx = nx // _BLOCK
     for k in prange(xy.shape[0]):
         x, y = xy[k, 0], xy[k, 1]
         best = -np.inf
         bi = -1
-        ix = int(math.floor((x - x0) / h))
-        iy = int(math.floor((y - y0) / h))
-        if 0 <= ix < nx and 0 <= iy < ny:
-            c = ix * ny + iy
-            for e in range(start[c], start[c + 1]):
-                zt = ezhi[e]
-                if zt + R < best:
-                    break                       # sorted: no later triangle reaches higher
-                t = ent[e]
-                # no point of the triangle is nearer the line than its xy box (shrunk by the
-                # rounding margin), so none rises above its top + the ball's height there
-                gx = max(_gap1(x, tab[t, _XLO], tab[t, _XHI]) - slack, 0.0)
-                gy = max(_gap1(y, tab[t, _YLO], tab[t, _YHI]) - slack, 0.0)
-                g2 = gx * gx + gy * gy
-                if g2 > R2:
+        # the cell under the line first: its triangles give a high bound at once
+        ixc = int(math.floor((x - x0) / h))
+        iyc = int(math.floor((y - y0) / h))
+        own = -1
+        if 0 <= ixc < nx and 0 <= iyc < ny:
+            own = ixc * ny + iyc
+            best, bi = _cell_scan(tab, orig, ent, ebox, start[own], start[own + 1], x, y, R, R2, slack, best, bi)
+        bxc = int(math.floor((x - x0) / hb))
+        byc = int(math.floor((y - y0) / hb))
+        bx0 = max(int(math.floor((x - rr - x0) / hb)), 0)
+        bx1 = min(int(math.floor((x + rr - x0) / hb)), nbx - 1)
+        # blocks from the line's own outwards, columns then rows
+        for bo in range(max(bxc - bx0, bx1 - bxc) + 1):
+            for bsx in (1, -1):
+                if bo == 0 and bsx == -1:
                     continue
-                if zt + math.sqrt(R2 - g2) + 1e-9 * R < best:
+                bx = bxc + bsx * bo
+                if bx < bx0 or bx > bx1:
                     continue
-                z = _tri_z(tab, t, x, y, R, R2)
-                if z > best or (z == best and t < bi):
-                    best = z
-                    bi = t
+                gbx = _gap1(x, x0 + bx * hb, x0 + (bx + 1) * hb)
+                if gbx > rr:
+                    continue
+                bhalf = math.sqrt(rr * rr - gbx * gbx)
+                by0 = max(int(math.floor((y - bhalf - y0) / hb)), 0)
+                by1 = min(int(math.floor((y + bhalf - y0) / hb)), nby - 1)
+                for ro in range(max(byc - by0, by1 - byc) + 1):
+                    for bsy in (1, -1):
+                        if ro == 0 and bsy == -1:
+                            continue
+                        by = byc + bsy * ro
+                        if by < by0 or by > by1:
+                            continue
+                        # a triangle's contact point lies in a cell its xy box overlaps, where it
+                        # is listed: it is no nearer the line than that cell (or block), and no
+                        # higher than the cell's highest triangle top (margins as in the point drop)
+                        zb = bmax[bx * nby + by]
+                        if zb + R < best:
+                            continue
+                        gx_ = max(gbx - slack, 0.0)
+                        gy_ = max(_gap1(y, y0 + by * hb, y0 + (by + 1) * hb) - slack, 0.0)
+                        g2 = gx_ * gx_ + gy_ * gy_
+                        if g2 > R2 or zb + math.sqrt(R2 - g2) + 1e-9 * R < best:
+                            continue
+                        for ix in range(bx * _BLOCK, (bx + 1) * _BLOCK):
+                            gx = _gap1(x, x0 + ix * h, x0 + (ix + 1) * h)
+                            if gx > rr:
+                                continue
+                            half = math.sqrt(rr * rr - gx * gx)
+                            iy0 = max(int(math.floor((y - half - y0) / h)), by * _BLOCK)
+                            iy1 = min(int(math.floor((y + half - y0) / h)), (by + 1) * _BLOCK - 1)
+                            for iy in range(iy0, iy1 + 1):
+                                cc = ix * ny + iy
+                                if cc == own or cmax[cc] + R < best:
+                                    continue
+                                ex_ = max(gx - slack, 0.0)
+                                ey_ = max(_gap1(y, y0 + iy * h, y0 + (iy + 1) * h) - slack, 0.0)
+                                g2 = ex_ * ex_ + ey_ * ey_
+                                if g2 > R2 or cmax[cc] + math.sqrt(R2 - g2) + 1e-9 * R < best:
+                                    continue
+                                best, bi = _cell_scan(tab, orig, ent, ebox, start[cc], start[cc + 1], x, y, R, R2,
+                                                      slack, best, bi)
         z_out[k] = best
         idx_out[k] = bi
 
 
 @njit(cache=True, nogil=True)
-def _bin(tab, order, x0, y0, h, nx, ny, grow):
-    """Triangles (visited in ``order``) into every cell their xy box grown by ``grow`` touches:
-    (entries, each entry's top z, cell starts, each triangle's first cell column and row)."""
+def _bin(tab, order, x0, y0, h, nx, ny):
+    """Triangles (visited in ``order``) into every cell their xy box overlaps: (entries, each
+    entry's triangle box (top, bottom, x, y ranges) and first cell column and row, cell starts,
+    each cell's highest top, each cell's lowest bottom, how far the cell's triangles reach beyond
+    its square)."""
     T = order.shape[0]
     ncell = nx * ny
     start = np.zeros(ncell + 1, np.int64)
@@ -260,10 +357,10 @@ def _bin(tab, order, x0, y0, h, nx, ny, grow):
     cy0 = np.empty(T, np.int64)
     cy1 = np.empty(T, np.int64)
     for t in range(T):
-        cx0[t] = min(max(int(math.floor((tab[t, _XLO] - grow - x0) / h)), 0), nx - 1)
-        cx1[t] = min(max(int(math.floor((tab[t, _XHI] + grow - x0) / h)), 0), nx - 1)
-        cy0[t] = min(max(int(math.floor((tab[t, _YLO] - grow - y0) / h)), 0), ny - 1)
-        cy1[t] = min(max(int(math.floor((tab[t, _YHI] + grow - y0) / h)), 0), ny - 1)
+        cx0[t] = min(max(int(math.floor((tab[t, _XLO] - x0) / h)), 0), nx - 1)
+        cx1[t] = min(max(int(math.floor((tab[t, _XHI] - x0) / h)), 0), nx - 1)
+        cy0[t] = min(max(int(math.floor((tab[t, _YLO] - y0) / h)), 0), ny - 1)
+        cy1[t] = min(max(int(math.floor((tab[t, _YHI] - y0) / h)), 0), ny - 1)
         for ix in range(cx0[t], cx1[t] + 1):
             for iy in range(cy0[t], cy1[t] + 1):
                 start[ix * ny + iy + 1] += 1
@@ -271,29 +368,33 @@ def _bin(tab, order, x0, y0, h, nx, ny, grow):
         start[c + 1] += start[c]
     fill = start[:-1].copy()
     ent = np.empty(start[ncell], np.int64)
-    ezhi = np.empty(start[ncell])
+    ebox = np.empty((start[ncell], 6))
+    ecell = np.empty((start[ncell], 2), np.int64)
+    cmax = np.full(ncell, -np.inf)
+    cmin = np.full(ncell, np.inf)
+    reach = np.zeros(ncell)
     for r in range(T):
         t = order[r]
         for ix in range(cx0[t], cx1[t] + 1):
             for iy in range(cy0[t], cy1[t] + 1):
                 c = ix * ny + iy
-                ent[fill[c]] = t
-                ezhi[fill[c]] = tab[t, _ZHI]
-                fill[c] += 1
-    return ent, ezhi, start, cx0, cy0
-
-
-@njit(cache=True, nogil=True)
-def _cell_z(tab, ent, start, ncell):
-    """Each cell's lowest and highest triangle z (+inf / -inf when empty)."""
-    zlo = np.full(ncell, np.inf)
-    zhi = np.full(ncell, -np.inf)
-    for c in range(ncell):
-        for e in range(start[c], start[c + 1]):
-            t = ent[e]
-            zlo[c] = min(zlo[c], tab[t, _ZLO])
-            zhi[c] = max(zhi[c], tab[t, _ZHI])
-    return zlo, zhi
+                f = fill[c]
+                ent[f] = t
+                ebox[f, _EZHI] = tab[t, _ZHI]
+                ebox[f, _EZLO] = tab[t, _ZLO]
+                ebox[f, _EXLO] = tab[t, _XLO]
+                ebox[f, _EXHI] = tab[t, _XHI]
+                ebox[f, _EYLO] = tab[t, _YLO]
+                ebox[f, _EYHI] = tab[t, _YHI]
+                ecell[f, 0] = cx0[t]
+                ecell[f, 1] = cy0[t]
+                fill[c] = f + 1
+                cmax[c] = max(cmax[c], tab[t, _ZHI])
+                cmin[c] = min(cmin[c], tab[t, _ZLO])
+                ox = max(x0 + ix * h - tab[t, _XLO], tab[t, _XHI] - (x0 + (ix + 1) * h))
+                oy = max(y0 + iy * h - tab[t, _YLO], tab[t, _YHI] - (y0 + (iy + 1) * h))
+                reach[c] = max(reach[c], ox, oy)
+    return ent, ebox, ecell, start, cmax, cmin, reach
 
 
 # ------------------------------------------------------------------------------------ clearance
@@ -445,34 +546,45 @@ def _gap2(a0, a1, b0, b1):
 
 
 @njit(cache=True, nogil=True)
-def _move_min(sx, sy, sz, ex, ey, ez, tab, ent, start, cx0, cy0, czlo, czhi, x0, y0, h, nx, ny,
+def _move_min(sx, sy, sz, ex, ey, ez, tab, ent, ebox, ecell, start, cmin, cmax, reach, x0, y0, h, nx, ny,
               widen, slack, cap):
+    """min(cap, distance from the segment s e to the nearest triangle); the cells read are those
+    the segment's xy box grown by ``widen`` (>= cap, or the whole grid) overlaps."""
     best = cap
     lox, hix = min(sx, ex), max(sx, ex)
     loy, hiy = min(sy, ey), max(sy, ey)
     loz, hiz = min(sz, ez), max(sz, ez)
-    qx0 = min(max(int(math.floor((lox - widen - x0) / h)), 0), nx - 1)
-    qx1 = min(max(int(math.floor((hix + widen - x0) / h)), 0), nx - 1)
-    qy0 = min(max(int(math.floor((loy - widen - y0) / h)), 0), ny - 1)
-    qy1 = min(max(int(math.floor((hiy + widen - y0) / h)), 0), ny - 1)
+    if math.isinf(widen):
+        qx0, qx1, qy0, qy1 = 0, nx - 1, 0, ny - 1
+    else:
+        qx0 = min(max(int(math.floor((lox - widen - x0) / h)), 0), nx - 1)
+        qx1 = min(max(int(math.floor((hix + widen - x0) / h)), 0), nx - 1)
+        qy0 = min(max(int(math.floor((loy - widen - y0) / h)), 0), ny - 1)
+        qy1 = min(max(int(math.floor((hiy + widen - y0) / h)), 0), ny - 1)
     b2 = best * best
     for ix in range(qx0, qx1 + 1):
         for iy in range(qy0, qy1 + 1):
             c = ix * ny + iy
-            if _gap2(czlo[c], czhi[c], loz, hiz) - slack >= best:
+            if start[c] == start[c + 1]:
+                continue
+            # the cell's triangles lie in its square grown by its reach, between its z bounds
+            gx = _gap2(x0 + ix * h - reach[c], x0 + (ix + 1) * h + reach[c], lox, hix)
+            gy = _gap2(y0 + iy * h - reach[c], y0 + (iy + 1) * h + reach[c], loy, hiy)
+            gz = _gap2(cmin[c], cmax[c], loz, hiz)
+            bs = best + slack
+            if gx * gx + gy * gy + gz * gz >= bs * bs:
                 continue
             for e in range(start[c], start[c + 1]):
-                t = ent[e]
                 # each triangle once: in the first cell its cells share with the move's
-                if ix != max(cx0[t], qx0) or iy != max(cy0[t], qy0):
+                if ix != max(ecell[e, 0], qx0) or iy != max(ecell[e, 1], qy0):
                     continue
-                gx = _gap2(tab[t, _XLO], tab[t, _XHI], lox, hix)
-                gy = _gap2(tab[t, _YLO], tab[t, _YHI], loy, hiy)
-                gz = _gap2(tab[t, _ZLO], tab[t, _ZHI], loz, hiz)
+                gx = _gap2(ebox[e, _EXLO], ebox[e, _EXHI], lox, hix)
+                gy = _gap2(ebox[e, _EYLO], ebox[e, _EYHI], loy, hiy)
+                gz = _gap2(ebox[e, _EZLO], ebox[e, _EZHI], loz, hiz)
                 bs = best + slack
                 if gx * gx + gy * gy + gz * gz >= bs * bs:
                     continue
-                d2 = _seg_tri_d2(sx, sy, sz, ex, ey, ez, tab, t)
+                d2 = _seg_tri_d2(sx, sy, sz, ex, ey, ez, tab, ent[e])
                 if d2 < b2:
                     b2 = d2
                     best = math.sqrt(d2)
@@ -482,10 +594,10 @@ def _move_min(sx, sy, sz, ex, ey, ez, tab, ent, start, cx0, cy0, czlo, czhi, x0,
 
 
 @njit(parallel=True, cache=True)
-def _clearance(S, E, tab, ent, start, cx0, cy0, czlo, czhi, x0, y0, h, nx, ny, widen, slack, cap, out):
+def _clearance(S, E, tab, ent, ebox, ecell, start, cmin, cmax, reach, x0, y0, h, nx, ny, widen, slack, cap, out):
     for k in prange(S.shape[0]):
-        out[k] = _move_min(S[k, 0], S[k, 1], S[k, 2], E[k, 0], E[k, 1], E[k, 2], tab, ent, start, cx0, cy0,
-                           czlo, czhi, x0, y0, h, nx, ny, widen, slack, cap)
+        out[k] = _move_min(S[k, 0], S[k, 1], S[k, 2], E[k, 0], E[k, 1], E[k, 2], tab, ent, ebox, ecell, start,
+                           cmin, cmax, reach, x0, y0, h, nx, ny, widen, slack, cap)
 
 
 #: Fewer lines (moves) than this run on one thread (starting the thread pool costs more).
@@ -501,37 +613,45 @@ class TriangleDropSurface:
     once for a ball-end cutter of radius ``radius_mm``: :meth:`drop` (ball-centre heights on
     vertical lines, the interface of :class:`planning.toolpath.balldrop.DropSurface`) and
     :meth:`clearance` (distance from straight ball-centre moves to the triangles) as often as
-    needed. ``cell_mm`` (default R/2) sets the raster cell and changes speed and memory only
-    (each triangle is listed in every cell its xy box grown by R touches)."""
+    needed. ``cell_mm`` sets the raster cell and changes speed and memory only (each triangle is
+    listed in every cell its xy box overlaps); the default is R/3, or the median triangle's xy
+    extent where that is larger (at most R), coarser where the raster would pass ~4M cells or ~16
+    entries per triangle. The contact indices refer to the rows of ``faces``."""
 
     def __init__(self, vertices, faces, radius_mm, *, cell_mm: float | None = None):
         R = _check_radius(radius_mm)
         tab = triangle_table(vertices, faces)
-        h = R / 2.0 if cell_mm is None else float(cell_mm)
-        if not (h > 0 and math.isfinite(h)):
+        if cell_mm is not None and not (float(cell_mm) > 0 and math.isfinite(float(cell_mm))):
             raise ParameterError(f"cell_mm = {cell_mm}: must be > 0")
         self.R = R
         self.n = tab.shape[0]
         self.table = tab
         if self.n == 0:
             return
-        grow = R * (1.0 + 1e-12) + 1e-12            # a hair wide: the exact tests decide
-        lo = np.array([tab[:, _XLO].min(), tab[:, _YLO].min()]) - grow
-        hi = np.array([tab[:, _XHI].max(), tab[:, _YHI].max()]) + grow
-        h = max(h, float((hi - lo).max()) / 4000.0)   # at most ~16M cells
-        # and at most ~64 entries per triangle on average (big triangles against a small cell)
-        w = np.maximum(tab[:, _XHI] - tab[:, _XLO], tab[:, _YHI] - tab[:, _YLO]) + 2 * grow
-        while float(np.sum((w / h + 2.0) ** 2)) > 64.0 * self.n + 1e6:
-            h *= 1.5
-        nx = int((hi[0] - lo[0]) / h) + 2
-        ny = int((hi[1] - lo[1]) / h) + 2
-        order = np.argsort(-tab[:, _ZHI], kind="stable")     # each cell's list highest first
-        ent, ezhi, start, cx0, cy0 = _bin(tab, order, lo[0], lo[1], h, nx, ny, grow)
-        czlo, czhi = _cell_z(tab, ent, start, nx * ny)
+        w = np.maximum(tab[:, _XHI] - tab[:, _XLO], tab[:, _YHI] - tab[:, _YLO])
+        h = min(max(R / 3.0, float(np.median(w))), R) if cell_mm is None else float(cell_mm)
+        lo = np.array([tab[:, _XLO].min(), tab[:, _YLO].min()])
+        hi = np.array([tab[:, _XHI].max(), tab[:, _YHI].max()])
+        h = max(h, float((hi - lo).max()) / 2000.0, 1e-9)     # at most ~4M cells
+        while float(np.sum((w / h + 1.0) ** 2)) > 16.0 * self.n + 1e6:
+            h *= 1.25                                          # big triangles against a small cell
+        nx = -(-int((hi[0] - lo[0]) / h + 1) // _BLOCK) * _BLOCK
+        ny = -(-int((hi[1] - lo[1]) / h + 1) // _BLOCK) * _BLOCK
+        # the table in raster order (neighbours near in memory), then each cell's list highest first
+        cx = np.clip(np.floor((tab[:, _XLO] - lo[0]) / h), 0, nx - 1)
+        cy = np.clip(np.floor((tab[:, _YLO] - lo[1]) / h), 0, ny - 1)
+        perm = np.lexsort((-tab[:, _ZHI], cy, cx))
+        tab_r = np.ascontiguousarray(tab[perm])
+        order = np.argsort(-tab_r[:, _ZHI], kind="stable")
+        ent, ebox, ecell, start, cmax, cmin, reach = _bin(tab_r, order, lo[0], lo[1], h, nx, ny)
+        nbx, nby = nx // _BLOCK, ny // _BLOCK
+        bmax = cmax.reshape(nbx, _BLOCK, nby, _BLOCK).max(axis=(1, 3)).ravel()
         self.cell_mm = h
         self._grid = (float(lo[0]), float(lo[1]), h, nx, ny)
-        self._ent, self._ezhi, self._start = ent, ezhi, start
-        self._cx0, self._cy0, self._czlo, self._czhi = cx0, cy0, czlo, czhi
+        self._tables = (tab_r, perm.astype(np.int64))
+        self._drop_arrays = (ent, ebox, start, cmax, bmax, nby)
+        self._clear_arrays = (ent, ebox, ecell, start, cmin, cmax, reach)
+        self.n_entries = int(ent.size)
         self._scale = float(np.abs(tab[:, :9]).max())
 
     def drop(self, xy) -> BallDrop:
@@ -543,9 +663,9 @@ class TriangleDropSurface:
         idx = np.full(xy.shape[0], -1, dtype=np.int64)
         if xy.shape[0] == 0 or self.n == 0:
             return BallDrop(z, idx)
-        slack = 1e-9 * max(self._scale, float(np.abs(xy).max()), 1.0)
+        slack = 1e-9 * max(self._scale, float(np.abs(xy).max()), 1.0)     # rounding of cell bounds, mm
         kernel = _drop if xy.shape[0] >= _PARALLEL_MIN else _drop_serial
-        kernel(self.table, self._ent, self._ezhi, self._start, *self._grid, xy, self.R, slack, z, idx)
+        kernel(*self._tables, *self._drop_arrays, *self._grid, xy, self.R, slack, z, idx)
         return BallDrop(z, idx)
 
     def clearance(self, starts, ends, cap_mm: float | None = None) -> np.ndarray:
@@ -565,14 +685,10 @@ class TriangleDropSurface:
         if S.shape[0] == 0 or self.n == 0:
             return out
         x0, y0, h, nx, ny = self._grid
-        # the cells hold triangles grown by R: a cap beyond R widens the cells read
-        widen = max(cap - self.R, 0.0)
-        if math.isinf(widen):
-            widen = float(nx + ny) * h
         slack = 1e-9 * max(self._scale, float(np.abs(S).max()), float(np.abs(E).max()), 1.0)
+        widen = cap + slack                     # inf: every cell
         kernel = _clearance if S.shape[0] >= _PARALLEL_MIN else _clearance_serial
-        kernel(S, E, self.table, self._ent, self._start, self._cx0, self._cy0, self._czlo, self._czhi,
-               x0, y0, h, nx, ny, widen + slack, slack, cap, out)
+        kernel(S, E, self._tables[0], *self._clear_arrays, x0, y0, h, nx, ny, widen, slack, cap, out)
         return out
 
 

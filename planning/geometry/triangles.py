@@ -367,9 +367,9 @@ def _bin(tab, order, x0, y0, h, nx, ny):
     for c in range(ncell):
         start[c + 1] += start[c]
     fill = start[:-1].copy()
-    ent = np.empty(start[ncell], np.int64)
+    ent = np.empty(start[ncell], np.int32)
     ebox = np.empty((start[ncell], 6))
-    ecell = np.empty((start[ncell], 2), np.int64)
+    ecell = np.empty((start[ncell], 2), np.int32)
     cmax = np.full(ncell, -np.inf)
     cmin = np.full(ncell, np.inf)
     reach = np.zeros(ncell)
@@ -625,9 +625,10 @@ class TriangleDropSurface:
             raise ParameterError(f"cell_mm = {cell_mm}: must be > 0")
         self.R = R
         self.n = tab.shape[0]
-        self.table = tab
         if self.n == 0:
             return
+        if self.n >= 2 ** 31:
+            raise ParameterError(f"{self.n} triangles: at most 2**31 - 1")
         w = np.maximum(tab[:, _XHI] - tab[:, _XLO], tab[:, _YHI] - tab[:, _YLO])
         h = min(max(R / 3.0, float(np.median(w))), R) if cell_mm is None else float(cell_mm)
         lo = np.array([tab[:, _XLO].min(), tab[:, _YLO].min()])

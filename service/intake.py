@@ -492,6 +492,13 @@ async def _receive_json(request: Request, settings: Settings, storage: Storage,
         raise
 
 
+def _name_the_upload(exc, stored: str, name: str | None) -> None:
+    """A reader names the file it read ('cloud.stl', as stored); the client knows it by its own name."""
+    if name and name != stored and repr(stored) in exc.message:
+        exc.message = exc.message.replace(repr(stored), repr(name))
+        exc.args = (exc.message,)
+
+
 async def validate_submission(sub: Submission, settings: Settings, limiter: anyio.CapacityLimiter) -> None:
     """Read the cloud and the fixtures once, off the event loop, and fill in what was read (4xx on errors)."""
     path = sub.staging / Path(sub.input["path"]).name
@@ -505,7 +512,11 @@ async def validate_submission(sub: Submission, settings: Settings, limiter: anyi
                 what = f"fixture {i}"
                 _validate_fixture(sub.staging / Path(fp).name, settings, i)
             return info
-        except (PlanningError, ApiError):
+        except PlanningError as exc:
+            if what == "cloud":
+                _name_the_upload(exc, path.name, sub.input.get("name"))
+            raise
+        except ApiError:
             raise
         except MemoryError:
             raise ApiError(413, "too_large_for_memory",

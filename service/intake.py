@@ -42,7 +42,6 @@ from starlette.requests import Request
 
 from planning.errors import ParameterError
 from planning.inputs.cloud import FORMATS
-from planning.inputs.cloud import FORMATS
 from planning.inputs.scale import check_part_size
 from schemas.api import InlineCloud
 from schemas.params import PlanConfig, parse_config

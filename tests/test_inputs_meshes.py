@@ -297,7 +297,7 @@ def test_merge_vertices_is_exact():
     assert unique.shape == (3, 3)
     np.testing.assert_array_equal(unique[inverse], raw + 0.0)
     assert inverse[0] == inverse[4] and inverse[2] == inverse[3] and inverse[0] != inverse[1]
-    u32, inv32 = _merge_vertices(raw.astype(np.float32))
+    u32, _ = _merge_vertices(raw.astype(np.float32))
     assert u32.shape == (2, 3) and u32.dtype == np.float64                # 3 + 1e-12 rounds to 3 in float32
 
 

@@ -156,7 +156,7 @@ def test_large_image_is_scaled_down_to_max_points():
     width, height = np.ptp(cloud.points[:, 0]), np.ptp(cloud.points[:, 1])
     assert width == pytest.approx(50.0)
     assert height / width == pytest.approx(80 / 100, rel=0.03)        # aspect kept
-    cols = int(round(width / (cloud.points[1, 0] - cloud.points[0, 0]))) + 1
+    cols = round(width / (cloud.points[1, 0] - cloud.points[0, 0])) + 1
     assert cloud.n_faces == 2 * (cols - 1) * (cloud.n_points // cols - 1)
     again = read_input(image_bytes(img), InputParams(max_points=100_000), max_points=2000)
     np.testing.assert_allclose(again.points[:, :2], cloud.points[:, :2] * 2.0)   # 100 mm instead of 50

@@ -8,7 +8,8 @@ import json
 
 import numpy as np
 import pytest
-from mesh_files import image_bytes, las_bytes, obj_text, ply_mesh, sphere_mesh, stl_ascii, stl_binary, write_e57
+from mesh_files import (image_bytes, las_bytes, obj_text, ply_mesh, sphere_mesh, stl_ascii, stl_binary,
+                        write_e57)
 from service_fixtures import ServerProcess, stray_files
 
 from planning.inputs.cloud import EXTENSIONS, FORMATS

@@ -165,8 +165,9 @@ def read_cloud(
     ``max_bytes`` are checked before the body is decoded (:class:`InputTooLarge`); an image with
     more pixels than ``max_points`` is scaled down instead. ``max_extent_mm`` bounds the largest side
     of the bounding box in mm; ``min_points`` is the fewest points accepted. ``xyz_normals`` reads
-    columns 4-6 of a text file as normals. ``relief`` (:class:`~schemas.params.ReliefParams`, None:
-    its defaults) maps an image to heights. Faces are checked by :func:`validate_faces`.
+    columns 4-6 of a text file as normals. ``relief`` (:class:`~schemas.params.ReliefParams` or a
+    dict of its fields; None: its defaults) maps an image to heights. Faces are checked by
+    :func:`validate_faces`.
     Raises :class:`InputError` / :class:`ParameterError`.
     """
     scale = _unit_scale(units)
@@ -227,10 +228,21 @@ def read_input(
 
 
 def _relief(relief):
-    if relief is not None:
-        return relief
+    """The relief parameters: a ReliefParams as given, a mapping validated into one, None the defaults."""
     from schemas.params import ReliefParams
-    return ReliefParams()
+
+    if relief is None:
+        return ReliefParams()
+    if isinstance(relief, dict):
+        from pydantic import ValidationError
+        try:
+            return ReliefParams(**relief)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            where = ".".join(str(p) for p in first.get("loc", ()))
+            raise ParameterError(f"input.relief{'.' + where if where else ''}: {first.get('msg', 'invalid')}",
+                                 parameter="input.relief", value=relief) from None
+    return relief
 
 
 # --------------------------------------------------------------------------------------------

@@ -59,6 +59,7 @@ if TYPE_CHECKING:
     from schemas.params import InputParams, ReliefParams
 
 __all__ = [
+    "EXTENSIONS",
     "FORMATS",
     "UNIT_SCALE",
     "Cloud",

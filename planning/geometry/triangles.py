@@ -105,7 +105,9 @@ def _as_mesh(vertices, faces):
     F = np.ascontiguousarray(F, dtype=np.int64)
     if F.size and (F.min() < 0 or F.max() >= V.shape[0]):
         raise ParameterError(f"faces: vertex indices must be in [0, {V.shape[0]})")
-    if not np.all(np.isfinite(V[np.unique(F)] if F.size else V[:0])):
+    used = np.zeros(V.shape[0], dtype=bool)
+    used[F.ravel()] = True
+    if not np.all(np.isfinite(V[used])):
         raise ParameterError("the vertices of the faces must be finite")
     return V, F
 
@@ -126,36 +128,58 @@ def _check_xy(xy) -> np.ndarray:
     return xy
 
 
+@njit(cache=True, nogil=True)
+def _fill_table(V, F, tab):
+    for t in range(F.shape[0]):
+        i0, i1, i2 = F[t, 0], F[t, 1], F[t, 2]
+        # vertices in increasing index order
+        if i0 > i1:
+            i0, i1 = i1, i0
+        if i1 > i2:
+            i1, i2 = i2, i1
+        if i0 > i1:
+            i0, i1 = i1, i0
+        ax, ay, az = V[i0, 0], V[i0, 1], V[i0, 2]
+        bx, by, bz = V[i1, 0], V[i1, 1], V[i1, 2]
+        cx, cy, cz = V[i2, 0], V[i2, 1], V[i2, 2]
+        tab[t, 0], tab[t, 1], tab[t, 2] = ax, ay, az
+        tab[t, 3], tab[t, 4], tab[t, 5] = bx, by, bz
+        tab[t, 6], tab[t, 7], tab[t, 8] = cx, cy, cz
+        ux, uy, uz = bx - ax, by - ay, bz - az
+        vx, vy, vz = cx - ax, cy - ay, cz - az
+        nx = uy * vz - uz * vy
+        ny = uz * vx - ux * vz
+        nz = ux * vy - uy * vx
+        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if ln > 0.0:
+            nx, ny, nz = nx / ln, ny / ln, nz / ln
+        else:
+            nx, ny, nz = 0.0, 0.0, 0.0
+        if nz < 0.0:
+            nx, ny, nz = -nx, -ny, -nz
+        nz = abs(nz)                                    # no -0.0
+        tab[t, _N], tab[t, _N + 1], tab[t, _N + 2] = nx, ny, nz
+        tab[t, _AR] = ux * vy - uy * vx
+        tab[t, _ZLO] = min(az, bz, cz)
+        tab[t, _ZHI] = max(az, bz, cz)
+        tab[t, _XLO] = min(ax, bx, cx)
+        tab[t, _XHI] = max(ax, bx, cx)
+        tab[t, _YLO] = min(ay, by, cy)
+        tab[t, _YHI] = max(ay, by, cy)
+        if nz >= _BOUND_NZ:
+            tab[t, _PA], tab[t, _PB], tab[t, _INZ] = -nx / nz, -ny / nz, 1.0 / nz
+        else:
+            tab[t, _PA], tab[t, _PB], tab[t, _INZ] = 0.0, 0.0, np.inf
+
+
 def triangle_table(vertices, faces) -> np.ndarray:
     """(T, 22) float64 per triangle: vertices in increasing index order (9), upward unit normal (3,
     zeros for a degenerate triangle), doubled signed area of the xy projection, z min, z max,
     x min, x max, y min, y max, and for facets not steeper than n_z = 0.1 the plane's slopes
     dz/dx, dz/dy and 1/n_z (else 0, 0, inf)."""
     V, F = _as_mesh(vertices, faces)
-    Fs = np.sort(F, axis=1)
-    P = V[Fs]                                            # (T,3,3)
     tab = np.empty((F.shape[0], _NF))
-    tab[:, :9] = P.reshape(-1, 9)
-    n = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
-    ln = np.sqrt(np.einsum("ij,ij->i", n, n))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        n = np.where(ln[:, None] > 0, n / ln[:, None], 0.0)
-    n[n[:, 2] < 0] *= -1.0
-    n[:, 2] = np.abs(n[:, 2])                            # no -0.0
-    tab[:, _N:_N + 3] = n
-    tab[:, _AR] = ((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
-                   - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0]))
-    tab[:, _ZLO] = P[:, :, 2].min(axis=1)
-    tab[:, _ZHI] = P[:, :, 2].max(axis=1)
-    tab[:, _XLO] = P[:, :, 0].min(axis=1)
-    tab[:, _XHI] = P[:, :, 0].max(axis=1)
-    tab[:, _YLO] = P[:, :, 1].min(axis=1)
-    tab[:, _YHI] = P[:, :, 1].max(axis=1)
-    ok = n[:, 2] >= _BOUND_NZ
-    nz = np.where(ok, n[:, 2], 1.0)
-    tab[:, _PA] = np.where(ok, -n[:, 0] / nz, 0.0)
-    tab[:, _PB] = np.where(ok, -n[:, 1] / nz, 0.0)
-    tab[:, _INZ] = np.where(ok, 1.0 / nz, np.inf)
+    _fill_table(V, F, tab)
     return tab
 
 
@@ -341,6 +365,31 @@ def _drop(tab, orig, ent, ebox, start, cmax, bmax, nby, x0, y0, h, nx, ny, xy, R
                                                       slack, best, bi)
         z_out[k] = best
         idx_out[k] = bi
+
+
+@njit(cache=True, nogil=True)
+def _raster_order(tab, x0, y0, h, nx, ny):
+    """The rows of ``tab`` ordered by the cell of their xy box's low corner (a counting sort):
+    (that table, the original row of each)."""
+    T = tab.shape[0]
+    ncell = nx * ny
+    cell = np.empty(T, np.int64)
+    start = np.zeros(ncell + 1, np.int64)
+    for t in range(T):
+        ix = min(max(int(math.floor((tab[t, _XLO] - x0) / h)), 0), nx - 1)
+        iy = min(max(int(math.floor((tab[t, _YLO] - y0) / h)), 0), ny - 1)
+        cell[t] = ix * ny + iy
+        start[cell[t] + 1] += 1
+    for c in range(ncell):
+        start[c + 1] += start[c]
+    out = np.empty_like(tab)
+    perm = np.empty(T, np.int64)
+    for t in range(T):
+        r = start[cell[t]]
+        start[cell[t]] = r + 1
+        out[r, :] = tab[t, :]
+        perm[r] = t
+    return out, perm
 
 
 @njit(cache=True, nogil=True)
@@ -639,17 +688,14 @@ class TriangleDropSurface:
         nx = -(-int((hi[0] - lo[0]) / h + 1) // _BLOCK) * _BLOCK
         ny = -(-int((hi[1] - lo[1]) / h + 1) // _BLOCK) * _BLOCK
         # the table in raster order (neighbours near in memory), then each cell's list highest first
-        cx = np.clip(np.floor((tab[:, _XLO] - lo[0]) / h), 0, nx - 1)
-        cy = np.clip(np.floor((tab[:, _YLO] - lo[1]) / h), 0, ny - 1)
-        perm = np.lexsort((-tab[:, _ZHI], cy, cx))
-        tab_r = np.ascontiguousarray(tab[perm])
+        tab_r, perm = _raster_order(tab, lo[0], lo[1], h, nx, ny)
         order = np.argsort(-tab_r[:, _ZHI], kind="stable")
         ent, ebox, ecell, start, cmax, cmin, reach = _bin(tab_r, order, lo[0], lo[1], h, nx, ny)
         nbx, nby = nx // _BLOCK, ny // _BLOCK
         bmax = cmax.reshape(nbx, _BLOCK, nby, _BLOCK).max(axis=(1, 3)).ravel()
         self.cell_mm = h
         self._grid = (float(lo[0]), float(lo[1]), h, nx, ny)
-        self._tables = (tab_r, perm.astype(np.int64))
+        self._tables = (tab_r, perm)
         self._drop_arrays = (ent, ebox, start, cmax, bmax, nby)
         self._clear_arrays = (ent, ebox, ecell, start, cmin, cmax, reach)
         self.n_entries = int(ent.size)

@@ -440,7 +440,8 @@ def _placement(run: _Run, cloud: Cloud, nrm: _Normals, config: PlanConfig, profi
         progress=p))
     if res.winner is None:
         run.warnings.append(f"fixtures.placement auto: {res.message}; the part is planned as scanned")
-        return _Placed(cloud, nrm, cloud.points, _placement_summary("auto", res))
+        return _Placed(cloud, nrm, cloud.points, _placement_summary("auto", res),
+                       hint=f"; fixtures.placement auto: {res.message}")
     pose = res.winner.pose
     R = pose.rotation
     placed = replace(cloud, points=apply_pose(cloud.points, pose),

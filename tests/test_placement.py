@@ -290,3 +290,15 @@ def test_a_costly_search_is_only_suggested(upside_down_slot, monkeypatch):
     assert r.status == "infeasible" and r.message.endswith("try fixtures.placement = auto to search other "
                                                            "placements of the part")
     assert "placement" not in [t.stage for t in r.timings] and r.placement.candidates == []
+
+
+def test_auto_without_a_winner_plans_as_scanned_and_says_why(upside_down_slot):
+    d = json.loads(json.dumps(_FAST))
+    d["setups"]["max_setups"] = 1
+    d["fixtures"] = {"placement": "auto"}
+    r = run_plan(upside_down_slot, parse_config(d)).result
+    assert r.status == "infeasible" and r.placement.mode == "auto" and r.placement.candidate is None
+    assert r.placement.kind == "as_scanned" and np.allclose(r.placement.rotation, np.eye(3))
+    assert all(c.feasible is False for c in r.placement.candidates)
+    assert "no tested placement reaches 95 % with 1 set-up (" in r.message
+    assert any("planned as scanned" in w for w in r.warnings)

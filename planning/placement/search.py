@@ -243,6 +243,7 @@ def _from_selection(i: int, pose: Pose, stage: str, sel, *, exact: bool) -> Trie
 
 def _message(res: PlacementSearch, coverage: float, max_setups: int, n_screened_ok: int, max_confirm: int) -> str:
     target = f"{coverage * 100:g} %"
+    setups = f"{max_setups} set-up{'s' if max_setups != 1 else ''}"
     if res.winner is not None:
         w = res.winner
         return (f"placed {w.pose.describe()}: {w.k} set-up{'s' if w.k != 1 else ''} cover {w.coverage * 100:.1f} % "
@@ -251,6 +252,6 @@ def _message(res: PlacementSearch, coverage: float, max_setups: int, n_screened_
                default=0.0)
     if n_screened_ok > max_confirm:
         return (f"no placement confirmed within {max_confirm} tries: none of the {len(res.tried)} candidates was "
-                f"proven to reach {target} with {max_setups} set-ups")
-    return (f"no tested placement reaches {target} with {max_setups} set-ups ({len(res.tried)} candidates; "
+                f"proven to reach {target} with {setups}")
+    return (f"no tested placement reaches {target} with {setups} ({len(res.tried)} candidates; "
             f"the most any can cover is {best * 100:.1f} %)")

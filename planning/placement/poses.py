@@ -110,6 +110,8 @@ class Pose:
 
     def describe(self) -> str:
         """The label and which scanned-frame direction points down once placed, for the operator."""
+        if self.kind == "as_scanned" and self.yaw_deg == 0:
+            return self.label
         d = -self.up
         return f"{self.label}, scan direction ({d[0]:+.2f}, {d[1]:+.2f}, {d[2]:+.2f}) down"
 

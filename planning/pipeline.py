@@ -21,6 +21,7 @@ from planning.errors import InputError, ParameterError
 from planning.inputs import Cloud
 from planning.inputs.scale import check_normal_share, check_part_size
 from planning.normals import sphere_throwing
+from planning.normals.mesh_input import facet_point_normals, mesh_cloud
 from planning.orientations import (
     CandidateAxes,
     candidate_axes,
@@ -34,6 +35,7 @@ from planning.post.programs import post_areas
 from planning.setups import SetupSelection, select_setups, zone_mask
 from planning.simulate.models import load_blank
 from planning.toolpath.area_paths import area_toolpaths
+from planning.toolpath.surface import path_surface
 from planning.visibility import GlobalVisibility, cone_visibility, global_visibility
 from schemas.params import PlanConfig
 from schemas.plan import (
@@ -45,6 +47,7 @@ from schemas.plan import (
     OrientationsSummary,
     PlacementCandidate,
     PlacementSummary,
+    PathsSurface,
     PlanResult,
     Selection,
     Setup,
@@ -125,10 +128,17 @@ class _Visibility:
     summary: VisibilitySummary
 
 
-def _normals(cloud: Cloud, config: PlanConfig, progress) -> _Normals:
-    """Stage 2 (Makki §2.1): the file's normals, or sphere throwing's sampled points and normals."""
+def _normals(cloud: Cloud, config: PlanConfig, progress, facets=None) -> _Normals:
+    """Stage 2 (Makki §2.1): the file's normals, a mesh's facet normals (Chui 2008 eq. 8; ``facets`` the
+    points :func:`planning.normals.mesh_input.mesh_cloud` laid on them), or sphere throwing's sampled
+    points and normals."""
     p = config.normals
     n_input = cloud.points.shape[0]
+    if p.method == "facets":
+        sample_index, normals = facet_point_normals(cloud, facets)
+        summary = NormalsSummary(method="facets", n_sampled=int(sample_index.size),
+                                 sampled_fraction=sample_index.size / n_input)
+        return _Normals(sample_index, normals, summary)
     if p.method == "input":
         if cloud.normals is None:
             raise InputError("normals.method is 'input' but the file carries no normals (PLY nx ny nz, "
@@ -264,13 +274,13 @@ def _areas_warnings(areas: Areas, nrm: _Normals) -> list[str]:
 
 
 def _paths(points: np.ndarray, areas: Areas, sel_axes: np.ndarray, tool, gv: GlobalVisibility,
-           config: PlanConfig, progress, carried=None) -> list:
+           config: PlanConfig, progress, carried=None, faces=None) -> list:
     """Stage 7 (Makki §4; Sood; Popescu; Tchanchane & Bey): roughing and finishing per area and region,
     on the carried stock when given (issue 16)."""
     return area_toolpaths(
         points, areas.input_labels, sel_axes, tool=tool, paths_params=config.paths, fixtures=gv.fixtures,
         forbidden=gv.forbidden_mm, max_slope_deg=min(float(config.visibility.cone_deg[1]), 87.0),
-        input_regions=areas.input_regions, progress=progress, carried=carried)
+        input_regions=areas.input_regions, progress=progress, carried=carried, faces=faces)
 
 
 def _carried(points: np.ndarray, areas: Areas, config: PlanConfig, tool, gv: GlobalVisibility, profile,
@@ -507,12 +517,15 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     check_part_size(points, units=config.input.units, tool_diameter_mm=config.tool.diameter_mm,
                     min_tool_diameters=config.input.min_part_tool_diameters,
                     max_extent_mm=config.input.max_extent_mm, accept_small_part=config.input.accept_small_part)
+    n_file_points = int(points.shape[0])
+    cloud, facets = mesh_cloud(cloud, config.input.mesh_sample_mm, config.input.mesh_max_points)   # meshes
+    points = cloud.points
     profile = load_profile(config.machine.profile)
     tool = config.tool.assembly()          # cutter, shank and holder: visibility, paths and posts
     carry = config.paths.carry_stock and (config.paths.finishing.enabled or config.paths.roughing.enabled)
     blank = load_blank(config.stock, base_dir) if (config.simulate.enabled or carry) else None   # a bad file stops here
 
-    nrm = run.stage("normals", lambda p: _normals(cloud, config, p))
+    nrm = run.stage("normals", lambda p: _normals(cloud, config, p, facets))
     run.warnings += _normals_warnings(nrm)
     placed = _placement(run, cloud, nrm, config, profile, tool, base_dir)     # fixtures.placement
     cloud, points, nrm = placed.cloud, placed.cloud.points, placed.normals
@@ -533,6 +546,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
                                                       config.areas, progress=p))
     run.warnings += _areas_warnings(areas, nrm)
     area_paths = []
+    surface = None
     pp = config.paths
     order = list(range(int(selected.size)))
     if (pp.finishing.enabled or pp.roughing.enabled) and selected.size:
@@ -541,7 +555,12 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
                             selected) if carry else None)
         if carried is not None:
             order = carried.order
-        area_paths = run.stage("paths", lambda p: _paths(points, areas, sel_axes, tool, gv, config, p, carried))
+        surface = (path_surface(points, radius_mm=tool.radius_mm, mode=pp.surface, faces=cloud.faces,
+                                source_format=cloud.source_format, normals=normals) if pp.finishing.enabled else None)
+        if surface is not None and surface.warning:
+            run.warnings.append(surface.warning)
+        area_paths = run.stage("paths", lambda p: _paths(points, areas, sel_axes, tool, gv, config, p, carried,
+                                                         None if surface is None else surface.faces))
         run.warnings += _paths_warnings(area_paths)
     programs, path_summaries = ({}, {})
     if area_paths:
@@ -554,6 +573,15 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     result = _plan_result(cloud, config, name, nrm, ori, vis, sel, areas, profile, names,
                           _setup_rows(ori, gv.visible, selected, areas, names, path_summaries), run)
     result.verification = simulation.verification
+    if surface is not None:
+        result.paths_surface = PathsSurface(**surface.summary())
+    if facets is not None:
+        result.input.n_points = n_file_points
+        result.input.n_faces = int(cloud.faces.shape[0])
+        result.input.n_points_planned = int(points.shape[0])
+        result.input.facet_spacing_mm = round(float(facets.spacing_mm), 6)
+    elif cloud.faces is not None:
+        result.input.n_faces = int(cloud.faces.shape[0])
     _placement_result(result, placed)
     result.machining_order = order
     result.unmachined = _unmachined(area_paths, points.shape[0])

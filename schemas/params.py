@@ -73,6 +73,13 @@ class InputParams(_Strict):
         False, description="Plan a part whose largest side is under min_part_tool_diameters tool diameters, or "
                            "on which sphere throwing finds almost no normals; by default such a cloud is refused "
                            "as a likely unit mistake (a scan in metres read as mm).")
+    mesh_sample_mm: float = Field(
+        0.5, gt=0, le=100, description="A mesh (STL, OBJ, PLY with faces, scanner grid, relief) is planned on its "
+                                       "vertices plus points laid on its edges and facets at most this far apart, "
+                                       "mm; the finishing ball rests on the triangles themselves.")
+    mesh_max_points: int = Field(
+        2_000_000, ge=1, le=50_000_000, description="At most this many points on a mesh's facets (the spacing is "
+                                                    "widened to fit; plan.json input gives the spacing used).")
     min_part_tool_diameters: float = Field(
         2.0, ge=0, le=1000, description="The smallest accepted largest side of the part's bounding box, in tool "
                                         "diameters (checked unless accept_small_part).")
@@ -81,10 +88,12 @@ class InputParams(_Strict):
 class NormalsParams(_Strict):
     """Normal estimation by sphere throwing (Makki 2010 §2.1, eq. 2.1) or taken from the file."""
 
-    method: Literal["sphere_throwing", "input"] = Field(
+    method: Literal["sphere_throwing", "input", "facets"] = Field(
         "sphere_throwing",
         description="'sphere_throwing' estimates outward normals; 'input' uses the normals stored in the file "
-                    "(PLY nx ny nz, PCD normal_x..), every point then being a sample.")
+                    "(PLY nx ny nz, PCD normal_x..), every point then being a sample; 'facets' (meshes only) takes "
+                    "them from the triangles, wound consistently outward: at a vertex the normalised mean of its "
+                    "facets' normals (Chui 2008 eq. 8), on a facet its normal, on an edge the mean of its two.")
     sphere_diameter_mm: float = Field(
         7.0, gt=0, le=500, description="Diameter of the thrown sphere, in mm (paper: 7 mm on the femur).")
     grid_spacing_mm: float | None = Field(
@@ -506,6 +515,13 @@ class PathsParams(_Strict):
 
     finishing: FinishingParams = Field(default_factory=FinishingParams)
     roughing: RoughingParams = Field(default_factory=RoughingParams)
+    surface: Literal["auto", "points", "mesh"] = Field(
+        "auto", description="What the finishing ball rests on and its gouge clearance is measured to. 'auto': the "
+                            "points while their spacing is at most 20 % of the tool radius (Sood), else triangles: "
+                            "the file's faces (mesh, scanner grid, relief image) or a ball-pivoting surface through "
+                            "the points (refused when that leaves holes); 'mesh': triangles always; 'points': the "
+                            "points always (on a sparse cloud the ball can sink between them: a warning gives by "
+                            "how much). plan.json paths_surface says which was used.")
     safe_clearance_mm: float = Field(
         5.0, gt=0, le=500, description="Retracts and rapids run this far above the highest point of the cloud, of "
                                        "the stock left by the set-ups before and of the fixtures under the area "

@@ -27,10 +27,16 @@ class InputSummary(_Out):
     bbox_min_mm: tuple[float, float, float]
     bbox_max_mm: tuple[float, float, float]
     has_normals: bool = Field(..., description="Whether the file carried normals.")
+    n_faces: int = Field(0, ge=0, description="Triangles the file carried (meshes, scanner grids, reliefs); 0 for a "
+                                              "plain cloud.")
+    n_points_planned: int | None = Field(
+        None, description="Points the plan ran on: for a mesh its vertices plus the points laid on its edges and "
+                          "facets (input.mesh_sample_mm); null when the file's points themselves.")
+    facet_spacing_mm: float | None = Field(None, description="Spacing of the points laid on a mesh's facets, mm.")
 
 
 class NormalsSummary(_Out):
-    method: Literal["sphere_throwing", "input"]
+    method: Literal["sphere_throwing", "input", "facets"]
     n_sampled: int = Field(..., ge=0, description="Points with a normal (the sampled points all later stages use).")
     sampled_fraction: float = Field(..., ge=0, le=1)
     sphere_diameter_mm: float | None = None

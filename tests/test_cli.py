@@ -105,7 +105,7 @@ def test_bad_parameter_and_missing_file(half_sphere_ply, tmp_path, capsys):
 def test_input_normals_missing(tmp_path, capsys):
     src = tmp_path / "s.xyz"
     rng = np.random.default_rng(0)
-    np.savetxt(src, rng.uniform(0, 10, size=(50, 3)))
+    np.savetxt(src, rng.uniform(0, 50, size=(50, 3)))
     assert main(["plan", str(src), "--out", str(tmp_path / "o"), "--set", "normals.method=input"]) == EXIT_ERROR
     assert "missing_normals" in capsys.readouterr().err
 

@@ -44,6 +44,7 @@ from planning.geometry.fixtures import (
     fixture_collision_free,
 )
 from planning.geometry.tool import ToolAssembly
+from planning.geometry.triangles import TriangleDropSurface
 from planning.progress import Throttled
 from planning.toolpath.balldrop import DropSurface
 from planning.toolpath.finishing import FinishingPath, finishing_passes
@@ -210,7 +211,8 @@ def _count_arcs(tp: Toolpath) -> int:
 def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarray, *, tool: ToolAssembly,
                    paths_params, fixtures: Sequence = (), forbidden: np.ndarray | None = None,
                    max_slope_deg: float = 87.0, input_regions: np.ndarray | None = None,
-                   progress: Progress | None = None, carried=None) -> list[AreaPaths]:
+                   progress: Progress | None = None, carried=None,
+                   faces: np.ndarray | None = None) -> list[AreaPaths]:
     """Tool paths for every area (see the module docstring).
 
     ``points`` (N,3) mm: the whole cloud (part frame); ``input_labels`` (N,): the area of every
@@ -226,7 +228,9 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     :func:`planning.toolpath.guard.guard_toolpath`; finishing CL points where the assembly would
     touch the cloud, the stock, a fixture, go below the part's underside or leave the travel cut
     out); None: every area on its own from a stock box, nothing guarded (the collisions only counted).
-    The result lists the areas in the order they were done.
+    ``faces`` (T,3) int: triangles through ``points`` (indices into them) the finishing ball rests on
+    and its gouge clearance is measured to, besides the points (:mod:`planning.toolpath.surface`);
+    None: the points only. The result lists the areas in the order they were done.
     """
     fp = paths_params.finishing
     R = float(tool.radius_mm)
@@ -279,7 +283,7 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
             masks = _region_masks(mine, regions, cloud_f.shape[0])
             if extra.any():                    # the points set-ups before left that this one sees
                 masks.append(np.concatenate([extra, np.zeros(cloud_f.shape[0] - extra.shape[0], dtype=bool)]))
-            _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec,
+            _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec, faces=faces,
                            blocked=None if carried is None else
                            (lambda fin, prg: _cut_blocked(ap, fin, carried, obstacles, axes[i], tool, fixtures, area_f, fp,
                                                                progress=prg)),
@@ -456,7 +460,8 @@ def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, to
 
 
 def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, max_slope_deg: float,
-                   sec: dict, blocked=None, progress: _PathsProgress | None = None) -> None:
+                   sec: dict, blocked=None, progress: _PathsProgress | None = None,
+                   faces: np.ndarray | None = None) -> None:
     """Step 4 and the gouge check of step 5 into ``ap``: finishing passes per region
     (:func:`_region_finishing`), the blocked CL points cut out (``blocked``: (FinishingPath, progress) ->
     FinishingPath, or None), arc fitting or CL reduction of the joined path, and the minimal
@@ -466,8 +471,13 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
     step = (lambda name: None) if progress is None else progress.step
     finishing_progress = step("finishing")
     binned = BinnedCloud(cloud_f, R / 4.0)
+    triangles = None
+    if faces is not None and len(faces):
+        # the ball rests on the triangles too, and every gouge check measures to them (surface.py)
+        triangles = TriangleDropSurface(cloud_f, faces, R)
+        binned.triangles = triangles
     fin = _region_finishing(cloud_f, region_masks, binned, fp, R, tol, ap.safe_z_mm, max_slope_deg,
-                            progress=finishing_progress)
+                            progress=finishing_progress, triangles=triangles, faces=faces)
     sec["finishing"] = time.perf_counter() - t0
     if blocked is not None:
         t0 = time.perf_counter()
@@ -496,12 +506,13 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
 
 
 def _region_finishing(cloud_f, region_masks, binned: BinnedCloud, fp, R: float, tol: float, safe: float,
-                      max_slope_deg: float, progress: Progress | None = None) -> FinishingPath:
+                      max_slope_deg: float, progress: Progress | None = None, triangles=None,
+                      faces: np.ndarray | None = None) -> FinishingPath:
     """The finishing passes (:func:`planning.toolpath.finishing.finishing_passes`, ``safe`` the
     ball-centre height of retracts and rapids, mm) of each region in ``region_masks`` (bool masks
     over ``cloud_f``), joined by :func:`join_region_paths`. A region on which no pass lies adds
     nothing; when none gets a pass, the first region's error is raised (as for a one-region area)."""
-    surface = DropSurface(cloud_f, R)
+    surface = DropSurface(cloud_f, R, triangles=triangles, faces=faces)
     fins, first_error = [], None
     sizes = np.array([np.count_nonzero(m) for m in region_masks], dtype=np.float64)
     done_before = np.concatenate([[0.0], np.cumsum(sizes)]) / max(sizes.sum(), 1.0)

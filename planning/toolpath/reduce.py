@@ -68,6 +68,7 @@ from planning.toolpath.verify import (
     _mod2pi,
     _move_min,
     _seg_d2,
+    move_clearance,
 )
 
 _BACKOFF_STEPS = 8          # single-point back-offs before halving, when a move would gouge
@@ -338,14 +339,39 @@ def _reduce(tp, points, radius_mm, tol_mm, *, lines_, arcs, plane, min_points, m
         ia, ib, inn = PLANE_AXES[int(plane) if arcs else PLANE_ZX]
         _reduce_runs(xyz, lo, hi, bool(lines_), bool(arcs), tol, R - tol, ia, ib, inn, float(plane_tol_mm),
                      float(min_radius_mm), float(max_radius_mm), int(min_points), *cloud.arrays, code, centre)
+        if cloud.triangles is not None:
+            _clear_of_triangles(tp, xyz, code, centre, plane, cloud, R, tol)
+    return _assemble(tp, xyz, code, centre, plane)[0]
+
+
+def _assemble(tp: Toolpath, xyz, code, centre, plane) -> tuple[Toolpath, np.ndarray]:
+    """The path the kernel's ``code`` describes (0 dropped, -1 kept as it was, else the new move's kind
+    ending there), and the index in ``tp`` of each of its points."""
     keep = code != 0
     new = code >= 0
     is_arc = (code == ARC_CW) | (code == ARC_CCW)
     kind = np.where(new, code, tp.kind).astype(np.int8)
     cen = np.where(is_arc[:, None], centre, tp.centre_mm)
     pl = np.where(is_arc, np.int8(plane), tp.plane).astype(np.int8)
-    return Toolpath(xyz_mm=xyz[keep].copy(), kind=kind[keep], centre_mm=cen[keep], plane=pl[keep],
-                    use=tp.use[keep].copy(), tip_offset_mm=tp.tip_offset_mm)
+    return (Toolpath(xyz_mm=xyz[keep].copy(), kind=kind[keep], centre_mm=cen[keep], plane=pl[keep],
+                     use=tp.use[keep].copy(), tip_offset_mm=tp.tip_offset_mm), np.flatnonzero(keep))
+
+
+def _clear_of_triangles(tp: Toolpath, xyz, code, centre, plane, cloud, R: float, tol: float) -> None:
+    """The kernel checks the replacing moves against the points; with triangles through them
+    (:mod:`planning.toolpath.surface`) a replacing move can still pass through a facet between its
+    points. Each new move (line or arc) closer than R - tol to the triangles (or the points) is undone
+    in ``code``: the original CL points it replaced are kept, as the original moves were (the passes
+    were made safe against the triangles, :func:`planning.toolpath.finishing.finishing_passes`)."""
+    out, at = _assemble(tp, xyz, code, centre, plane)
+    new = np.flatnonzero(code[at] >= 0)
+    new = new[new > 0]
+    if new.size == 0:
+        return
+    clear = move_clearance(out, cloud, R, moves=new)
+    bad = new[clear[new] < R - tol]
+    for m in bad:                       # one slice per undone move
+        code[at[m - 1] + 1:at[m] + 1] = -1
 
 
 def reduce_cl(tp: Toolpath, points, radius_mm: float, *, tol_mm: float, uses=(USE_CUT,),

@@ -409,6 +409,9 @@ class BinnedCloud:
         if not (h > 0 and math.isfinite(h)):
             raise ParameterError(f"cell_mm = {cell_mm}: must be > 0")
         self.n = pts.shape[0]
+        #: triangles through the points (a planning.geometry.triangles.TriangleDropSurface), or None:
+        #: move_clearance then measures to them too (issue 18, planning/toolpath/surface.py)
+        self.triangles = None
         if self.n == 0:
             self.arrays = (np.zeros((0, 3)), np.zeros(2, np.int64), np.full(1, np.inf), np.full(1, -np.inf),
                            0.0, 0.0, h, 1, 1, 1e-9)
@@ -498,7 +501,57 @@ def move_clearance(tp: Toolpath, points: np.ndarray | BinnedCloud, radius_mm: fl
     cloud = _binned(points, R, cell_mm)
     got = np.empty(sel.size)
     clearance(F, I, *cloud.arrays, cut, got)
+    if cloud.triangles is not None:
+        np.minimum(got, _triangle_clearance(F, I, cloud.triangles, cut), out=got)
     out[sel] = got
+    return out
+
+
+#: Arcs are measured against triangles by chords whose distance from the arc is at most this, mm.
+ARC_CHORD_MM = 1e-3
+
+
+def _triangle_clearance(F: np.ndarray, I: np.ndarray, triangles, cut: float) -> np.ndarray:
+    """Per move row of ``F``/``I`` (see :func:`_fill_line`, :func:`_fill_arc`): the distance from its
+    ball-centre curve to the ``triangles`` (a :class:`planning.geometry.triangles.TriangleDropSurface`),
+    capped at ``cut``. Straight moves exactly; an arc or helix by chords of ``n`` equal angular pieces,
+    ``n`` such that each piece's curve stays within ``e = r dtheta^2 / 8 <= ARC_CHORD_MM`` of its chord
+    (linear interpolation error of the circle, and of the helix, whose rise is linear in the angle,
+    so its chord interpolates the rise exactly), less ``e`` and the spiral's ``|r_end - r_start|``:
+    a lower bound of the exact distance, never an over-report."""
+    m = F.shape[0]
+    arc = I[:, 0] == _ARC
+    starts = [F[~arc, _S:_S + 3]]
+    ends = [F[~arc, _E:_E + 3]]
+    owner = [np.flatnonzero(~arc)]
+    less = [np.zeros(int((~arc).sum()))]
+    rows = np.flatnonzero(arc)
+    if rows.size:
+        r = np.maximum(F[rows, _RR], 1e-12)
+        sw = F[rows, _SW]
+        n = np.maximum(np.ceil(np.abs(sw) / np.sqrt(8.0 * ARC_CHORD_MM / r)).astype(np.int64), 1)
+        piece = np.repeat(np.arange(rows.size), n)
+        j = np.arange(piece.size) - np.repeat(np.cumsum(n) - n, n)
+        ends_of = []
+        for frac in (j / n[piece], (j + 1) / n[piece]):
+            k = rows[piece]
+            ang = F[k, _T0] + sw[piece] * frac
+            p = np.empty((piece.size, 3))
+            ia, ib, inn = I[k, 1], I[k, 2], I[k, 3]
+            ar = np.arange(piece.size)
+            p[ar, ia] = F[k, _CU] + r[piece] * np.cos(ang)
+            p[ar, ib] = F[k, _CV] + r[piece] * np.sin(ang)
+            p[ar, inn] = F[k, _SN] + F[k, _DN] * frac
+            ends_of.append(p)
+        starts.append(ends_of[0])
+        ends.append(ends_of[1])
+        owner.append(rows[piece])
+        dth = np.abs(sw[piece]) / n[piece]
+        less.append(r[piece] * dth * dth / 8.0 + F[rows[piece], _DR])
+    S, E = np.concatenate(starts), np.concatenate(ends)
+    d = triangles.clearance(S, E, cut) - np.concatenate(less)
+    out = np.full(m, cut)
+    np.minimum.at(out, np.concatenate(owner), np.maximum(d, 0.0))
     return out
 
 

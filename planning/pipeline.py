@@ -556,7 +556,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
         if carried is not None:
             order = carried.order
         surface = (path_surface(points, radius_mm=tool.radius_mm, mode=pp.surface, faces=cloud.faces,
-                                source_format=cloud.source_format, normals=normals) if pp.finishing.enabled else None)
+                                source_format=cloud.source_format) if pp.finishing.enabled else None)
         if surface is not None and surface.warning:
             run.warnings.append(surface.warning)
         area_paths = run.stage("paths", lambda p: _paths(points, areas, sel_axes, tool, gv, config, p, carried,

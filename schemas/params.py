@@ -518,8 +518,8 @@ class PathsParams(_Strict):
     surface: Literal["auto", "points", "mesh"] = Field(
         "auto", description="What the finishing ball rests on and its gouge clearance is measured to. 'auto': the "
                             "points while their spacing is at most 20 % of the tool radius (Sood), else triangles: "
-                            "the file's faces (mesh, scanner grid, relief image) or a ball-pivoting surface through "
-                            "the points (refused when that leaves holes); 'mesh': triangles always; 'points': the "
+                            "the file's faces (mesh, scanner grid, relief image) or triangles through the points (the "
+                            "Delaunay faces of circumradius <= 1.6 spacings; refused when that leaves points out); 'mesh': triangles always; 'points': the "
                             "points always (on a sparse cloud the ball can sink between them: a warning gives by "
                             "how much). plan.json paths_surface says which was used.")
     safe_clearance_mm: float = Field(

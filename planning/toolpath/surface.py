@@ -13,11 +13,11 @@ when the spacing exceeds 20 % of R (:data:`SPARSE_SHARE_OF_RADIUS`). So does sca
 
   - ``auto`` (default): the file's own triangles when it has them (a mesh, or a scanner's grid:
     structured E57 scans, relief images: the surface itself, not a sampling of it); else the points
-    when ``s <= 0.2 R``; else a ball-pivoting
-    reconstruction (Open3D ``create_from_point_cloud_ball_pivoting``, radii 1, 1.5, 2 and 3 s) whose
-    vertices ARE the points; when the reconstruction leaves more than :data:`MAX_UNMESHED_SHARE` of
-    the points on no triangle, the plan is refused (``cloud_too_sparse``) with the spacing, the tool
-    and the choices;
+    when ``s <= 0.2 R``; else triangles through the points (:func:`reconstruct`: the faces of their
+    Delaunay tetrahedra with a circumradius of at most 1.6 s, an alpha shape's triangles) whose
+    vertices ARE the points; when that leaves more than :data:`MAX_UNMESHED_SHARE` of the points on
+    no triangle (e.g. scan lines far apart), the plan is refused (``cloud_too_sparse``) with the
+    spacing, the tool and the choices;
   - ``mesh``: triangles whatever the spacing (the same sources);
   - ``points``: the points whatever the spacing; when sparse, a warning gives the dip depth.
 
@@ -45,8 +45,8 @@ MAX_UNMESHED_SHARE = 0.02
 _K = 6
 #: Points whose neighbours are measured (a seeded subsample of larger clouds).
 _SAMPLE = 20_000
-#: Ball-pivoting radii, in spacings.
-BPA_RADII = (1.0, 1.5, 2.0, 3.0)
+#: Triangles of the reconstruction have a circumradius of at most this many spacings.
+ALPHA_SPACINGS = 1.6
 
 SURFACE_MODES = ("auto", "points", "mesh")
 
@@ -78,7 +78,7 @@ class PathSurface:
     """The surface the finishing paths use.
 
     ``kind``: ``points``, ``input_mesh`` (the file's faces), ``scanner_grid`` (faces from a structured
-    scan or a relief image's pixel grid) or ``reconstructed`` (ball pivoting). ``faces`` (T,3) int64
+    scan or a relief image's pixel grid) or ``reconstructed`` (:func:`reconstruct`). ``faces`` (T,3) int64
     indices into the plan's points (None for ``points``). ``spacing_mm`` the estimated spacing,
     ``threshold_mm`` = 0.2 R, ``dip_mm`` the dip of a ball on points that far apart, ``reason`` one
     sentence for plan.json, ``unmeshed_share`` the share of points on no triangle."""
@@ -104,28 +104,36 @@ def _grid_kind(source_format: str) -> bool:
     return source_format.startswith(("e57", "image"))
 
 
-def reconstruct(points: np.ndarray, normals: np.ndarray | None, spacing_mm: float) -> np.ndarray:
-    """Ball-pivoting triangles (T,3) int64 through ``points`` (N,3) mm (Open3D), radii
-    :data:`BPA_RADII` x ``spacing_mm``. ``normals`` (N,3) outward orient the pivoting (estimated by
-    Open3D from 20 neighbours when None)."""
-    import open3d as o3d
+def reconstruct(points: np.ndarray, spacing_mm: float) -> np.ndarray:
+    """Triangles (T,3) int64 through ``points`` (N,3) mm: the faces of their 3D Delaunay tetrahedra
+    (scipy's Qhull, joggled so flat or cospherical samplings triangulate) whose circumradius is at
+    most :data:`ALPHA_SPACINGS` x ``spacing_mm`` (the triangles of an alpha shape, without its
+    emptiness test: a superset, each triangle within that radius of its own vertices, so one a ball
+    rests on lies inside the sampled band of the surface). Vertices are the points themselves."""
+    from scipy.spatial import Delaunay, QhullError
 
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
-    if normals is not None and np.isfinite(normals).all():
-        pc.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, dtype=np.float64))
-    else:
-        pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
-        pc.orient_normals_consistent_tangent_plane(10)
-    radii = o3d.utility.DoubleVector([r * spacing_mm for r in BPA_RADII])
-    mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(pc, radii)
-    return np.asarray(mesh.triangles, dtype=np.int64).reshape(-1, 3)
+    p = np.ascontiguousarray(points, dtype=np.float64)
+    if p.shape[0] < 4:
+        return np.zeros((0, 3), dtype=np.int64)
+    try:
+        tets = Delaunay(p, qhull_options="Qbb Qc Q12 QJ").simplices
+    except QhullError:
+        return np.zeros((0, 3), dtype=np.int64)
+    f = np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 3]], tets[:, [1, 2, 3]]])
+    f = np.unique(np.sort(f, axis=1), axis=0).astype(np.int64)
+    t = p[f]
+    a = np.linalg.norm(t[:, 1] - t[:, 2], axis=1)
+    b = np.linalg.norm(t[:, 2] - t[:, 0], axis=1)
+    c = np.linalg.norm(t[:, 0] - t[:, 1], axis=1)
+    area2 = np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)     # twice the area
+    keep = a * b * c <= 2.0 * ALPHA_SPACINGS * spacing_mm * area2                     # abc / (4 A) <= alpha
+    return f[keep]
 
 
 def path_surface(points: np.ndarray, *, radius_mm: float, mode: str = "auto", faces: np.ndarray | None = None,
-                 source_format: str = "", normals: np.ndarray | None = None) -> PathSurface:
+                 source_format: str = "") -> PathSurface:
     """Choose the surface the finishing ball rests on (module docstring). ``points`` (N,3) mm, the
-    plan's points; ``faces`` the file's triangles into them (or None); ``normals`` (N,3) outward for a
-    reconstruction. Raises :class:`InputError` ``cloud_too_sparse`` when ``auto`` needs triangles and
+    plan's points; ``faces`` the file's triangles into them (or None). Raises :class:`InputError` ``cloud_too_sparse`` when ``auto`` needs triangles and
     none can be built."""
     if mode not in SURFACE_MODES:
         raise InputError(f"paths.surface is {mode!r}; allowed: {', '.join(SURFACE_MODES)}", code="invalid_parameter")
@@ -153,19 +161,21 @@ def path_surface(points: np.ndarray, *, radius_mm: float, mode: str = "auto", fa
         return PathSurface(kind, np.asarray(faces, dtype=np.int64), s, limit, dip,
                            f"{what}: the ball rests on the {'file' if kind == 'input_mesh' else 'scan grid'}'s "
                            f"{len(faces):,} triangles", unmeshed_share=float(1.0 - used.mean()))
-    tri = reconstruct(points, normals, max(s, 1e-6))
+    tri = reconstruct(points, max(s, 1e-6))
     used = np.zeros(points.shape[0], dtype=bool)
     if tri.size:
         used[tri.ravel()] = True
     unmeshed = float(1.0 - used.mean())
     if unmeshed > MAX_UNMESHED_SHARE:
         raise InputError(
-            f"The cloud is too sparse for the tool: {what}, so a ball dropped on the points sinks up to "
-            f"{dip:.3f} mm between them, and a ball-pivoting surface through them leaves {unmeshed:.1%} of the "
-            f"points on no triangle. Choices: a denser scan (spacing <= {limit:.3f} mm), a larger tool "
-            f"(tool.diameter_mm >= {2 * s / SPARSE_SHARE_OF_RADIUS:.1f} mm), the scan as a mesh (STL, OBJ, PLY "
-            "with faces), or paths.surface = points to accept the dip.",
+            f"No surface can be built through the points for the finishing ball: the triangles through them "
+            f"(circumradius <= {ALPHA_SPACINGS:g} x the {s:.3f} mm point spacing) leave {unmeshed:.1%} of the points "
+            f"on no triangle (scan lines or patches far apart?), and on the points alone a ball of R {R:g} mm sinks "
+            f"{dip:.3f} mm or more between them. Choices: a denser scan (spacing <= {limit:.3f} mm everywhere), a "
+            f"larger tool (tool.diameter_mm >= {2 * s / SPARSE_SHARE_OF_RADIUS:.1f} mm), the scan as a mesh (STL, "
+            "OBJ, PLY with faces), or paths.surface = points to accept the dip.",
             code="cloud_too_sparse", spacing_mm=s, threshold_mm=limit, unmeshed_share=unmeshed)
     return PathSurface("reconstructed", tri, s, limit, dip,
-                       f"{what}: the ball rests on {len(tri):,} ball-pivoting triangles through the points",
+                       f"{what}: the ball rests on {len(tri):,} triangles through the points (Delaunay faces of "
+                       f"circumradius <= {ALPHA_SPACINGS:g} spacings)",
                        unmeshed_share=unmeshed)

@@ -202,8 +202,11 @@ def read_cloud(
     _check_count(points.shape[0], max_points)
     if scale != 1.0:
         points = points * scale
-    points = validate_points(points, max_extent_mm=max_extent_mm, min_points=min_points,
-                             units=units)
+    # a mesh is a surface from one triangle on (a CAD cube has 8 vertices): min_points counts the
+    # points of a plain cloud; the plan lays points on a mesh's facets (planning/inputs/facet_points.py)
+    has_faces = faces is not None and len(faces) > 0
+    points = validate_points(points, max_extent_mm=max_extent_mm, min_points=min(min_points, 3) if has_faces
+                             else min_points, units=units)
     return Cloud(points=points, normals=_unit_normals(normals), source_format=label,
                  faces=validate_faces(faces, points))
 

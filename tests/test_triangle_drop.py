@@ -1,5 +1,5 @@
 """Ball drop on a triangle mesh and the segment-triangle clearance (planning.geometry.triangles,
-planning.toolpath.mesh_clearance): against the numpy brute force, against OpenCAMLib's drop
+planning.toolpath.verify.move_clearance with triangles): against the numpy brute force, against OpenCAMLib's drop
 cutter on the same triangles, analytic facet / edge / vertex contacts, and clearances against an
 exact reference that shares no code with the kernel (the minimum of the distance over every face
 of the segment x triangle polytope, Karush-Kuhn-Tucker style)."""
@@ -20,7 +20,7 @@ from planning.geometry.triangles import (
     triangle_clearance,
     triangle_drop,
 )
-from planning.toolpath.mesh_clearance import arc_widening_mm, mesh_move_clearance
+from planning.toolpath.verify import ARC_CHORD_MM, BinnedCloud, move_clearance
 from planning.toolpath.moves import (
     ARC_CCW,
     ARC_CW,
@@ -326,7 +326,14 @@ def test_clearance_axis_aligned():
     assert np.allclose(surf.clearance(S, E), want, atol=1e-12)
 
 
-def test_toolpath_wrapper_straight_and_arcs():
+def _mesh_move_clearance(tp, surf, cutoff_mm=None):
+    """verify.move_clearance against the triangles alone (a cloud without points)."""
+    binned = BinnedCloud(np.zeros((0, 3)), 1.0)
+    binned.triangles = surf
+    return move_clearance(tp, binned, surf.R, cutoff_mm=cutoff_mm)
+
+
+def test_path_clearance_to_triangles_straight_and_arcs():
     V, F = _random_mesh(3, T=40)
     R = 1.0
     surf = TriangleDropSurface(V, F, R)
@@ -334,7 +341,7 @@ def test_toolpath_wrapper_straight_and_arcs():
     pts = rng.uniform(-6, 6, (30, 3))
     tp = lines(pts, np.zeros(30, np.int8))
     tp.kind[5] = 0                                       # a rapid: not measured by default
-    c = mesh_move_clearance(tp, surf)
+    c = _mesh_move_clearance(tp, surf)
     assert np.isnan(c[0]) and np.isnan(c[5])
     m = np.flatnonzero(np.isfinite(c))
     assert np.array_equal(c[m], surf.clearance(pts[m - 1], pts[m]))
@@ -356,9 +363,7 @@ def test_toolpath_wrapper_straight_and_arcs():
                       use=np.zeros(2, np.int8))
         t_0, sw, _ = arc_sweep_rad(s, e, cen, plane, ccw)
         assert sw == pytest.approx(sweep if ccw else -sweep)
-        w = arc_widening_mm(tp, np.array([1]))[0]
-        assert w == pytest.approx(r * (1 - math.cos(sweep / 2)) + abs(rise))
-        got = mesh_move_clearance(tp, surf, cutoff_mm=np.inf)[1]
+        got = _mesh_move_clearance(tp, surf, cutoff_mm=np.inf)[1]
         # the arc's true clearance is at most that of any of its points (end points included)
         tt = np.linspace(0, 1, 2001)
         q = np.empty((tt.size, 3))
@@ -367,4 +372,5 @@ def test_toolpath_wrapper_straight_and_arcs():
         q[:, n] = s[n] + (e[n] - s[n]) * tt
         upper = surf.clearance(q, q, np.inf).min()
         assert 0.0 <= got <= upper + 1e-12
-        assert got >= upper - 2 * w - 0.01        # and not far below it (0.01: the sampling)
+        # and not far below it: the chords' allowance, and 0.01 for the sampling of the arc points
+        assert got >= upper - 2 * ARC_CHORD_MM - 0.01

@@ -77,7 +77,7 @@ from numba import njit, prange
 
 from planning.errors import ParameterError
 from planning.toolpath.balldrop import BallDrop
-from planning.toolpath.verify import serial_twin
+from planning.toolpath.verify import _gap, serial_twin
 
 # Columns of the per-triangle table: the vertices in increasing vertex-index order (so an edge
 # shared by two triangles is computed from the same end, giving the same value in both), the
@@ -584,16 +584,6 @@ def _seg_tri_d2(sx, sy, sz, ex, ey, ez, tab, t):
     return d
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _gap2(a0, a1, b0, b1):
-    """Distance between the intervals [a0, a1] and [b0, b1] (0 when they overlap)."""
-    if a1 < b0:
-        return b0 - a1
-    if b1 < a0:
-        return a0 - b1
-    return 0.0
-
-
 @njit(cache=True, nogil=True)
 def _move_min(sx, sy, sz, ex, ey, ez, tab, ent, ebox, ecell, start, cmin, cmax, reach, x0, y0, h, nx, ny,
               widen, slack, cap):
@@ -617,9 +607,9 @@ def _move_min(sx, sy, sz, ex, ey, ez, tab, ent, ebox, ecell, start, cmin, cmax, 
             if start[c] == start[c + 1]:
                 continue
             # the cell's triangles lie in its square grown by its reach, between its z bounds
-            gx = _gap2(x0 + ix * h - reach[c], x0 + (ix + 1) * h + reach[c], lox, hix)
-            gy = _gap2(y0 + iy * h - reach[c], y0 + (iy + 1) * h + reach[c], loy, hiy)
-            gz = _gap2(cmin[c], cmax[c], loz, hiz)
+            gx = _gap(x0 + ix * h - reach[c], x0 + (ix + 1) * h + reach[c], lox, hix)
+            gy = _gap(y0 + iy * h - reach[c], y0 + (iy + 1) * h + reach[c], loy, hiy)
+            gz = _gap(cmin[c], cmax[c], loz, hiz)
             bs = best + slack
             if gx * gx + gy * gy + gz * gz >= bs * bs:
                 continue
@@ -627,9 +617,9 @@ def _move_min(sx, sy, sz, ex, ey, ez, tab, ent, ebox, ecell, start, cmin, cmax, 
                 # each triangle once: in the first cell its cells share with the move's
                 if ix != max(ecell[e, 0], qx0) or iy != max(ecell[e, 1], qy0):
                     continue
-                gx = _gap2(ebox[e, _EXLO], ebox[e, _EXHI], lox, hix)
-                gy = _gap2(ebox[e, _EYLO], ebox[e, _EYHI], loy, hiy)
-                gz = _gap2(ebox[e, _EZLO], ebox[e, _EZHI], loz, hiz)
+                gx = _gap(ebox[e, _EXLO], ebox[e, _EXHI], lox, hix)
+                gy = _gap(ebox[e, _EYLO], ebox[e, _EYHI], loy, hiy)
+                gz = _gap(ebox[e, _EZLO], ebox[e, _EZHI], loz, hiz)
                 bs = best + slack
                 if gx * gx + gy * gy + gz * gz >= bs * bs:
                     continue

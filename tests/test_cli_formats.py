@@ -8,8 +8,8 @@ import json
 
 import numpy as np
 import pytest
-
 from mesh_files import cube_mesh, image_bytes, las_bytes, obj_text, stl_binary
+
 from scanmill.cli import EXIT_ERROR, EXIT_OK, main
 
 BROKEN = {

@@ -12,7 +12,12 @@ import pytest
 
 from planning.errors import InputError
 from planning.inputs.samples import half_sphere
-from planning.inputs.scale import MIN_NORMAL_SHARE, check_normal_share, check_part_size, unit_hints
+from planning.inputs.scale import (
+    MIN_NORMAL_SHARE,
+    check_normal_share,
+    check_part_size,
+    unit_hints,
+)
 from planning.report.files import write_ply
 from scanmill.cli import EXIT_ERROR, main
 
@@ -110,7 +115,7 @@ def _post(client, path, params):
 
 
 def test_service_answers_422_with_the_unit_hint_and_keeps_no_job(app_client, tmp_path):
-    client, data_dir = app_client
+    client, _ = app_client
     src = tmp_path / "part_in_metres.ply"
     write_ply(src, METRES)
     r = _post(client, src, LIGHT)

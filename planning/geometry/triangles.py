@@ -76,8 +76,8 @@ import numpy as np
 from numba import njit, prange
 
 from planning.errors import ParameterError
-from planning.toolpath.balldrop import BallDrop
-from planning.toolpath.verify import _gap, serial_twin
+from planning.geometry.kernels import BallDrop, serial_twin
+from planning.geometry.kernels import interval_gap as _gap
 
 # Columns of the per-triangle table: the vertices in increasing vertex-index order (so an edge
 # shared by two triangles is computed from the same end, giving the same value in both), the

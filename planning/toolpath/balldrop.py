@@ -20,25 +20,15 @@ parallel over the query lines.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
 
 from planning.errors import ParameterError
+from planning.geometry.kernels import BallDrop, serial_twin
 from planning.geometry.raster import bin_cells, rows_in_order
-from planning.toolpath.verify import serial_twin
 
 _BLOCK = 4      # raster cells per side of the blocks pruned as a whole
-
-
-@dataclass(frozen=True)
-class BallDrop:
-    """``z_mm`` (K,) ball-centre heights (``-inf`` where no point is within R); ``contact`` (K,)
-    index of the point the ball rests on (-1 where none)."""
-
-    z_mm: np.ndarray
-    contact: np.ndarray
 
 
 def _check(points, xy, radius_mm):

@@ -60,6 +60,7 @@ from scipy.spatial import cKDTree
 from planning.errors import ParameterError
 from planning.geometry.collision import centres_collision_free
 from planning.geometry.fixtures import fixture_collision_free
+from planning.geometry.kernels import serial_twin
 from planning.geometry.tool import ToolAssembly
 from planning.toolpath.finishing import FinishingPath
 from planning.toolpath.frames import AreaFrame
@@ -76,7 +77,6 @@ from planning.toolpath.moves import (
     densify,
     path_length_mm,
 )
-from planning.toolpath.verify import serial_twin
 
 #: The reasons :func:`blocked_cl` reports, in this order.
 REASONS = ("cloud", "fixture", "stock", "travel", "underside")

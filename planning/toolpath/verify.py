@@ -39,13 +39,14 @@ are scanned point by point. Compiled with numba, parallel over moves.
 from __future__ import annotations
 
 import math
-import types
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
 
 from planning.errors import ParameterError
+from planning.geometry.kernels import interval_gap as _gap
+from planning.geometry.kernels import serial_twin
 from planning.geometry.raster import bin_cells, rows_in_order
 from planning.toolpath.moves import (
     ARC_CCW,
@@ -269,16 +270,6 @@ def _dist_row(F, I, row, px, py, pz):
 
 
 @njit(cache=True, nogil=True)
-def _gap(a0, a1, b0, b1):
-    """Distance between the intervals [a0, a1] and [b0, b1] (0 when they overlap)."""
-    if a1 < b0:
-        return b0 - a1
-    if b1 < a0:
-        return a0 - b1
-    return 0.0
-
-
-@njit(cache=True, nogil=True)
 def _move_min(F, I, row, pts, start, cmin, cmax, x0, y0, h, nx, ny, slack, limit, stop):
     """min(limit, smallest distance from a binned point to the curve of move ``row``); returns as
     soon as a distance below ``stop`` is found (then the value is that distance, < stop)."""
@@ -373,20 +364,6 @@ def _clearance(F, I, pts, start, cmin, cmax, x0, y0, h, nx, ny, slack, limit, ou
 
 #: Fewer measured moves than this run on one thread.
 _PARALLEL_MIN = 4096
-
-
-def serial_twin(kernel, name: str):
-    """A serial (``nogil``) copy of the parallel numba ``kernel`` under its own ``name``. numba's
-    cache keys an entry by the function's module, qualified name, line and signature, not by its
-    flags: ``njit(cache=True)(kernel.py_func)`` shares the parallel kernel's cache entry, and
-    whichever of the two compiled first is loaded for both (the "serial" one then started the
-    thread pool on every small call). A copy of the function object with another qualified name
-    gets its own entry."""
-    f = kernel.py_func
-    g = types.FunctionType(f.__code__, f.__globals__, name, f.__defaults__, f.__closure__)
-    g.__qualname__ = name
-    g.__doc__ = f.__doc__
-    return njit(cache=True, nogil=True)(g)
 
 
 _prep_serial = serial_twin(_prep, "_prep_serial")

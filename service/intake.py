@@ -42,6 +42,7 @@ from starlette.requests import Request
 
 from planning.errors import ParameterError
 from planning.inputs.cloud import FORMATS
+from planning.inputs.facet_points import planned_point_count
 from planning.inputs.scale import check_part_size
 from schemas.api import InlineCloud
 from schemas.params import PlanConfig, parse_config
@@ -192,7 +193,10 @@ def _validate_cloud(path: Path, fmt: str | None, config: PlanConfig, settings: S
                     min_tool_diameters=config.input.min_part_tool_diameters,
                     max_extent_mm=config.input.max_extent_mm, accept_small_part=config.input.accept_small_part)
     extent = [float(v) for v in cloud.points.max(axis=0) - cloud.points.min(axis=0)]
-    check_job_budget(config, int(cloud.points.shape[0]), settings, extent_mm=extent)
+    # a mesh is planned on points laid on its facets too (planning/inputs/facet_points.py)
+    n_planned = planned_point_count(cloud.points, cloud.faces, config.input.mesh_sample_mm,
+                                    config.input.mesh_max_points)
+    check_job_budget(config, n_planned, settings, extent_mm=extent)
     return {"format": cloud.source_format, "n_points": int(cloud.points.shape[0]),
             "has_normals": cloud.normals is not None, "extent_mm": extent}
 

@@ -113,3 +113,16 @@ def points_on_facets(vertices: np.ndarray, faces: np.ndarray, spacing_mm: float,
     parents = np.concatenate([np.full((nv, 2), -1, dtype=np.int64), parents_e.astype(np.int64)]
                              + [p.astype(np.int64) for p in parents_f])
     return FacetPoints(points, parents, s, nv)
+
+
+def planned_point_count(vertices: np.ndarray, faces: np.ndarray | None, spacing_mm: float,
+                        max_points: int = 2_000_000) -> int:
+    """How many points :func:`points_on_facets` gives for this mesh (the vertices alone without faces),
+    counted without building them: what a plan of the mesh will hold (the service's memory estimate)."""
+    nv = int(np.asarray(vertices).shape[0])
+    if faces is None or len(faces) == 0:
+        return nv
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    extra = _count(v, f, _edges(f)[0], float(spacing_mm))[2]
+    return int(min(nv + extra, max(int(max_points), nv)))

@@ -97,6 +97,12 @@ def test_spacing_estimate_on_a_grid_and_at_random():
     n = 40_000
     rand = np.stack([rng.uniform(0, 100, n), rng.uniform(0, 100, n), np.zeros(n)], axis=1)
     assert point_spacing_mm(rand) == pytest.approx(math.sqrt(100 * 100 / n), rel=0.08)
+    # points 0.1 mm apart on lines 2 mm apart: the mean spacing is 0.45 mm, but no neighbour of the 16 nearest
+    # lies across the lines, so the spacing is at least their reach (a lower bound of the 2 mm)
+    x = np.arange(0, 60, 0.1)
+    lines = np.concatenate([np.stack([x, np.full_like(x, y), np.zeros_like(x)], axis=1) for y in np.arange(0, 60, 2.0)])
+    assert point_spacing_mm(lines) >= 0.79
+    assert point_spacing_mm(lines) > math.sqrt(60 * 60 / lines.shape[0])
 
 
 def test_dip_formula():
@@ -117,14 +123,15 @@ def test_auto_chooses_triangles_on_a_sparse_cloud_and_points_on_a_dense_one():
 
 
 def test_refused_with_the_density_message_when_no_surface_can_be_built():
-    # a line scanner's cloud: points 0.1 mm apart along lines 4 mm apart. The spacing estimate sees
-    # the dense lines, so auto keeps the points (module docstring: the estimate is isotropic); asked for
-    # triangles, none of circumradius <= 1.6 spacings joins two lines, and the plan is refused
+    # a line scanner's cloud: points 0.1 mm apart along lines 4 mm apart. Its mean spacing is small, but
+    # across the lines none of its 16 nearest neighbours lies: the spacing is at least their reach (0.8 mm),
+    # over 20 % of R; no triangle of circumradius <= 1.6 spacings joins two lines, so the plan is refused
     x = np.arange(0, 60, 0.1)
     lines = [np.stack([x, np.full_like(x, y), 0.01 * x], axis=1) for y in np.arange(0, 60, 4.0)]
     pts = np.concatenate(lines)
+    assert point_spacing_mm(pts) > 0.2 * R
     with pytest.raises(InputError) as e:
-        path_surface(pts, radius_mm=R, mode="mesh")
+        path_surface(pts, radius_mm=R)
     msg = e.value.message
     assert e.value.code == "cloud_too_sparse"
     assert "spacing" in msg and "R 3" in msg and "paths.surface = points" in msg and "tool.diameter_mm" in msg

@@ -6,9 +6,10 @@ apart against the tool: between points ``s`` apart on a square grid the ball sin
 s = 1.5 mm), a gouge the point-based clearance check cannot see. The thesis switches to the facets
 when the spacing exceeds 20 % of R (:data:`SPARSE_SHARE_OF_RADIUS`). So does scanmill:
 
-* :func:`point_spacing_mm` estimates the mean spacing ``s = sqrt(area per point)`` from the distance
-  ``r_k`` to each point's k-th neighbour: ``s = median(r_k) sqrt(pi / k)`` (k = 6; exact for a
-  uniform random sampling, 1.02 s on a square grid), on a seeded subsample of the points;
+* :func:`point_spacing_mm` estimates the spacing: the mean spacing ``s = sqrt(area per point)`` from
+  the distance ``r_k`` to each point's k-th neighbour, ``s = median(r_k) sqrt(pi / k)`` (k = 6; exact
+  for a uniform random sampling, 1.02 s on a square grid), or the spacing across the sampling's main
+  direction where that is larger (scan lines far apart), on a seeded subsample of the points;
 * :func:`path_surface` decides with ``paths.surface``:
 
   - ``auto`` (default): the file's own triangles when it has them (a mesh, or a scanner's grid:
@@ -43,6 +44,8 @@ SPARSE_SHARE_OF_RADIUS = 0.2
 MAX_UNMESHED_SHARE = 0.02
 #: Neighbour rank of the spacing estimate.
 _K = 6
+#: Neighbours searched for the spacing across the sampling's main direction.
+_ACROSS_K = 16
 #: Points whose neighbours are measured (a seeded subsample of larger clouds).
 _SAMPLE = 20_000
 #: Triangles of the reconstruction have a circumradius of at most this many spacings.
@@ -52,17 +55,36 @@ SURFACE_MODES = ("auto", "points", "mesh")
 
 
 def point_spacing_mm(points: np.ndarray, *, k: int = _K, sample: int = _SAMPLE, seed: int = 0) -> float:
-    """Mean point spacing of ``points`` (N,3) mm: ``median(r_k) sqrt(pi / k)`` over a seeded subsample of
-    ``sample`` points, ``r_k`` the distance to the k-th nearest other point (module docstring). 0 for
-    fewer than ``k + 1`` points."""
+    """Point spacing of ``points`` (N,3) mm, on a seeded subsample of ``sample`` points: the larger of
+
+    * the mean spacing ``median(r_k) sqrt(pi / k)``, ``r_k`` the distance to the k-th nearest other
+      point (exact for a uniform random sampling, 1.02 s on a square grid), and
+    * the spacing ACROSS the sampling's main direction: the median over the points of the distance to
+      the nearest of their :data:`_ACROSS_K` neighbours that lies more than 45 degrees off the main axis
+      of those neighbours (their covariance's first eigenvector), or the farthest of them where none
+      does. A scan of dense lines far apart has a small mean spacing but a large one across the lines,
+      which is where the ball sinks; on an even sampling this is about the nearest-neighbour distance,
+      below the mean spacing.
+
+    0 for fewer than ``k + 1`` points."""
     p = np.asarray(points, dtype=np.float64)
     n = p.shape[0]
     if n <= k:
         return 0.0
     rng = np.random.default_rng(seed)
     sub = p if n <= sample else p[np.sort(rng.choice(n, sample, replace=False))]
-    d, _ = cKDTree(p).query(sub, k=k + 1)
-    return float(np.median(d[:, k]) * math.sqrt(math.pi / k))
+    kk = min(_ACROSS_K, n - 1)
+    d, idx = cKDTree(p).query(sub, k=kk + 1)
+    mean = float(np.median(d[:, min(k, kk)]) * math.sqrt(math.pi / k))
+    rel = p[idx[:, 1:]] - sub[:, None, :]                       # (m, kk, 3) the neighbours
+    cov = np.einsum("mki,mkj->mij", rel, rel)
+    axis = np.linalg.eigh(cov)[1][:, :, 2]                     # main direction of each neighbourhood
+    dist = d[:, 1:]
+    along = np.einsum("mki,mi->mk", rel, axis)
+    off = along * along < 0.5 * np.maximum(dist * dist, 1e-300)   # more than 45 degrees off the axis
+    across = np.where(off, dist, np.inf).min(axis=1)
+    across = np.where(np.isfinite(across), across, dist[:, -1])
+    return max(mean, float(np.median(across)))
 
 
 def dip_mm(spacing_mm: float, radius_mm: float) -> float:

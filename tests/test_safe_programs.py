@@ -29,13 +29,30 @@ CASES = {
     "slot": (lambda: samples.slot(density_per_mm2=0.5, seed=1), []),
     "post_wall": (lambda: samples.post_wall(density_per_mm2=0.5, seed=2), []),
     "filleted_box": (lambda: samples.filleted_box(density_per_mm2=0.5, seed=3), ["tool.diameter_mm=4"]),
+    # a mesh (issue 18): the upper half of a UV sphere's triangles, planned on points laid on them, the ball
+    # on the triangles
+    "dome_mesh": (lambda: _dome_mesh(), ["normals.method=facets", "input.mesh_sample_mm=1.0",
+                                         "setups.max_setups=3"]),
 }
+
+
+def _dome_mesh():
+    from types import SimpleNamespace
+
+    from mesh_files import sphere_mesh
+
+    v, f = sphere_mesh(n_lat=16, n_lon=32, radius=40.0)
+    keep = (v[f][:, :, 2] >= -1e-9).all(axis=1)
+    used = np.unique(f[keep])
+    remap = np.full(v.shape[0], -1)
+    remap[used] = np.arange(used.size)
+    return SimpleNamespace(points=v[used], normals=None, faces=remap[f[keep]])
 
 
 def _plan(name: str, extra: list[str]):
     make, sets = CASES[name]
     s = make()
-    cloud = Cloud(points=s.points, normals=s.normals, source_format="generated")
+    cloud = Cloud(points=s.points, normals=s.normals, source_format="generated", faces=getattr(s, "faces", None))
     calls: list[tuple[str, float, str]] = []          # the progress the plan reported (issue 17 item 3)
     out = run_plan(cloud, parse_config(apply_overrides({}, sets + extra)), name=name,
                    progress=lambda st, f, m: calls.append((st, f, m)))

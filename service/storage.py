@@ -44,14 +44,14 @@ import uuid
 from pathlib import Path
 from typing import BinaryIO, Iterable
 
+from planning.inputs.cloud import EXTENSIONS
 from planning.report.files import atomic_path
 
 JOB_ID_RE = re.compile(r"^[0-9a-f]{32}$")
 ARTIFACT_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
 #: File name extensions kept from an uploaded file's name (they drive format detection): every extension
-#: the readers know (planning.inputs.cloud.EXTENSIONS: clouds, meshes, LAS/LAZ, E57, images).
-CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz", ".csv", ".txt", ".pts", ".asc", ".xyzn", ".xyzrgb", ".stl", ".obj", ".las",
-                  ".laz", ".e57", ".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+#: the readers know (clouds, meshes, LAS/LAZ, E57, images).
+CLOUD_SUFFIXES = EXTENSIONS
 
 MEDIA_TYPES = {
     ".json": "application/json", ".png": "image/png", ".npz": "application/octet-stream",

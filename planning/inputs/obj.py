@@ -94,8 +94,8 @@ def _statement_block(arr, starts, lengths, which) -> np.ndarray:
     return np.append(body, np.uint8(10))
 
 
-def _row_values(src, block: bytes, line_numbers: np.ndarray, what: str):
-    """All numbers of a block and how many each of its lines holds."""
+def _row_values(src, block: bytes, line_numbers: np.ndarray, what: str, noun: str, items: str, need: str):
+    """All numbers of a block and how many each of its lines holds (at least 3, else ``need`` is said)."""
     values = _fast_numbers(block)
     counts = _tokens_per_line(block)
     if values is None or counts.size != line_numbers.size:
@@ -105,17 +105,18 @@ def _row_values(src, block: bytes, line_numbers: np.ndarray, what: str):
                 raise _obj_error(src, f"line {int(line_numbers[k])} is a {what} line whose values are "
                                       f"not numbers: {line.strip()[:60].decode('latin-1')!r}.")
         raise _obj_error(src, f"a {what} line holds text that is not a number.")
+    short = np.flatnonzero(counts < 3)
+    if short.size:
+        raise _obj_error(src, f"line {int(line_numbers[short[0]])} is a {noun} with "
+                              f"{int(counts[short[0]])} {items}; {need}.")
     return values, counts
 
 
 def _vertices(src, arr, starts, lengths, is_v) -> np.ndarray:
     block = _statement_block(arr, starts, lengths, is_v).tobytes()
     line_numbers = np.flatnonzero(is_v) + 1
-    values, counts = _row_values(src, block, line_numbers, "vertex ('v')")
-    short = np.flatnonzero(counts < 3)
-    if short.size:
-        raise _obj_error(src, f"line {int(line_numbers[short[0]])} is a vertex with "
-                              f"{int(counts[short[0]])} coordinate(s); 'v' needs x y z.")
+    values, counts = _row_values(src, block, line_numbers, "vertex ('v')", "vertex", "coordinate(s)",
+                                 "'v' needs x y z")
     first = np.cumsum(counts) - counts
     return values[first[:, None] + np.arange(3)]
 
@@ -134,11 +135,8 @@ def _first_of_each_reference(block: np.ndarray) -> bytes:
 def _faces(src, arr, starts, lengths, is_v, is_f) -> np.ndarray:
     block = _first_of_each_reference(_statement_block(arr, starts, lengths, is_f))
     line_numbers = np.flatnonzero(is_f) + 1
-    values, sizes = _row_values(src, block, line_numbers, "face ('f')")
-    small = np.flatnonzero(sizes < 3)
-    if small.size:
-        raise _obj_error(src, f"line {int(line_numbers[small[0]])} is a face with "
-                              f"{int(sizes[small[0]])} vertex reference(s); a face needs at least 3.")
+    values, sizes = _row_values(src, block, line_numbers, "face ('f')", "face", "vertex reference(s)",
+                                "a face needs at least 3")
     refs = values.astype(np.int64)
     poly_of_ref = np.repeat(np.arange(sizes.size), sizes)
     if (refs != values).any():

@@ -41,7 +41,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import Request
 
 from planning.errors import ParameterError
-from planning.inputs.cloud import FORMATS
+from planning.inputs.cloud import FORMATS, SUPPORTED
 from planning.inputs.facet_points import planned_point_count
 from planning.inputs.scale import check_part_size
 from schemas.api import InlineCloud
@@ -57,7 +57,6 @@ MULTIPART_FIELDS = {"cloud", "parameters", "name", "format", "time_limit_s", "fi
 # image parts are scans too: an image is read as a relief (input.relief)
 _IMAGE_CLOUD_TYPES = {"image/png", "image/jpeg", "image/pjpeg", "image/bmp", "image/x-bmp", "image/x-ms-bmp",
                       "image/tiff"}
-_SCAN_FORMATS = "PLY, PCD, XYZ/CSV text, STL, OBJ, LAS/LAZ, E57 or a PNG/JPEG/BMP/TIFF image"
 # media types that are certainly not a point cloud (a part sent with one of these is refused)
 _NOT_A_CLOUD_PREFIXES = ("image/", "audio/", "video/", "font/", "multipart/")
 _NOT_A_CLOUD = {"application/pdf", "application/zip", "application/gzip", "application/x-gzip",
@@ -109,7 +108,7 @@ def _check_part_type(part: UploadFile, field_name: str) -> None:
     if ct.startswith(_NOT_A_CLOUD_PREFIXES) or ct in _NOT_A_CLOUD:
         raise ApiError(415, "unsupported_media_type",
                        f"The '{field_name}' part is sent as {ct}, which is not a point cloud. Send the scan file "
-                       f"({_SCAN_FORMATS}) as application/octet-stream.")
+                       f"({SUPPORTED}) as application/octet-stream.")
 
 
 def _parse_parameters(text: str | None) -> PlanConfig:
@@ -528,6 +527,6 @@ async def validate_submission(sub: Submission, settings: Settings, limiter: anyi
             log.exception("reading the submitted %s failed unexpectedly", what)
             raise ApiError(422, "unreadable_file",
                            f"The {what} file could not be read ({type(exc).__name__}); export it again as "
-                           f"{_SCAN_FORMATS}.") from None
+                           f"{SUPPORTED}.") from None
 
     sub.input.update(await anyio.to_thread.run_sync(work, limiter=limiter))

@@ -61,6 +61,7 @@ if TYPE_CHECKING:
 __all__ = [
     "EXTENSIONS",
     "FORMATS",
+    "SUPPORTED",
     "UNIT_SCALE",
     "Cloud",
     "read_cloud",
@@ -94,7 +95,8 @@ _UNSUPPORTED_EXTENSIONS = {
     ".iges": "IGES CAD", ".igs": "IGES CAD", ".ptx": "PTX", ".gif": "GIF image",
     ".webp": "WebP image",
 }
-_SUPPORTED = "PLY, PCD, XYZ/CSV text, STL, OBJ, LAS/LAZ, E57 or a PNG/JPEG/BMP/TIFF relief image"
+#: The formats read, as messages name them.
+SUPPORTED = "PLY, PCD, XYZ/CSV text, STL, OBJ, LAS/LAZ, E57 or a PNG/JPEG/BMP/TIFF relief image"
 
 
 @dataclass(frozen=True)
@@ -300,7 +302,7 @@ def _detect_format(src: _Source, fmt: str | None) -> str:
     ext = src.suffix
     if ext in _UNSUPPORTED_EXTENSIONS:
         what = _UNSUPPORTED_EXTENSIONS[ext]
-        raise InputError(f"{what} files ({ext}) are not supported; export the scan as {_SUPPORTED}.",
+        raise InputError(f"{what} files ({ext}) are not supported; export the scan as {SUPPORTED}.",
                          code="unsupported_format", format=what)
     if ext in _EXTENSION_FORMATS:
         kind = _EXTENSION_FORMATS[ext]

@@ -235,19 +235,12 @@ def read_input(
 
 def _relief(relief):
     """The relief parameters: a ReliefParams as given, a mapping validated into one, None the defaults."""
-    from schemas.params import ReliefParams
+    from schemas.params import ReliefParams, parse_config
 
     if relief is None:
         return ReliefParams()
-    if isinstance(relief, dict):
-        from pydantic import ValidationError
-        try:
-            return ReliefParams(**relief)
-        except ValidationError as exc:
-            first = exc.errors()[0]
-            where = ".".join(str(p) for p in first.get("loc", ()))
-            raise ParameterError(f"input.relief{'.' + where if where else ''}: {first.get('msg', 'invalid')}",
-                                 parameter="input.relief", value=relief) from None
+    if isinstance(relief, dict):                     # checked and described as the configuration is
+        return parse_config({"input": {"relief": relief}}).input.relief
     return relief
 
 

@@ -273,14 +273,19 @@ def _areas_warnings(areas: Areas, nrm: _Normals) -> list[str]:
     return []
 
 
-def _paths(points: np.ndarray, areas: Areas, sel_axes: np.ndarray, tool, gv: GlobalVisibility,
-           config: PlanConfig, progress, carried=None, faces=None) -> list:
-    """Stage 7 (Makki §4; Sood; Popescu; Tchanchane & Bey): roughing and finishing per area and region,
-    on the carried stock when given (issue 16)."""
-    return area_toolpaths(
-        points, areas.input_labels, sel_axes, tool=tool, paths_params=config.paths, fixtures=gv.fixtures,
+def _paths(points: np.ndarray, cloud: Cloud, areas: Areas, sel_axes: np.ndarray, tool, gv: GlobalVisibility,
+           config: PlanConfig, progress, carried=None) -> tuple:
+    """Stage 7 (Makki §4; Sood; Popescu; Tchanchane & Bey): the surface the finishing ball rests on
+    (:func:`planning.toolpath.surface.path_surface`; None without finishing), then roughing and finishing
+    per area and region, on the carried stock when given (issue 16). Returns ``(surface, area paths)``."""
+    pp = config.paths
+    surface = (path_surface(points, radius_mm=tool.radius_mm, mode=pp.surface, faces=cloud.faces,
+                            source_format=cloud.source_format) if pp.finishing.enabled else None)
+    return surface, area_toolpaths(
+        points, areas.input_labels, sel_axes, tool=tool, paths_params=pp, fixtures=gv.fixtures,
         forbidden=gv.forbidden_mm, max_slope_deg=min(float(config.visibility.cone_deg[1]), 87.0),
-        input_regions=areas.input_regions, progress=progress, carried=carried, faces=faces)
+        input_regions=areas.input_regions, progress=progress, carried=carried,
+        faces=None if surface is None else surface.faces)
 
 
 def _carried(points: np.ndarray, areas: Areas, config: PlanConfig, tool, gv: GlobalVisibility, profile,
@@ -555,12 +560,10 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
                             selected) if carry else None)
         if carried is not None:
             order = carried.order
-        surface = (path_surface(points, radius_mm=tool.radius_mm, mode=pp.surface, faces=cloud.faces,
-                                source_format=cloud.source_format) if pp.finishing.enabled else None)
+        surface, area_paths = run.stage("paths", lambda p: _paths(points, cloud, areas, sel_axes, tool, gv, config,
+                                                                  p, carried))
         if surface is not None and surface.warning:
             run.warnings.append(surface.warning)
-        area_paths = run.stage("paths", lambda p: _paths(points, areas, sel_axes, tool, gv, config, p, carried,
-                                                         None if surface is None else surface.faces))
         run.warnings += _paths_warnings(area_paths)
     programs, path_summaries = ({}, {})
     if area_paths:

@@ -660,6 +660,8 @@ class TriangleDropSurface:
     def __init__(self, vertices, faces, radius_mm, *, cell_mm: float | None = None):
         R = _check_radius(radius_mm)
         tab = triangle_table(vertices, faces)
+        #: (T,3) int64, the faces as given: ``contact`` indexes its rows
+        self.faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
         if cell_mm is not None and not (float(cell_mm) > 0 and math.isfinite(float(cell_mm))):
             raise ParameterError(f"cell_mm = {cell_mm}: must be > 0")
         self.R = R

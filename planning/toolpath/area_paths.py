@@ -477,7 +477,7 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
         triangles = TriangleDropSurface(cloud_f, faces, R)
         binned.triangles = triangles
     fin = _region_finishing(cloud_f, region_masks, binned, fp, R, tol, ap.safe_z_mm, max_slope_deg,
-                            progress=finishing_progress, triangles=triangles, faces=faces)
+                            progress=finishing_progress, triangles=triangles)
     sec["finishing"] = time.perf_counter() - t0
     if blocked is not None:
         t0 = time.perf_counter()
@@ -506,13 +506,13 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
 
 
 def _region_finishing(cloud_f, region_masks, binned: BinnedCloud, fp, R: float, tol: float, safe: float,
-                      max_slope_deg: float, progress: Progress | None = None, triangles=None,
-                      faces: np.ndarray | None = None) -> FinishingPath:
+                      max_slope_deg: float, progress: Progress | None = None,
+                      triangles: TriangleDropSurface | None = None) -> FinishingPath:
     """The finishing passes (:func:`planning.toolpath.finishing.finishing_passes`, ``safe`` the
     ball-centre height of retracts and rapids, mm) of each region in ``region_masks`` (bool masks
     over ``cloud_f``), joined by :func:`join_region_paths`. A region on which no pass lies adds
     nothing; when none gets a pass, the first region's error is raised (as for a one-region area)."""
-    surface = DropSurface(cloud_f, R, triangles=triangles, faces=faces)
+    surface = DropSurface(cloud_f, R, triangles=triangles)
     fins, first_error = [], None
     sizes = np.array([np.count_nonzero(m) for m in region_masks], dtype=np.float64)
     done_before = np.concatenate([[0.0], np.cumsum(sizes)]) / max(sizes.sum(), 1.0)

@@ -153,20 +153,14 @@ class DropSurface:
     """The cloud ``points`` (N,3, mm, tool axis +Z) binned once for ball drops of radius
     ``radius_mm``: call :meth:`drop` as often as needed (the raster is built here only).
     ``cell_mm`` (default R/10) sets the raster cell and changes speed only. With ``triangles`` (a
-    :class:`planning.geometry.triangles.TriangleDropSurface` of ``faces``, (T,3) indices into
-    ``points``) the ball rests on the points and the triangles through them: the higher of the two
-    drops (:mod:`planning.toolpath.surface`)."""
+    :class:`planning.geometry.triangles.TriangleDropSurface` whose ``faces`` index ``points``) the
+    ball rests on the points and the triangles through them: the higher of the two drops
+    (:mod:`planning.toolpath.surface`)."""
 
-    def __init__(self, points, radius_mm, *, cell_mm: float | None = None, triangles=None,
-                 faces: np.ndarray | None = None):
+    def __init__(self, points, radius_mm, *, cell_mm: float | None = None, triangles=None):
         points, _, R = _check(points, np.zeros((0, 2)), radius_mm)
-        # triangles through the points (issue 18, planning/toolpath/surface.py): an object with a
-        # ``drop(xy) -> BallDrop`` whose contact is a row of ``faces`` (T,3), indices into ``points``
-        self.triangles, self._faces, self._xy = None, None, None
-        if triangles is not None:
-            if faces is None:
-                raise ParameterError("triangles need the faces they were built from")
-            self.triangles, self._faces, self._xy = triangles, np.asarray(faces, dtype=np.int64), points[:, :2].copy()
+        self.triangles = triangles
+        self._xy = None if triangles is None else points[:, :2].copy()
         h = R / 10.0 if cell_mm is None else float(cell_mm)
         if not h > 0:
             raise ParameterError("cell_mm must be > 0")
@@ -212,7 +206,7 @@ class DropSurface:
         up = np.flatnonzero(t.z_mm > z)
         if up.size == 0:
             return
-        f = self._faces[t.contact[up]]                                   # (u,3) point indices
+        f = self.triangles.faces[t.contact[up]]                          # (u,3) point indices
         d2 = ((self._xy[f] - xy[up, None, :]) ** 2).sum(axis=2)
         z[up] = t.z_mm[up]
         idx[up] = f[np.arange(up.size), np.argmin(d2, axis=1)]

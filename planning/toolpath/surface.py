@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from planning.errors import InputError
+from planning.errors import InputError, ParameterError
 
 #: Sood's criterion: the points carry the ball while their spacing is at most this share of R.
 SPARSE_SHARE_OF_RADIUS = 0.2
@@ -158,7 +158,8 @@ def path_surface(points: np.ndarray, *, radius_mm: float, mode: str = "auto", fa
     plan's points; ``faces`` the file's triangles into them (or None). Raises :class:`InputError` ``cloud_too_sparse`` when ``auto`` needs triangles and
     none can be built."""
     if mode not in SURFACE_MODES:
-        raise InputError(f"paths.surface is {mode!r}; allowed: {', '.join(SURFACE_MODES)}", code="invalid_parameter")
+        raise ParameterError(f"paths.surface is {mode!r}; allowed: {', '.join(SURFACE_MODES)}",
+                             parameter="paths.surface", value=mode, allowed=list(SURFACE_MODES))
     R = float(radius_mm)
     s = point_spacing_mm(points)
     limit = SPARSE_SHARE_OF_RADIUS * R

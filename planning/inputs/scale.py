@@ -21,11 +21,10 @@ from __future__ import annotations
 import numpy as np
 
 from planning.errors import InputError
+from planning.inputs.cloud import UNIT_SCALE
 
 #: Sphere throwing must give normals to at least this share of the points (unless accept_small_part).
 MIN_NORMAL_SHARE = 0.005
-
-_UNIT_TO_MM = {"mm": 1.0, "m": 1000.0, "in": 25.4}
 
 
 def _fmt(v: float) -> str:
@@ -41,9 +40,9 @@ def unit_hints(extent: np.ndarray, units: str, smallest_mm: float, largest_mm: f
     """The other input units under which a part of bounding box ``extent`` (mm, read as ``units``) would
     measure between ``smallest_mm`` and ``largest_mm`` on its largest side, each as a sentence part:
     ``"input.units=m (the part would measure 30 x 20 x 20 mm)"``."""
-    here = _UNIT_TO_MM.get(units, 1.0)
+    here = UNIT_SCALE.get(units, 1.0)
     hints = []
-    for unit, to_mm in sorted(_UNIT_TO_MM.items(), key=lambda kv: kv[1]):
+    for unit, to_mm in sorted(UNIT_SCALE.items(), key=lambda kv: kv[1]):
         factor = to_mm / here
         if unit == units or factor <= 1.0:
             continue

@@ -60,20 +60,14 @@ def facet_normals(vertices, faces) -> np.ndarray:
 
 def vertex_normals(vertices, faces) -> np.ndarray:
     """(V,3) unit vertex normals: the normalised mean of the unit normals of the facets incident to
-    each vertex (Chui et al. 2008 eq. 8, unweighted); NaN for vertices on no facet of non-zero area.
-    A facet that names a vertex twice counts once for it."""
+    each vertex (Chui et al. 2008 eq. 8, unweighted); NaN for vertices on no facet of non-zero area
+    (a facet that names a vertex twice has zero area, so it counts for none)."""
     V, F = _mesh(vertices, faces)
     fn = facet_normals(V, F)
     ok = np.all(np.isfinite(fn), axis=1)
     F, fn = F[ok], fn[ok]
-    # one incidence per (facet, vertex): a facet listing a vertex twice has zero area, but keep
-    # the rule explicit
-    inc = np.stack([F[:, 0], F[:, 1], F[:, 2]], 1)
-    first = np.ones_like(inc, dtype=bool)
-    first[:, 1] = inc[:, 1] != inc[:, 0]
-    first[:, 2] = (inc[:, 2] != inc[:, 0]) & (inc[:, 2] != inc[:, 1])
-    vi = inc[first]
-    nr = np.repeat(fn[:, None, :], 3, axis=1)[first]
+    vi = F.ravel()                                   # one incidence per (facet, corner)
+    nr = np.repeat(fn, 3, axis=0)
     s = np.zeros((V.shape[0], 3))
     np.add.at(s, vi, nr)
     q = np.bincount(vi, minlength=V.shape[0]).astype(np.float64)

@@ -8,13 +8,13 @@ import json
 
 import numpy as np
 import pytest
-from mesh_files import cube_mesh, image_bytes, las_bytes, obj_text, stl_binary
+from mesh_files import cube_mesh, image_bytes, las_bytes, stl_binary
 
 from scanmill.cli import EXIT_ERROR, EXIT_OK, main
 
 BROKEN = {
     "short.stl": lambda: stl_binary(*cube_mesh())[:-20],                       # 12 triangles claimed, fewer there
-    "bad.obj": lambda: obj_text(*cube_mesh())[:0] + b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
+    "bad.obj": lambda: b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",          # vertex 9 does not exist
     "cut.las": lambda: las_bytes(np.random.default_rng(0).uniform(0, 50, (500, 3)))[:400],
     "junk.e57": lambda: b"ASTM-E57" + b"\0" * 200,
     "notanimage.png": lambda: b"\x89PNG\r\n\x1a\n" + b"garbage" * 10,
@@ -29,7 +29,7 @@ def test_damaged_files_exit_2_with_a_code_and_write_nothing(tmp_path, capsys, na
     assert main(["plan", str(src), "--out", str(out), "--quiet"]) == EXIT_ERROR
     err = capsys.readouterr().err
     assert "error [" in err and any(c in err for c in ("truncated_file", "unreadable_file", "invalid_input"))
-    assert name.split(".")[0] in err or src.name in err or "file" in err
+    assert src.name in err                          # the message names the file
     assert not out.exists() or not any(out.iterdir())
 
 

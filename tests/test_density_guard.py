@@ -115,7 +115,7 @@ def test_auto_chooses_triangles_on_a_sparse_cloud_and_points_on_a_dense_one():
     s = path_surface(pts, radius_mm=R)
     assert s.kind == "reconstructed" and s.faces.shape[0] > pts.shape[0]        # ~2 triangles per point
     assert s.spacing_mm > 0.2 * R and s.unmeshed_share < 0.02
-    assert "1.5" in s.reason or "exceeds" in s.reason
+    assert "exceeds" in s.reason and f"{s.spacing_mm:.3f} mm" in s.reason
     dense = path_surface(pts, radius_mm=10.0)                    # 1.5 mm < 20 % of R 10
     assert dense.kind == "points" and dense.faces is None
     forced = path_surface(pts, radius_mm=R, mode="points")

@@ -212,9 +212,8 @@ def _ply_binary(data: bytes, body_start: int, elements, vertex: _PlyElement, fac
         dtype = e.dtype(endian) if not e.has_lists else _uniform_list_dtype(data, offset, e, endian)
         if dtype is not None:
             if e is face:
-                lists = np.frombuffer(data, dtype=dtype, count=e.count, offset=offset)[face_list]
-                faces = _polygons(lists.reshape(-1), np.full(e.count, lists.shape[1] if lists.ndim == 2
-                                                             else 0))
+                faces = _uniform_polygons(np.frombuffer(data, dtype=dtype, count=e.count,
+                                                        offset=offset)[face_list])
             offset += e.count * dtype.itemsize
             continue
         from planning.inputs.ply_lists import walk_list_element
@@ -269,6 +268,11 @@ def _polygons(indices: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     if values.dtype.kind == "f" and not np.array_equal(values, np.round(values)):
         raise _ply_error("a face refers to a vertex index that is not a whole number.")
     return _fan_triangles(values.astype(np.int64), sizes)
+
+
+def _uniform_polygons(lists: np.ndarray) -> np.ndarray:
+    """Faces from an ``(F, n)`` array of vertex index lists all of one length ``n``."""
+    return _polygons(lists.reshape(-1), np.full(lists.shape[0], lists.shape[1] if lists.ndim == 2 else 0))
 
 
 def _ply_ascii_faces(data: bytes, body_start: int, face: _PlyElement, face_list: str,
@@ -335,8 +339,7 @@ def _ply_plyfile(data: bytes, face_list: str | None):
         if lists.dtype == object:
             sizes = np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
             items = np.concatenate(lists) if len(lists) else np.zeros(0, dtype=np.int64)
+            faces = _polygons(items, sizes)
         else:
-            sizes = np.full(lists.shape[0], lists.shape[1] if lists.ndim == 2 else 0)
-            items = lists.reshape(-1)
-        faces = _polygons(items, sizes)
+            faces = _uniform_polygons(lists)
     return np.asarray(table[scalar]), faces

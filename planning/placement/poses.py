@@ -69,6 +69,7 @@ __all__ = [
     "apply_pose",
     "candidate_poses",
     "hull_centroid",
+    "max_candidates",
     "principal_poses",
     "stable_faces",
     "stable_poses",
@@ -145,7 +146,7 @@ def _hull(points: np.ndarray):
 
 
 def _hull_parts(hull):
-    """(vertices (V,3) of the facets, facet vertex ids (F,3), unit outward normals (F,3), areas (F,))."""
+    """(facet triangles (F,3,3), unit outward normals (F,3), areas (F,))."""
     tri = hull.points[hull.simplices]                                   # (F,3,3)
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     area = 0.5 * np.linalg.norm(cross, axis=1)
@@ -287,9 +288,15 @@ def _principal_axes(cov: np.ndarray) -> np.ndarray:
     return np.array([_sign_fixed(v[:, i]) for i in idx])
 
 
-def _rotation_up(up: np.ndarray, cov: np.ndarray, yaw_deg: float = 0.0) -> np.ndarray:
+def _rz(yaw_deg: float) -> np.ndarray:
+    """The turn by ``yaw_deg`` about +Z (3,3)."""
+    a = math.radians(yaw_deg)
+    return np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rotation_up(up: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """The rotation that turns ``up`` (scanned frame) to +Z and the longest horizontal principal
-    direction of the turned points (covariance ``cov``) to +X (then ``yaw_deg`` about +Z)."""
+    direction of the turned points (covariance ``cov``) to +X."""
     up = up / np.linalg.norm(up)
     P = np.eye(3) - np.outer(up, up)
     w, v = np.linalg.eigh(P @ cov @ P)
@@ -301,12 +308,7 @@ def _rotation_up(up: np.ndarray, cov: np.ndarray, yaw_deg: float = 0.0) -> np.nd
         x = np.cross(up, e)
     x = _sign_fixed(x / np.linalg.norm(x))
     y = np.cross(up, x)
-    R = np.array([x, y, up])
-    if yaw_deg:
-        a = math.radians(yaw_deg)
-        Rz = np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
-        R = Rz @ R
-    return R
+    return np.array([x, y, up])
 
 
 def _standing_translation(points: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, float]:
@@ -330,11 +332,11 @@ def apply_pose(points, pose: Pose) -> np.ndarray:
     return out
 
 
-def _pose(kind, label, up, cov, extent_pts, stability, yaw) -> Pose:
-    R = _rotation_up(up, cov, yaw)
+def _pose(kind, label, up, cov, extent_pts, stability) -> Pose:
+    R = _rotation_up(up, cov)
     t, h = _standing_translation(extent_pts, R)
     return Pose(kind=kind, label=label, rotation=R, translation_mm=t, up=R[2].copy(), stability_deg=stability,
-                yaw_deg=float(yaw), part_height_mm=h)
+                yaw_deg=0.0, part_height_mm=h)
 
 
 def _extent_points(p: np.ndarray, hull) -> np.ndarray:
@@ -350,7 +352,7 @@ def stable_poses(points, *, max_poses: int = MAX_HULL_POSES, merge_deg: float = 
     ext = _extent_points(p, hull)
     cov = _covariance(p) if cov is None else cov
     return [_pose("hull_face", f"resting on hull face {i} (tipping angle {f.stability_deg:.1f} deg)", -f.normal, cov,
-                  ext, f.stability_deg, 0.0)
+                  ext, f.stability_deg)
             for i, f in enumerate(stable_faces(p, merge_deg=merge_deg, hull=hull)[:max_poses])]
 
 
@@ -362,7 +364,7 @@ def principal_poses(points, *, hull=None, cov=None) -> list[Pose]:
     out = []
     for i, a in enumerate(_principal_axes(cov)):
         for s, word in ((1.0, "up"), (-1.0, "down")):
-            out.append(_pose("principal_axis", f"principal axis {i + 1} {word}", s * a, cov, ext, None, 0.0))
+            out.append(_pose("principal_axis", f"principal axis {i + 1} {word}", s * a, cov, ext, None))
     return out
 
 
@@ -373,12 +375,17 @@ def _identity(points: np.ndarray) -> Pose:
 
 
 def _yawed(pose: Pose, yaw: float, points: np.ndarray) -> Pose:
-    a = math.radians(yaw)
-    Rz = np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
-    R = Rz @ pose.rotation
+    R = _rz(yaw) @ pose.rotation
     t, h = _standing_translation(points, R)
     return Pose(kind=pose.kind, label=f"{pose.label}, turned {yaw:g} deg about the vertical", rotation=R,
                 translation_mm=t, up=pose.up, stability_deg=pose.stability_deg, yaw_deg=float(yaw), part_height_mm=h)
+
+
+def max_candidates(full_yaw: bool) -> int:
+    """The most poses :func:`candidate_poses` lists after the as-scanned one: :data:`MAX_HULL_POSES` hull
+    faces and the six principal-axis poses, times :data:`YAWS_DEG` where the C axis is limited (a bound
+    known before any hull is computed)."""
+    return (MAX_HULL_POSES + 6) * (1 if full_yaw else len(YAWS_DEG))
 
 
 def candidate_poses(points, *, full_yaw: bool = True, max_hull_poses: int = MAX_HULL_POSES,

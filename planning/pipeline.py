@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -28,9 +28,7 @@ from planning.orientations import (
     load_profile,
     machine_visibility,
 )
-from planning.placement import apply_pose, full_yaw, search_placement, search_work, turn
-from planning.placement.poses import MAX_HULL_POSES, YAWS_DEG
-from planning.placement.search import SCREENING
+from planning.placement.stage import place, placement_hint, placement_result
 from planning.post.programs import post_areas
 from planning.setups import SetupSelection, select_setups, zone_mask
 from planning.simulate.models import load_blank
@@ -46,8 +44,6 @@ from schemas.plan import (
     NormalsSummary,
     OrientationsSummary,
     PathsSurface,
-    PlacementCandidate,
-    PlacementSummary,
     PlanResult,
     Selection,
     Setup,
@@ -407,107 +403,6 @@ def _plan_arrays(nrm: _Normals, ori: _Orientations, vis: np.ndarray, selected: n
     return arrays
 
 
-@dataclass(frozen=True)
-class _Placed:
-    """How the part sits on the table (``fixtures.placement``, planning/placement/): the cloud and
-    normals the plan runs on (placed), the scanned points (the frame of the functional zones), the
-    ``plan.json`` block, the winner's exact visibility for the visibility stage to reuse, and the
-    sentence an infeasible as-scanned plan adds to its message."""
-
-    cloud: Cloud
-    normals: _Normals
-    scanned_points: np.ndarray
-    summary: PlacementSummary
-    visibility: tuple | None = None
-    hint: str = ""
-
-
-def _placement_summary(mode: str, search=None, pose=None) -> PlacementSummary:
-    """plan.json ``placement``: the rigid motion applied (the identity unless ``pose``) and the candidates tried."""
-    R = np.eye(3) if pose is None else pose.rotation
-    t = np.zeros(3) if pose is None else pose.translation_mm
-    rows = [PlacementCandidate(
-        index=c.index, kind=c.pose.kind, label=c.pose.label, up=tuple(map(float, c.pose.up)), yaw_deg=c.pose.yaw_deg,
-        stability_deg=None if c.pose.stability_deg is None else round(c.pose.stability_deg, 3),
-        part_height_mm=round(c.pose.part_height_mm, 3), stage=c.stage, feasible=c.feasible, k=c.k, overlap=c.overlap,
-        coverage=c.coverage, coverage_bound=c.coverage_bound, seconds=round(c.seconds, 4))
-        for c in (search.tried if search is not None else [])]
-    return PlacementSummary(
-        mode=mode, kind="as_scanned" if pose is None else pose.kind,
-        candidate=None if search is None or search.winner is None else search.winner.index,
-        label="as scanned" if pose is None else pose.label,
-        rotation=tuple(tuple(float(x) for x in r) for r in R), translation_mm=tuple(float(x) for x in t),
-        n_candidates=len(rows), candidates=rows, screening=SCREENING if search is not None else "",
-        seconds=round(search.seconds, 4) if search is not None else 0.0,
-        message="" if search is None else search.message)
-
-
-def _placement(run: _Run, cloud: Cloud, nrm: _Normals, config: PlanConfig, profile, tool, base_dir) -> _Placed:
-    """``fixtures.placement``: "as_scanned" plans the scan as it lies; "auto" searches the candidate
-    placements (:func:`planning.placement.search_placement`, the timed stage "placement") and plans the
-    winner: the cloud, its file normals and the sampled normals turned (exact: planning/placement/search.py),
-    the winner's visibility handed on. No winner: planned as scanned, with a warning."""
-    if config.fixtures.placement != "auto":
-        return _Placed(cloud, nrm, cloud.points, _placement_summary("as_scanned"))
-    zmask, _ = zone_mask(cloud.points, nrm.sample_index, config.setups.functional_zones)
-    res = run.stage("placement", lambda p: search_placement(
-        cloud.points, nrm.sample_index, nrm.normals, config, profile, tool, zone_mask=zmask, base_dir=base_dir,
-        progress=p))
-    if res.winner is None:
-        run.warnings.append(f"fixtures.placement auto: {res.message}; the part is planned as scanned")
-        return _Placed(cloud, nrm, cloud.points, _placement_summary("auto", res),
-                       hint=f"; fixtures.placement auto: {res.message}")
-    pose = res.winner.pose
-    R = pose.rotation
-    placed = replace(cloud, points=apply_pose(cloud.points, pose),
-                     normals=None if cloud.normals is None else turn(cloud.normals, R))
-    return _Placed(placed, _Normals(nrm.sample_index, turn(nrm.normals, R), nrm.summary), cloud.points,
-                   _placement_summary("auto", res, pose), visibility=res.visibility)
-
-
-#: The as-scanned hint searches the other placements only when its collision tests rasterise at most
-#: this many (point, axis) pairs (:func:`planning.placement.search_work`: about 5-10 s here); beyond it the
-#: message only suggests fixtures.placement = auto. A count, not a clock: the same plan, the same message.
-HINT_MAX_WORK = 5e7
-
-
-def _placement_hint(run: _Run, placed: _Placed, sel: SetupSelection, ori: _Orientations, config: PlanConfig, profile,
-                    tool, base_dir, zmask: np.ndarray) -> _Placed:
-    """An as-scanned plan proven infeasible: would another placement reach the coverage? Searched
-    (stage "placement", the as-scanned pose left out) when it is cheap (:data:`HINT_MAX_WORK`) and the
-    infeasibility was proven within the time limit; the answer is added to the plan's message."""
-    if config.fixtures.placement == "auto" or sel.status != "infeasible":
-        return placed
-    nrm = placed.normals
-    most = (MAX_HULL_POSES + 6) * (1 if full_yaw(profile) else len(YAWS_DEG))       # candidates but as scanned
-    work = search_work(placed.scanned_points.shape[0], nrm.sample_index.size, ori.axes.shape[0], most,
-                       config.visibility.obstacles)
-    if "time limit" in sel.message or work > HINT_MAX_WORK:
-        hint = "; try fixtures.placement = auto to search other placements of the part"
-        run.warnings.append(hint[2:])
-        return replace(placed, hint=hint)
-    res = run.stage("placement", lambda p: search_placement(
-        placed.scanned_points, nrm.sample_index, nrm.normals, config, profile, tool, zone_mask=zmask,
-        base_dir=base_dir, skip_identity=True, progress=p))
-    if res.winner is not None:
-        w = res.winner
-        hint = (f"; fixtures.placement = auto reaches it with the part {w.pose.describe()}: {w.k} set-up"
-                f"{'s' if w.k != 1 else ''} cover {w.coverage * 100:.1f} %")
-    else:
-        hint = f"; fixtures.placement = auto would not help: {res.message}"
-    run.warnings.append(hint[2:])
-    return replace(placed, summary=_placement_summary("as_scanned", res), hint=hint)
-
-
-def _placement_result(result: PlanResult, placed: _Placed) -> None:
-    """plan.json ``placement``, the hint in the message, and ``placed.ply`` with "auto"."""
-    result.placement = placed.summary
-    if placed.hint:
-        result.message += placed.hint
-    if placed.summary.mode == "auto":
-        result.artifacts.placed_ply = "placed.ply"
-
-
 def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
              progress: Progress | None = None, base_dir=None) -> PlanOutcome:
     """Plan the 3+2 machining of ``cloud`` (points in mm) with ``config`` (Makki 2010 §2-3).
@@ -532,7 +427,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
 
     nrm = run.stage("normals", lambda p: _normals(cloud, config, p, facets))
     run.warnings += _normals_warnings(nrm)
-    placed = _placement(run, cloud, nrm, config, profile, tool, base_dir)     # fixtures.placement
+    placed = place(run, cloud, nrm, config, profile, tool, base_dir)     # fixtures.placement
     cloud, points, nrm = placed.cloud, placed.cloud.points, placed.normals
     ori = run.stage("orientations", lambda p: _orientations(config, profile))
     cone, gv = run.stage("visibility", lambda p: placed.visibility or _visibility(points, nrm, ori, config, tool, profile,
@@ -543,7 +438,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     run.warnings += zone_warnings
     sel = run.stage("setups", lambda p: _setups(vis, zmask, config, p))
     run.warnings += _setups_warnings(sel, vis.summary, config)
-    placed = _placement_hint(run, placed, sel, ori, config, profile, tool, base_dir, zmask)
+    placed = placement_hint(run, placed, sel, ori, config, profile, tool, base_dir, zmask)
     selected = np.asarray(sel.selected, dtype=np.int64)
     sel_axes = ori.axes[selected]
     areas = run.stage("areas", lambda p: assign_areas(points, nrm.sample_index, nrm.normals, gv.visible,
@@ -585,7 +480,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
         result.input.facet_spacing_mm = round(float(facets.spacing_mm), 6)
     elif cloud.faces is not None:
         result.input.n_faces = int(cloud.faces.shape[0])
-    _placement_result(result, placed)
+    placement_result(result, placed)
     result.machining_order = order
     result.unmachined = _unmachined(area_paths, points.shape[0])
     if result.unmachined is not None and result.unmachined.n_points:

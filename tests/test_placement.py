@@ -283,9 +283,9 @@ def test_a_feasible_as_scanned_plan_searches_nothing():
 
 
 def test_a_costly_search_is_only_suggested(upside_down_slot, monkeypatch):
-    import planning.pipeline as pl
+    from planning.placement import stage
 
-    monkeypatch.setattr(pl, "HINT_MAX_WORK", 0.0)
+    monkeypatch.setattr(stage, "HINT_MAX_WORK", 0.0)
     r = run_plan(upside_down_slot, _config(), name="slot_upside_down").result
     assert r.status == "infeasible" and r.message.endswith("try fixtures.placement = auto to search other "
                                                            "placements of the part")

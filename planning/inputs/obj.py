@@ -25,6 +25,7 @@ from planning.errors import InputError
 from planning.inputs.mesh import _fan_triangles
 from planning.inputs.rows import _fast_numbers, _tokens_per_line
 from planning.inputs.source import _check_count, _Source
+from planning.inputs.text import _has_binary_bytes
 
 _STATEMENTS = {b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p", b"o", b"g", b"s", b"mtllib", b"usemtl",
                b"cstype", b"deg", b"curv", b"surf", b"mg", b"usemap", b"maplib", b"shadow_obj",
@@ -51,8 +52,7 @@ def _looks_like_obj(head: bytes) -> bool:
 
 def _read_obj(src: _Source, max_points: int):
     data = src.data()
-    sample = np.frombuffer(data[:65536], dtype=np.uint8)
-    if ((sample < 32) & ~_SPACE[sample]).any():
+    if _has_binary_bytes(data):
         raise _obj_error(src, "it contains binary bytes; an OBJ file is text. The file is damaged or "
                               "not an OBJ mesh.")
     text = data

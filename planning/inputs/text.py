@@ -52,10 +52,14 @@ def _read_text(src: _Source, max_points: int, want_normals: bool):
     return np.ascontiguousarray(values[:, :3]), normals, label
 
 
-def _reject_binary(data: bytes) -> None:
+def _has_binary_bytes(data: bytes) -> bool:
+    """True if the first 64 KiB hold a control byte other than tab, line feed, VT, FF or CR."""
     sample = np.frombuffer(data[:65536], dtype=np.uint8)
-    control = (sample < 32) & ~np.isin(sample, (9, 10, 11, 12, 13))
-    if control.any():
+    return bool(((sample < 32) & ~np.isin(sample, (9, 10, 11, 12, 13))).any())
+
+
+def _reject_binary(data: bytes) -> None:
+    if _has_binary_bytes(data):
         raise InputError("The file is in no format that is read here (it is not text and has no "
                          "known signature); it is damaged or in an unsupported format. Export the "
                          "scan as PLY, PCD, XYZ/CSV text, STL, OBJ, LAS/LAZ or E57.",

@@ -49,7 +49,7 @@ def main(argv=None) -> None:
     from planning.inputs import Cloud
     from planning.inputs.samples import femur_like
     from planning.orientations import load_profile
-    from planning.placement import search_placement
+    from planning.placement import candidate_poses, full_yaw, search_placement
     from schemas.params import parse_config
 
     print(f"before: {load()} on {os.cpu_count()} cores", flush=True)
@@ -72,8 +72,11 @@ def main(argv=None) -> None:
     def progress(fraction, message=""):
         print(f"  [{time.perf_counter() - t1:6.1f} s] {fraction:4.2f} {message}", flush=True)
 
-    res = search_placement(cloud.points, nrm.sample_index, nrm.normals, cfg, profile, tool, progress=progress)
-    t_search = time.perf_counter() - t1
+    poses = candidate_poses(cloud.points, full_yaw=full_yaw(profile))      # what search_placement lists itself
+    print(f"poses: {len(poses)} candidates (hull, covariance) in {time.perf_counter() - t1:.2f} s", flush=True)
+    res = search_placement(cloud.points, nrm.sample_index, nrm.normals, cfg, profile, tool, poses=poses,
+                           progress=progress)
+    t_search = time.perf_counter() - t1                                     # the poses included
 
     print(f"\n{len(res.tried)} candidates, coverage {a.coverage:g} with at most {a.max_setups} set-ups "
           f"({res.required:,} of {res.n_sampled:,} sampled points):")

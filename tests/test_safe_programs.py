@@ -174,9 +174,9 @@ def test_rest_roughing_cuts_less_air_than_roughing_every_set_up_from_the_box():
 def test_default_plans_of_the_reference_cases_verify_clean(name):
     make, sets = CASES[name]
     full = {"slot": samples.slot, "post_wall": samples.post_wall, "filleted_box": samples.filleted_box,
-            "half_sphere": samples.half_sphere}[name]
+            "half_sphere": samples.half_sphere, "dome_mesh": _dome_mesh}[name]
     s = full()
-    cloud = Cloud(points=s.points, normals=s.normals, source_format="generated")
+    cloud = Cloud(points=s.points, normals=s.normals, source_format="generated", faces=getattr(s, "faces", None))
     outcome = run_plan(cloud, parse_config(apply_overrides({}, sets)), name=name)
     _assert_clean(outcome, name)
     json.dumps(outcome.result.model_dump(mode="json"))

@@ -134,7 +134,10 @@ def cmd_plan(args) -> int:
     progress("write", 1.0, "done")
     r = outcome.result
     print(r.message)
-    print(f"sampled points {r.normals.n_sampled} of {r.input.n_points}; candidate axes "
+    planned = r.input.n_points_planned or r.input.n_points     # a mesh is planned on points laid on its facets
+    mesh = (f" ({r.input.n_points} vertices, {r.input.n_faces} triangles, points laid "
+            f"{r.input.facet_spacing_mm:g} mm apart)" if r.input.n_points_planned else "")
+    print(f"sampled points {r.normals.n_sampled} of {planned}{mesh}; candidate axes "
           f"{r.orientations.n_machine_feasible} within machine travel; coverage {r.coverage:.1%}; "
           f"overlap {r.overlap_points} points; integrated {r.n_integrated}")
     if r.areas is not None:

@@ -234,11 +234,24 @@ def _visibility_warnings(vis: _Visibility) -> list[str]:
     return []
 
 
-def _setups(vis: _Visibility, zmask: np.ndarray, config: PlanConfig, progress) -> SetupSelection:
-    """Stage 5 (Makki §3.1): the fewest axes covering ``setups.coverage`` with the least overlap, exactly."""
+def _finishing_visibility(gv: GlobalVisibility, ori: _Orientations, nrm: _Normals, config: PlanConfig) -> np.ndarray:
+    """(n, m) which set-up axis can finish which sample: the visibility matrix in 3+2; in 5-axis
+    finishing (``paths.finishing.mode``), the points some candidate axis within the swing sees
+    (:func:`planning.visibility.five_axis.five_axis_visibility`)."""
+    fp = config.paths.finishing
+    if fp.mode != "5axis":
+        return gv.visible
+    from planning.visibility.five_axis import five_axis_visibility
+
+    return five_axis_visibility(gv.visible, ori.axes, nrm.normals, fp.max_swing_deg)
+
+
+def _setups(visible: np.ndarray, zmask: np.ndarray, config: PlanConfig, progress) -> SetupSelection:
+    """Stage 5 (Makki §3.1): the fewest axes covering ``setups.coverage`` with the least overlap, exactly,
+    over ``visible`` (:func:`_finishing_visibility`)."""
     s = config.setups
     return select_setups(
-        vis.chain.visible, coverage=s.coverage, max_setups=s.max_setups, min_points=s.min_points,
+        visible, coverage=s.coverage, max_setups=s.max_setups, min_points=s.min_points,
         zone_mask=zmask if zmask.any() else None, solver=s.solver, time_limit_s=s.time_limit_s,
         progress=progress)
 
@@ -281,11 +294,11 @@ def _paths(points: np.ndarray, cloud: Cloud, areas: Areas, sel_axes: np.ndarray,
         points, areas.input_labels, sel_axes, tool=tool, paths_params=pp, fixtures=gv.fixtures,
         forbidden=gv.forbidden_mm, max_slope_deg=min(float(config.visibility.cone_deg[1]), 87.0),
         input_regions=areas.input_regions, progress=progress, carried=carried,
-        faces=None if surface is None else surface.faces)
+        faces=None if surface is None else surface.faces, cone_deg=tuple(config.visibility.cone_deg))
 
 
 def _carried(points: np.ndarray, areas: Areas, config: PlanConfig, tool, gv: GlobalVisibility, profile,
-             rotary_deg: np.ndarray, blank, normals: np.ndarray, selected: np.ndarray):
+             rotary_deg: np.ndarray, blank, normals: np.ndarray, selected: np.ndarray, visible: np.ndarray):
     """The stock carried through the set-ups (issue 16 item 1): the same stock, obstacles and tools
     as the verification (:mod:`planning.simulate.models`), the set-ups on the machine for the travel,
     and the machining order."""
@@ -308,7 +321,7 @@ def _carried(points: np.ndarray, areas: Areas, config: PlanConfig, tool, gv: Glo
                         rapid_clearance_mm=config.simulate.rapid_clearance_mm + config.paths.guard_rapid_clearance_mm,
                         resolution_mm=config.simulate.resolution_mm,
                         footprint=footprint(points), normals=normals,
-                        visible=gv.visible[:, selected][areas.nearest_sample])
+                        visible=visible[:, selected][areas.nearest_sample])
 
 
 def _unmachined(area_paths, n_points: int):
@@ -436,13 +449,16 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     run.warnings += _visibility_warnings(vis)
     zmask, zone_warnings = zone_mask(placed.scanned_points, nrm.sample_index, config.setups.functional_zones)
     run.warnings += zone_warnings
-    sel = run.stage("setups", lambda p: _setups(vis, zmask, config, p))
+    finish_vis = _finishing_visibility(gv, ori, nrm, config)
+    sel = run.stage("setups", lambda p: _setups(finish_vis, zmask, config, p))
     run.warnings += _setups_warnings(sel, vis.summary, config)
     placed = placement_hint(run, placed, sel, ori, config, profile, tool, base_dir, zmask)
     selected = np.asarray(sel.selected, dtype=np.int64)
     sel_axes = ori.axes[selected]
-    areas = run.stage("areas", lambda p: assign_areas(points, nrm.sample_index, nrm.normals, gv.visible,
-                                                      selected, sel_axes, config.visibility.cone_deg,
+    label_cone = (config.visibility.cone_deg if config.paths.finishing.mode != "5axis"
+                  else (0.0, config.paths.finishing.max_swing_deg))
+    areas = run.stage("areas", lambda p: assign_areas(points, nrm.sample_index, nrm.normals, finish_vis,
+                                                      selected, sel_axes, label_cone,
                                                       config.areas, progress=p))
     run.warnings += _areas_warnings(areas, nrm)
     area_paths = []
@@ -452,7 +468,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     if (pp.finishing.enabled or pp.roughing.enabled) and selected.size:
         normals = cloud.normals if cloud.normals is not None else nrm.normals[areas.nearest_sample]
         carried = (_carried(points, areas, config, tool, gv, profile, ori.angles_deg[selected], blank, normals,
-                            selected) if carry else None)
+                            selected, finish_vis) if carry else None)
         if carried is not None:
             order = carried.order
         surface, area_paths = run.stage("paths", lambda p: _paths(points, cloud, areas, sel_axes, tool, gv, config,

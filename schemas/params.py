@@ -453,6 +453,35 @@ class FinishingParams(_Strict):
     lead_mm: float = Field(
         1.0, ge=0, le=50, description="Length of the 45-degree lead-in and lead-out ramps, mm (vertical where a ramp "
                                       "would gouge; 0 = plunge straight down).")
+    mode: Literal["3+2", "5axis"] = Field(
+        "3+2", description="'3+2': every area at its set-up's fixed tool axis (Makki); '5axis': simultaneous 5-axis "
+                           "finishing (Chui 2008): the passes are laid on the area as in 3+2 (the set-up axis is "
+                           "the direction the ball drops along), and every position gets its own tool axis from its "
+                           "contact normal with lead_deg and tilt_deg, kept in visibility.cone_deg, within "
+                           "max_swing_deg of the set-up axis, under max_axis_rate_deg_per_mm, with the tool and "
+                           "holder clear of the cloud and the rotary and linear travel (positions with no such axis "
+                           "are cut out and reported). Roughing stays 3+2.")
+    area_modes: dict[int, Literal["3+2", "5axis"]] = Field(
+        default_factory=dict, description="Per set-up id (plan.json setups[].id): its finishing mode, overriding mode.")
+    lead_deg: float = Field(
+        0.0, ge=-45, le=45, description="5axis: lead angle, degrees: the axis leans along the feed direction (positive: "
+                                        "the spindle ahead of the contact), after the tilt (Chui eq. 12 frame).")
+    tilt_deg: float = Field(
+        15.0, ge=-60, le=60, description="5axis: tilt angle from the reference normal about the feed direction, "
+                                         "degrees (Chui 2008 eq. 12; about 15 keeps the tip, whose cutting speed is "
+                                         "zero, off the surface); the cone then clamps it.")
+    axis_frame: Literal["frenet", "surface"] = Field(
+        "frenet", description="5axis: the reference normal of the tilt: 'frenet' the outward principal normal of the "
+                              "ball-centre path (Chui eq. 9-12; the surface normal where the path is straight or curves "
+                              "sideways), 'surface' the contact normal projected normal to the feed (Darboux frame).")
+    max_axis_rate_deg_per_mm: float = Field(
+        10.0, gt=0, le=180, description="5axis: the tool axis turns at most this much per mm of ball-centre path, degrees; "
+                                        "where the surface turns faster than the cone allows to follow, the pass is "
+                                        "broken (the tool leaves, turns in air and comes back).")
+    max_swing_deg: float = Field(
+        75.0, gt=0, lt=90, description="5axis: largest angle between a position's tool axis and its set-up's axis, "
+                                       "degrees (retracts run along the set-up axis to the safe height, so the tool "
+                                       "must lean less than 90 degrees from it).")
 
 
 class RoughingParams(_Strict):

@@ -333,10 +333,11 @@ def test_post_wall_rejects_a_wall_off_the_plate():
 
 
 def test_make_sample_by_name():
-    assert set(SAMPLES) == {"half_sphere", "femur_like", "slot", "post_wall", "filleted_box"}
+    assert set(SAMPLES) == {"half_sphere", "femur_like", "slot", "post_wall", "filleted_box", "draft_slot"}
     assert np.array_equal(make_sample("half_sphere").points, half_sphere().points)
     assert make_sample("slot", n_points=2000, seed=1).name == "slot"
     assert make_sample("post_wall", n_points=2000).points.shape[0] == pytest.approx(2000, rel=0.03)
+    assert make_sample("draft_slot", n_points=3000).points.shape[0] == pytest.approx(3000, rel=0.03)
 
 
 def test_make_sample_rejects_unknown_names_and_arguments():
@@ -353,3 +354,21 @@ def test_samples_are_frozen():
     s = half_sphere()
     with pytest.raises(AttributeError):
         s.name = "x"
+
+
+def test_the_draft_slot_s_walls_lean_out_at_the_angle_asked_and_the_normals_are_exact():
+    from planning.inputs.samples import draft_slot
+
+    s = draft_slot(density_per_mm2=2.0, seed=4, wall_deg=70.0)
+    lab = s.meta["labels"]
+    wall = lab == s.meta["label_names"].index("slot_wall")
+    p, n = s.points[wall], s.normals[wall]
+    # every wall point lies on its plane: through the floor edge, leaning out at 70 degrees
+    a = np.radians(70.0)
+    left = p[:, 0] < 0
+    x_edge = 0.5 * s.meta["floor_width_mm"] + (p[:, 2] - s.meta["floor_z_mm"]) / np.tan(a)
+    assert np.allclose(np.abs(p[:, 0]), x_edge, atol=1e-9)
+    assert np.allclose(n[left], [np.sin(a), 0, np.cos(a)]) and np.allclose(n[~left], [-np.sin(a), 0, np.cos(a)])
+    assert s.points[:, 2].min() >= 0 and s.points[:, 2].max() <= 30.0 + 1e-9
+    top_only = draft_slot(density_per_mm2=2.0, seed=4, include_sides=False)
+    assert "side" not in {top_only.meta["label_names"][k] for k in np.unique(top_only.meta["labels"])}

@@ -90,6 +90,8 @@ class AreaPaths:
     allowance_left: dict | None = None
     handed_in: int = 0                         # points other set-ups left that this one finished
     unmachined: np.ndarray | None = None       # input point indices of the area no kept finishing move reaches
+    five_axis: object = None                   # FiveAxisFigures of a simultaneous 5-axis finishing
+    five_axis_input: Toolpath | None = None    # the 3-axis passes it was planned from
 
     @property
     def gouge_free(self) -> bool:
@@ -212,7 +214,7 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
                    paths_params, fixtures: Sequence = (), forbidden: np.ndarray | None = None,
                    max_slope_deg: float = 87.0, input_regions: np.ndarray | None = None,
                    progress: Progress | None = None, carried=None,
-                   faces: np.ndarray | None = None) -> list[AreaPaths]:
+                   faces: np.ndarray | None = None, cone_deg=(10.0, 80.0)) -> list[AreaPaths]:
     """Tool paths for every area (see the module docstring).
 
     ``points`` (N,3) mm: the whole cloud (part frame); ``input_labels`` (N,): the area of every
@@ -230,7 +232,10 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     out); None: every area on its own from a stock box, nothing guarded (the collisions only counted).
     ``faces`` (T,3) int: triangles through ``points`` (indices into them) the finishing ball rests on
     and its gouge clearance is measured to, besides the points (:mod:`planning.toolpath.surface`);
-    None: the points only. The result lists the areas in the order they were done.
+    None: the points only. ``cone_deg``: the tool cone (``visibility.cone_deg``) the axes of
+    simultaneous 5-axis finishing keep to (``paths.finishing.mode`` / ``area_modes`` "5axis":
+    :mod:`planning.toolpath.fiveaxis.finishing` on the reduced path, no arcs). The result lists the
+    areas in the order they were done.
     """
     fp = paths_params.finishing
     R = float(tool.radius_mm)
@@ -279,15 +284,17 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
             # issue 16 item 1: the stock the finishing meets over this area (roughing allowance
             # where roughing reached; more where the roughing tool or its holder could not go)
             ap.allowance_left = carried.allowance_left(points[mine], carried.normals[mine])
+        five = fp.area_modes.get(i, fp.mode) == "5axis"
         if fp.enabled:
             masks = _region_masks(mine, regions, cloud_f.shape[0])
             if extra.any():                    # the points set-ups before left that this one sees
                 masks.append(np.concatenate([extra, np.zeros(cloud_f.shape[0] - extra.shape[0], dtype=bool)]))
             _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec, faces=faces,
-                           blocked=None if carried is None else
+                           blocked=None if (carried is None or five) else
                            (lambda fin, prg: _cut_blocked(ap, fin, carried, obstacles, axes[i], tool, fixtures, area_f, fp,
                                                                progress=prg)),
-                           progress=prog)
+                           progress=prog, five_axis=None if not five else
+                           _FiveAxisArea(obstacles, tool, cone_deg, carried, fp))
             # cutter, shank and holder above the ball at every CL point of the cut
             t0 = time.perf_counter()
             prog.step("collisions")
@@ -297,6 +304,13 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
                 t0 = time.perf_counter()
                 _guard_finishing(ap, carried, area_f, fp, progress=prog.step("guard_finishing"))
                 sec["guard_finishing"] = time.perf_counter() - t0
+            if five and carried is not None:
+                # what the 3+2 ball-drop passes finish and no kept 5-axis move does (after the guard), as
+                # a mask over the area's points (inner corners no ball reaches are not the cut's doing)
+                fa = ap.five_axis_input
+                before = (_still_unmachined(ap, area_f, fp, fa) if fa is not None
+                          else np.ones(area_f.shape[0], dtype=bool))
+                ap.unmachined = _still_unmachined(ap, area_f, fp) & ~before
             if carried is not None and ap.unmachined is not None:
                 ap.unmachined = np.flatnonzero(mine)[ap.unmachined]       # input point indices
             if carried is not None:
@@ -315,13 +329,15 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     return out
 
 
-def _still_unmachined(ap: AreaPaths, pts_f: np.ndarray, fp) -> np.ndarray:
-    """(n,) bool: the points ``pts_f`` (area frame) that no kept cutting move of ``ap``'s finishing
-    reaches (:func:`planning.toolpath.safety.unmachined_points` on the moves sampled every R / 4)."""
-    if ap.finishing is None or pts_f.shape[0] == 0:
+def _still_unmachined(ap: AreaPaths, pts_f: np.ndarray, fp, toolpath: Toolpath | None = None) -> np.ndarray:
+    """(n,) bool: the points ``pts_f`` (area frame, n,3) that no kept cutting move of ``ap``'s finishing
+    (or of ``toolpath``) reaches (:func:`planning.toolpath.safety.unmachined_points` on the moves
+    sampled every R / 4)."""
+    tp = ap.finishing if toolpath is None else toolpath
+    if tp is None or pts_f.shape[0] == 0:
         return np.ones(pts_f.shape[0], dtype=bool)
     spacing = ap.radius_mm / 4.0
-    kept = cutting_positions(ap.finishing, spacing)
+    kept = cutting_positions(tp, spacing)
     reach = finished_reach_mm(ap.radius_mm, tol_mm=fp.tolerance_mm, scallop_mm=fp.scallop_mm, spacing_mm=spacing)
     return unmachined_points(pts_f, kept, ap.radius_mm, reach)
 
@@ -426,9 +442,12 @@ def _guard_roughing(ap: AreaPaths, carried, safe_tip_z: float, progress: Progres
 def _guard_finishing(ap: AreaPaths, carried, area_f, fp, progress: Progress | None = None) -> None:
     """The final finishing moves of ``ap`` run on the carried stock (the safety net after the CL
     cut of :func:`_cut_blocked`); the stock they leave is carried on, and the area's points that no
-    kept finishing move reaches are the unmachined ones."""
+    kept finishing move reaches are the unmachined ones. A 5-axis path's travel was checked per
+    position with its own rotary solution (:class:`planning.toolpath.fiveaxis.finishing.Admissible`),
+    not at the set-up's fixed angles."""
+    five = ap.finishing.axis is not None
     g = guard_toolpath(ap.finishing, ap.frame, carried.finishing_shape, carried.stock, carried.obstacles,
-                       None if carried.machines is None else carried.machines[ap.area], safe_z_mm=ap.safe_z_mm,
+                       None if (carried.machines is None or five) else carried.machines[ap.area], safe_z_mm=ap.safe_z_mm,
                        rapid_clearance_mm=carried.rapid_clearance_mm, progress=progress)
     ap.finishing, ap.finishing_guard = (g.toolpath if g.toolpath.n_moves else None), g
     carried.stock = g.stock
@@ -459,9 +478,41 @@ def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, to
     return out
 
 
+@dataclass
+class _FiveAxisArea:
+    """What the 5-axis step of :func:`_add_finishing` needs beyond the 3+2 finishing: the obstacles
+    (part frame), the tool assembly, the tool cone, the carried stock (its set-up machines and the
+    part's footprint; None: travel and floor unchecked) and the finishing parameters."""
+
+    obstacles: np.ndarray
+    tool: ToolAssembly
+    cone_deg: tuple
+    carried: object
+    fp: object
+    figures: object = None
+
+    def run(self, ap: AreaPaths, tp: Toolpath, pass_index, cloud_f) -> Toolpath:
+        from planning.toolpath.fiveaxis.finishing import Admissible, five_axis_path
+
+        machine = gauge = floor = stock_f = None
+        if self.carried is not None:
+            floor = self.carried.footprint
+            stock_f = ap.frame.to_frame(self.carried.stock.boundary_points())
+            if self.carried.machines is not None:
+                machine = self.carried.machines[ap.area].model
+                gauge = self.carried.finishing_shape.gauge_length_mm
+        ok = Admissible(ap.frame, ap.frame.to_frame(self.obstacles), self.tool, max_swing_deg=self.fp.max_swing_deg,
+                        machine=machine, gauge_mm=gauge, stock_f=stock_f)
+        out, _, figs = five_axis_path(tp, pass_index, cloud_f=cloud_f, admissible=ok, fp=self.fp,
+                                      cone_deg=self.cone_deg, safe_z_mm=ap.safe_z_mm, floor=floor)
+        self.figures = figs
+        ap.five_axis, ap.five_axis_input = figs, tp
+        return out
+
+
 def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, max_slope_deg: float,
                    sec: dict, blocked=None, progress: _PathsProgress | None = None,
-                   faces: np.ndarray | None = None) -> None:
+                   faces: np.ndarray | None = None, five_axis: _FiveAxisArea | None = None) -> None:
     """Step 4 and the gouge check of step 5 into ``ap``: finishing passes per region
     (:func:`_region_finishing`), the blocked CL points cut out (``blocked``: (FinishingPath, progress) ->
     FinishingPath, or None), arc fitting or CL reduction of the joined path, and the minimal
@@ -490,7 +541,20 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
     step("reduce_arcs")
     # arc fitting also reduces the straight stretches it leaves, against the ORIGINAL CL
     # points (reducing first would let the arcs drift 2 tol from them)
-    if fp.arcs:
+    if five_axis is not None:
+        # 5-axis: the axes on the dense CL points (a position cut out costs one forward step), then the
+        # reduction only where the axis stands still (moves are straight: no arcs)
+        step("five_axis")
+        tp = five_axis.run(ap, tp, fin.pass_index, cloud_f)
+        sec["five_axis"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        if tp.n_moves == 0:
+            return
+        if fp.reduce:
+            from planning.toolpath.fiveaxis.finishing import axis_runs
+
+            tp = reduce_cl(tp, binned, R, tol_mm=tol, pass_index=axis_runs(tp))
+    elif fp.arcs:
         tp = fit_arcs(tp, binned, R, tol_mm=tol, reduce_lines=fp.reduce, pass_index=fin.pass_index)
     elif fp.reduce:
         tp = reduce_cl(tp, binned, R, tol_mm=tol, pass_index=fin.pass_index)
@@ -576,6 +640,14 @@ def _count_collisions(ap: AreaPaths, obstacles, axis, tool: ToolAssembly, fixtur
         return
     cut = np.flatnonzero(np.isin(tp.kind, [FEED, ARC_CW, ARC_CCW]))
     centres = ap.frame.to_part(tp.xyz_mm[cut])
+    if tp.axis is not None:
+        # 5-axis: every position with its own axis (the fixtures, the riser and the table are run by
+        # the guard on the carried stock, in 1-degree steps of every move)
+        from planning.geometry.axis_collision import pointwise_collision_free
+
+        ok = pointwise_collision_free(obstacles, centres, tp.axis[cut] @ ap.frame.rotation, tool)
+        ap.holder_collisions = int((~ok).sum())
+        return
     ap.holder_collisions = _holder_collisions(obstacles, centres, axis, tool)
     if fixtures:
         ok = fixture_collision_free(centres, axis[None, :], tool, list(fixtures))

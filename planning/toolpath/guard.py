@@ -56,6 +56,9 @@ from planning.toolpath.moves import (
 #: Chord tolerance of arcs when the guard runs them (mm); the reader of the programs uses its own.
 CHORD_TOL_MM = 0.005
 
+#: Largest axis turn of one simulated step of a 5-axis move (degrees; the program reader steps 1 degree).
+AXIS_STEP_DEG = 1.0
+
 #: Slack on the travel limits (mm): a position this close to a limit counts as within it.
 TRAVEL_SLACK_MM = 1e-6
 
@@ -97,10 +100,16 @@ class PartMoves:
     axis: np.ndarray
 
 
-def part_moves(tp: Toolpath, frame: AreaFrame, start_tip_frame=None, chord_tol_mm: float = CHORD_TOL_MM) -> PartMoves:
+def part_moves(tp: Toolpath, frame: AreaFrame, start_tip_frame=None, chord_tol_mm: float = CHORD_TOL_MM,
+               axis_step_deg: float = AXIS_STEP_DEG) -> PartMoves:
     """The moves of ``tp`` (area frame) as tool-tip segments in the part frame, arcs as chords within
     ``chord_tol_mm``. Move 0 starts at ``start_tip_frame`` (the tip, area frame), default: straight
-    above its end point at the same position (a zero-length first move)."""
+    above its end point at the same position (a zero-length first move). A 5-axis path (``tp.axis``)
+    is split where its axis turns, in steps of at most ``axis_step_deg`` (the reference point moved
+    linearly, the axis along the great circle; each step runs with its end's axis, as the program
+    reader runs the rotary axes); ``axis`` is then (P', 3)."""
+    if tp.axis is not None:
+        return _part_moves_5axis(tp, frame, start_tip_frame, axis_step_deg)
     tip = tp.tip_mm()
     P = tp.n_moves
     off = np.array([0.0, 0.0, tp.tip_offset_mm])
@@ -125,6 +134,34 @@ def part_moves(tp: Toolpath, frame: AreaFrame, start_tip_frame=None, chord_tol_m
     kind = np.where(tp.kind[source] == RAPID, SIM_RAPID, SIM_FEED).astype(np.int8)
     axis = frame.rotation[2].copy()
     return PartMoves(start=frame.to_part(start_f), end=frame.to_part(end_f), kind=kind, source=source, axis=axis)
+
+
+def _part_moves_5axis(tp: Toolpath, frame: AreaFrame, start_tip_frame, step_deg: float) -> PartMoves:
+    """:func:`part_moves` of a 5-axis path (straight moves, an axis per end point)."""
+    P = tp.n_moves
+    ref = tp.xyz_mm
+    ax = tp.axis / np.linalg.norm(tp.axis, axis=1, keepdims=True)
+    a0 = np.vstack([ax[:1], ax[:-1]])
+    r0 = np.vstack([ref[:1], ref[:-1]])
+    cos = np.clip(np.einsum("ij,ij->i", a0, ax), -1.0, 1.0)
+    ang = np.degrees(np.arccos(cos))
+    n = np.maximum(1, np.ceil(ang / float(step_deg) - 1e-12)).astype(np.int64)
+    source = np.repeat(np.arange(P), n)
+    k = np.arange(source.size) - (np.cumsum(n) - n)[source]
+    f1 = ((k + 1) / n[source])[:, None]
+    th = np.radians(ang)[source][:, None]
+    sin_th = np.sin(th)
+    w0 = np.where(sin_th > 1e-12, np.sin((1 - f1) * th) / np.where(sin_th > 1e-12, sin_th, 1.0), 1 - f1)
+    w1 = np.where(sin_th > 1e-12, np.sin(f1 * th) / np.where(sin_th > 1e-12, sin_th, 1.0), f1)
+    a_end = w0 * a0[source] + w1 * ax[source]
+    a_end /= np.linalg.norm(a_end, axis=1, keepdims=True)
+    r_end = r0[source] + f1 * (ref - r0)[source]
+    tip_end = r_end - tp.tip_offset_mm * a_end
+    first = tp.tip_mm()[0] if start_tip_frame is None else np.asarray(start_tip_frame, dtype=np.float64)
+    tip_start = np.concatenate([first[None, :], tip_end[:-1]])
+    kind = np.where(tp.kind[source] == RAPID, SIM_RAPID, SIM_FEED).astype(np.int8)
+    return PartMoves(start=frame.to_part(tip_start), end=frame.to_part(tip_end), kind=kind, source=source,
+                     axis=a_end @ frame.rotation)
 
 
 @dataclass
@@ -339,12 +376,14 @@ def _without_null_moves(tp: Toolpath, pass_index):
     if tp.n_moves < 2:
         return tp, pass_index
     step = np.linalg.norm(np.diff(tp.xyz_mm, axis=0), axis=1)
+    if tp.axis is not None:                    # a move that only turns the axis is a real move
+        step = step + np.linalg.norm(np.diff(tp.axis, axis=0), axis=1)
     null = np.r_[False, (step <= 1e-9) & np.isin(tp.kind[1:], (RAPID, FEED))]
     if not null.any():
         return tp, pass_index
     k = ~null
     out = Toolpath(xyz_mm=tp.xyz_mm[k], kind=tp.kind[k], centre_mm=tp.centre_mm[k], plane=tp.plane[k], use=tp.use[k],
-                   tip_offset_mm=tp.tip_offset_mm)
+                   tip_offset_mm=tp.tip_offset_mm, axis=None if tp.axis is None else tp.axis[k])
     return out, (None if pass_index is None else pass_index[k])
 
 
@@ -357,7 +396,8 @@ def _truncate(tp: Toolpath, pass_index, first_bad: int, safe_z_mm: float):
     out = Toolpath(xyz_mm=np.concatenate([xyz, up]), kind=np.concatenate([tp.kind[:keep], [FEED]]).astype(np.int8),
                    centre_mm=np.concatenate([tp.centre_mm[:keep], np.full((1, 3), np.nan)]),
                    plane=np.concatenate([tp.plane[:keep], [0]]).astype(np.int8),
-                   use=np.concatenate([tp.use[:keep], [USE_RETRACT]]).astype(np.int8), tip_offset_mm=tp.tip_offset_mm)
+                   use=np.concatenate([tp.use[:keep], [USE_RETRACT]]).astype(np.int8), tip_offset_mm=tp.tip_offset_mm,
+                   axis=None if tp.axis is None else np.concatenate([tp.axis[:keep], tp.axis[keep - 1:keep]]))
     pi = None if pass_index is None else np.concatenate([pass_index[:keep], [-1]]).astype(pass_index.dtype)
     return out, pi
 
@@ -414,6 +454,25 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
         if rnd == max_rounds:
             break
         rapid_only = off.rapid & ~(off.holder | off.fixture | off.travel)
+        if tp.axis is not None:
+            # 5-axis: a rapid off the safe height that meets stock (the approach or the retract along
+            # the leaning axis brushing the allowance) is fed instead; the next round checks the shank
+            # and holder on it as on any feed move
+            low = rapid_only.copy()
+            low[1:] &= np.minimum(tp.xyz_mm[1:, 2], tp.xyz_mm[:-1, 2]) < safe_z_mm - 1e-9
+            low[0] = False
+            if low.any():
+                up = np.r_[False, tp.xyz_mm[1:, 2] > tp.xyz_mm[:-1, 2]]
+                kind, use = tp.kind.copy(), tp.use.copy()
+                kind[low] = FEED
+                use[low] = np.where(up[low], USE_RETRACT, USE_PLUNGE)
+                tp = Toolpath(xyz_mm=tp.xyz_mm, kind=kind, centre_mm=tp.centre_mm, plane=tp.plane, use=use,
+                              tip_offset_mm=tp.tip_offset_mm, axis=tp.axis)
+                out.rapids_to_feed += int(low.sum())
+            rapid_only = np.zeros_like(rapid_only)
+            bad = bad & ~low
+            if not bad.any():
+                continue
         drop = _cut_points_to_drop(tp, bad & ~rapid_only)
         # a rapid that is already a rapid over the safe height and still meets stock cannot be
         # lifted further: its neighbours go instead

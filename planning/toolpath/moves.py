@@ -18,6 +18,9 @@ from its safe height).
 * ``tip_offset_mm``: the path's points are the tool's reference point; the tool tip (the point
   a control's length offset G43 drives) is ``xyz - (0, 0, tip_offset_mm)``. Ball-end finishing
   records ball centres (offset R); roughing with a flat or bull-nose mill records the tip (offset 0).
+* ``axis`` (simultaneous 5-axis finishing only, issue 19; None for a 3+2 path): the unit tool axis
+  at every end point, in the area frame; the tip is then ``xyz - tip_offset_mm * axis``, moves are
+  straight (no arcs), and the axis turns along each move (:mod:`planning.toolpath.fiveaxis`).
 """
 
 from __future__ import annotations
@@ -42,7 +45,8 @@ class Toolpath:
 
     ``xyz_mm`` (P,3) float64 end points; ``kind`` (P,) int8; ``centre_mm`` (P,3) arc centres (NaN
     on straight moves); ``plane`` (P,) int8 (0 on straight moves); ``use`` (P,) int8;
-    ``tip_offset_mm``: reference point to tool tip along -Z.
+    ``tip_offset_mm``: reference point to tool tip along -Z (along ``-axis`` when given);
+    ``axis`` (P,3) or None: the tool axis per end point of a simultaneous 5-axis path (area frame).
     """
 
     xyz_mm: np.ndarray
@@ -51,11 +55,14 @@ class Toolpath:
     plane: np.ndarray
     use: np.ndarray
     tip_offset_mm: float = 0.0
+    axis: np.ndarray | None = None
 
     def __post_init__(self):
         p = self.xyz_mm.shape[0]
         if self.xyz_mm.shape != (p, 3) or self.centre_mm.shape != (p, 3):
             raise ValueError("xyz_mm and centre_mm must be (P,3)")
+        if self.axis is not None and self.axis.shape != (p, 3):
+            raise ValueError("axis must be (P,3)")
         for name in ("kind", "plane", "use"):
             if getattr(self, name).shape != (p,):
                 raise ValueError(f"{name} must be (P,)")
@@ -66,6 +73,8 @@ class Toolpath:
 
     def tip_mm(self) -> np.ndarray:
         """(P,3) tool-tip end points (what the post's X Y Z drive)."""
+        if self.axis is not None:
+            return self.xyz_mm - self.tip_offset_mm * self.axis
         return self.xyz_mm - np.array([0.0, 0.0, self.tip_offset_mm])
 
 
@@ -89,11 +98,15 @@ def concatenate(paths: list[Toolpath]) -> Toolpath:
     off = {p.tip_offset_mm for p in paths}
     if len(off) != 1:
         raise ValueError("paths with different tip offsets cannot be joined")
+    with_axis = {p.axis is not None for p in paths}
+    if len(with_axis) != 1:
+        raise ValueError("5-axis and 3-axis paths cannot be joined")
     return Toolpath(xyz_mm=np.concatenate([p.xyz_mm for p in paths]),
                     kind=np.concatenate([p.kind for p in paths]),
                     centre_mm=np.concatenate([p.centre_mm for p in paths]),
                     plane=np.concatenate([p.plane for p in paths]),
-                    use=np.concatenate([p.use for p in paths]), tip_offset_mm=off.pop())
+                    use=np.concatenate([p.use for p in paths]), tip_offset_mm=off.pop(),
+                    axis=np.concatenate([p.axis for p in paths]) if with_axis.pop() else None)
 
 
 def arc_sweep_rad(start, end, centre, plane: int, ccw: bool) -> tuple[float, float, float]:

@@ -354,7 +354,8 @@ def _assemble(tp: Toolpath, xyz, code, centre, plane) -> tuple[Toolpath, np.ndar
     cen = np.where(is_arc[:, None], centre, tp.centre_mm)
     pl = np.where(is_arc, np.int8(plane), tp.plane).astype(np.int8)
     return (Toolpath(xyz_mm=xyz[keep].copy(), kind=kind[keep], centre_mm=cen[keep], plane=pl[keep],
-                     use=tp.use[keep].copy(), tip_offset_mm=tp.tip_offset_mm), np.flatnonzero(keep))
+                     use=tp.use[keep].copy(), tip_offset_mm=tp.tip_offset_mm,
+                     axis=None if tp.axis is None else tp.axis[keep].copy()), np.flatnonzero(keep))
 
 
 def _clear_of_triangles(tp: Toolpath, xyz, code, centre, plane, cloud, R: float, tol: float) -> None:

@@ -228,6 +228,27 @@ class CutResult:
     pieces: np.ndarray
 
 
+def _carried_axes(axes: np.ndarray, src: np.ndarray, anchor: np.ndarray) -> np.ndarray:
+    """The tool axis of every point of a cut 5-axis path (issue 19): a kept point keeps its own; a new
+    point along the axis over a kept point (retract, approach) takes that point's; any other new
+    point (a rapid at the safe height) the next kept point's, so the axis turns on the way to the
+    piece it enters (the last kept point's after the last piece)."""
+    out = np.empty((src.shape[0], 3))
+    kept = src >= 0
+    out[kept] = axes[src[kept]]
+    over = ~kept & (anchor >= 0)
+    out[over] = out[anchor[over]]
+    rest = np.flatnonzero(~kept & (anchor < 0))
+    if rest.size:
+        k_idx = np.flatnonzero(kept)
+        nxt = np.searchsorted(k_idx, rest)
+        has_next = nxt < k_idx.size
+        out[rest[has_next]] = out[k_idx[nxt[has_next]]]
+        prv = np.searchsorted(k_idx, rest[~has_next]) - 1
+        out[rest[~has_next]] = out[k_idx[np.maximum(prv, 0)]] if k_idx.size else [0.0, 0.0, 1.0]
+    return out
+
+
 def _cut_moves_mask(tp: Toolpath) -> np.ndarray:
     """(P,) bool: move i is a cutting move (FEED or arc, use USE_CUT); move 0 never."""
     m = np.isin(tp.kind, _CUT_KINDS) & (tp.use == USE_CUT)
@@ -391,7 +412,8 @@ def cut_moves(tp: Toolpath, drop, *, safe_z_mm: float, pass_index=None, approach
 
     if n_out == 0:
         out = Toolpath(xyz_mm=np.zeros((0, 3)), kind=np.zeros(0, np.int8), centre_mm=np.zeros((0, 3)),
-                       plane=np.zeros(0, np.int8), use=np.zeros(0, np.int8), tip_offset_mm=tp.tip_offset_mm)
+                       plane=np.zeros(0, np.int8), use=np.zeros(0, np.int8), tip_offset_mm=tp.tip_offset_mm,
+                       axis=None if tp.axis is None else np.zeros((0, 3)))
         src = np.zeros(0, np.int64)
         anchor = np.zeros(0, np.int64)
     else:
@@ -400,6 +422,8 @@ def cut_moves(tp: Toolpath, drop, *, safe_z_mm: float, pass_index=None, approach
                        use=np.concatenate(out_use).astype(np.int8), tip_offset_mm=tp.tip_offset_mm)
         src = np.concatenate(out_src)
         anchor = np.concatenate(out_anchor_rel)
+        if tp.axis is not None:
+            out = replace(out, axis=_carried_axes(tp.axis, src, anchor))
     new_pi = None
     if pi is not None:
         new_pi = np.where(src >= 0, pi[np.maximum(src, 0)] if P else -1, -1).astype(np.int32)

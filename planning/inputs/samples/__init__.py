@@ -15,6 +15,9 @@ arguments always give the same arrays (all randomness comes from ``numpy.random.
 - :func:`slot` - a block with a straight slot (or a closed pocket) cut in its top: the floor is
   reachable only by tool axes close to the slot's vertical plane.
 - :func:`post_wall` - a plate with a cylindrical post standing a known gap away from a wall.
+- :func:`draft_slot` - a block with a deep, narrow slot whose walls lean out: with a narrow tool
+  cone no fixed axis finishes its floor and both walls, one pass direction with an axis per
+  position does (simultaneous 5-axis, issue 19).
 - :func:`filleted_box` - a 60 x 40 x 20 mm box with its top and vertical edges rounded (10 mm
   fillets): the part a new user would bring.
 
@@ -27,7 +30,7 @@ Modules: :mod:`~planning.inputs.samples.common` (:class:`Sample`, argument check
 :mod:`~planning.inputs.samples.primitives` (implicit sphere, ellipsoid, capsule, bent tube),
 :mod:`~planning.inputs.samples.femur` (:func:`femur_like`, :func:`femur_implicit`),
 :mod:`~planning.inputs.samples.scanner` (the simulated scanner views of the femur),
-:mod:`~planning.inputs.samples.prismatic` (:func:`slot`, :func:`post_wall`),
+:mod:`~planning.inputs.samples.prismatic` (:func:`slot`, :func:`post_wall`, :func:`draft_slot`),
 :mod:`~planning.inputs.samples.filleted` (:func:`filleted_box`); this package holds the registry
 :data:`SAMPLES` and :func:`make_sample`.
 """
@@ -45,12 +48,13 @@ from planning.inputs.samples.femur import (
 )
 from planning.inputs.samples.filleted import filleted_box, filleted_box_inner_box
 from planning.inputs.samples.hemisphere import half_sphere
-from planning.inputs.samples.prismatic import post_wall, slot, slot_floor_max_tilt_deg
+from planning.inputs.samples.prismatic import draft_slot, post_wall, slot, slot_floor_max_tilt_deg
 
 __all__ = [
     "FEMUR_DIMENSIONS_MM",
     "SAMPLES",
     "Sample",
+    "draft_slot",
     "femur_implicit",
     "femur_like",
     "filleted_box",
@@ -70,6 +74,7 @@ SAMPLES: dict[str, Callable[..., Sample]] = {
     "slot": slot,
     "post_wall": post_wall,
     "filleted_box": filleted_box,
+    "draft_slot": draft_slot,
 }
 
 

@@ -26,7 +26,7 @@ from planning.inputs.samples.common import (
     _check_size,
 )
 
-__all__ = ["post_wall", "slot", "slot_floor_max_tilt_deg"]
+__all__ = ["draft_slot", "post_wall", "slot", "slot_floor_max_tilt_deg"]
 
 
 @dataclass(frozen=True)
@@ -221,6 +221,64 @@ def slot_floor_max_tilt_deg(slot_width_mm: float, slot_depth_mm: float, tool_rad
         return float("nan")
     rho = math.hypot(w2, h - r)
     return min(90.0, math.degrees(math.atan2(w2, h - r) - math.asin(r / rho)))
+
+
+def draft_slot(size_mm: tuple = (60.0, 40.0, 30.0), floor_width_mm: float = 8.0, slot_depth_mm: float = 15.0,
+               wall_deg: float = 70.0, density_per_mm2: float = 1.0, n_points: int | None = None,
+               noise_mm: float = 0.0, seed: int = 0, include_sides: bool = True) -> Sample:
+    """A block with a deep, narrow through slot whose walls lean outwards (a draft), for simultaneous
+    5-axis finishing (issue 19).
+
+    Frame (mm): block x in [-X/2, X/2], y in [-Y/2, Y/2], z in [0, Z] (default 60 x 40 x 30). The slot
+    runs along +Y; its floor (normal +Z) is ``floor_width_mm`` wide (8) at depth ``slot_depth_mm``
+    (15) below the top; its two walls rise from the floor's edges at ``wall_deg`` (70) from the
+    horizontal to the top, so the wall at -x faces (sin a, 0, cos a) and the one at +x faces
+    (-sin a, 0, cos a), a = ``wall_deg``. Faces (``meta["labels"]``): ``top``, ``slot_floor``,
+    ``slot_wall``, ``side`` (no bottom: it stands on the table; no sides either with ``include_sides``
+    False: a scan of the top only). Sampling as :func:`slot`.
+
+    Known answer: the floor's normal and the two walls' normals are 2a apart around the slot's
+    cross-section, so with a tool cone [v1, v2] about the normal no single fixed tool axis lies in
+    the cone of the floor and of both walls once v2 < a (the walls need the axis at least a - v2
+    from vertical towards each of them); the ball dropping straight down the slot touches all three
+    (the walls lean out), so one pass direction can finish the slot if the axis may change per
+    position.
+    """
+    X, Y, Z = _check_size("size_mm", size_mm, 3)
+    wf = _check_float("floor_width_mm", floor_width_mm, 0.0, X - 1e-6)
+    h = _check_float("slot_depth_mm", slot_depth_mm, 0.0, Z - 1e-6)
+    a = math.radians(_check_float("wall_deg", wall_deg, 10.0, 90.0, unit="deg"))
+    run = h / math.tan(a)
+    wt = wf + 2.0 * run
+    if wt >= X:
+        raise ParameterError(f"draft_slot: the slot is {wt:.3g} mm wide at the top, wider than the block",
+                             parameter="wall_deg", value=wall_deg, allowed="a steeper wall or a wider block")
+    zf = Z - h
+
+    def notch(p):
+        return (p[:, 2] > zf) & (np.abs(p[:, 0]) < 0.5 * wf + (p[:, 2] - zf) / math.tan(a))
+
+    names = ["top", "slot_floor", "slot_wall", "side"]
+    faces = _box_faces(-X / 2, X / 2, -Y / 2, Y / 2, 0.0, Z, label="side", bottom=False, skip=("+z",),
+                       holes={"-y": (notch, 0.5 * h * (wf + wt)), "+y": (notch, 0.5 * h * (wf + wt))}) \
+        if include_sides else []
+    lw = h / math.sin(a)
+    ca, sa = math.cos(a), math.sin(a)
+    faces += [
+        _Face("top", "rect", (-X / 2, -Y / 2, Z), lu=X / 2 - wt / 2, lv=Y),
+        _Face("top", "rect", (wt / 2, -Y / 2, Z), lu=X / 2 - wt / 2, lv=Y),
+        _Face("slot_floor", "rect", (-wf / 2, -Y / 2, zf), lu=wf, lv=Y),
+        _Face("slot_wall", "rect", (-wf / 2, -Y / 2, zf), (0.0, 1.0, 0.0), (-ca, 0.0, sa), Y, lw, (sa, 0.0, ca)),
+        _Face("slot_wall", "rect", (wf / 2, -Y / 2, zf), (0.0, 1.0, 0.0), (ca, 0.0, sa), Y, lw, (-sa, 0.0, ca)),
+    ]
+    return _finish_prismatic(
+        "draft_slot", faces, names, density=density_per_mm2, n_points=n_points, noise_mm=noise_mm, seed=seed,
+        description=(f"block {X:g} x {Y:g} x {Z:g} mm with a through slot {wf:g} mm wide at its floor, {h:g} mm "
+                     f"deep, walls at {math.degrees(a):g} deg (top width {wt:.3g} mm), exact normals"),
+        meta={"kind": "draft_slot", "size_mm": (X, Y, Z), "top_z_mm": Z, "floor_width_mm": wf,
+              "slot_depth_mm": h, "wall_deg": math.degrees(a), "top_width_mm": wt, "floor_z_mm": zf,
+              "slot_axis": (0.0, 1.0, 0.0)},
+    )
 
 
 def post_wall(post_radius_mm: float = 5.0, post_height_mm: float = 30.0, gap_mm: float = 8.0,

@@ -1,0 +1,310 @@
+"""Simultaneous 5-axis finishing of one area (issue 19; Chui, Chiu and Yu 2008): the ball-drop
+passes of the 3+2 finishing (:mod:`planning.toolpath.finishing`: the ball centres are gouge-free
+whatever the axis, since a ball is the same from every side) with a tool axis per position.
+
+:func:`five_axis_path` takes the area's finishing toolpath (area frame, ball centres, after CL
+reduction) and:
+
+1. finds the positions that touch the part (feed moves that cut, plunge or link on the surface) and
+   their contact normals (:func:`planning.toolpath.fiveaxis.axes.contact_normals`);
+2. gives each one its axis (:func:`planning.toolpath.fiveaxis.axes.plan_axes`: Chui eq. 12 lead and
+   tilt, the tool cone, the turn rate), where an axis is admissible when (:class:`Admissible`) it
+   leans at most ``max_swing_deg`` from the set-up axis (the area frame's +Z, along which the
+   retracts run), the cutter, shank and holder above the ball leave every cloud point outside
+   (:class:`planning.geometry.axis_collision.ObstacleGrid`, exact, per position), and the machine
+   reaches it: a rotary solution within the rotary travel whose tool tip lies within the linear
+   travel (:mod:`planning.simulate.kinematics`); with a carried stock, the shank and holder also
+   clear the points of the stock's boundary;
+3. checks the motion between neighbouring positions too: the midpoint of every move (centre halfway,
+   axis halfway along the great circle) must be admissible;
+4. cuts out (:func:`planning.toolpath.safety.cut_moves`, linked through the safe height) the
+   positions with no admissible axis, the ends of moves whose midpoint is not admissible and the
+   positions where the turn rate could not be met (a pass broken there), and gives every other
+   point of the path an axis (retracts keep the axis of the point they leave, rapids take the next
+   one's: the axis turns at the safe height).
+
+The stock, the fixtures and the table are checked afterwards by the guard on the carried stock
+(:mod:`planning.toolpath.guard`, which runs 5-axis moves in 1-degree steps), as for 3+2.
+Lengths in mm, angles in degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from planning.geometry.axis_collision import ObstacleGrid, default_cell_mm
+from planning.geometry.tool import ToolAssembly
+from planning.toolpath.fiveaxis.axes import contact_normals, plan_axes, turn_deg
+from planning.toolpath.frames import AreaFrame
+from planning.toolpath.moves import FEED, USE_CUT, USE_PLUNGE, USE_RETRACT, Toolpath
+from planning.toolpath.safety import cut_moves
+
+__all__ = ["Admissible", "FiveAxisFigures", "axis_runs", "five_axis_path", "slerp_mid"]
+
+#: A 5-axis path is reduced (straight moves replacing CL points) only where its axis turns less than
+#: this along the replaced stretch, degrees: the axes of the points kept stand for the dropped ones.
+REDUCE_AXIS_DEG = 0.5
+
+
+@dataclass
+class FiveAxisFigures:
+    """What :func:`five_axis_path` did: ``n_positions`` positions given an axis, ``n_alternatives``
+    whose ideal axis was not admissible and that took another, ``blocked`` positions cut out by
+    reason (``no_axis``: no admissible axis in the cone; ``between``: the move into it is not
+    admissible halfway; ``rate``: the turn rate could not be met), ``max_rate_deg_per_mm`` the
+    fastest turn between linked positions kept, ``cone_deg`` the range of angles between the axes
+    and the normals, ``swing_deg`` the largest angle from the set-up axis."""
+
+    n_positions: int = 0
+    n_alternatives: int = 0
+    blocked: dict = field(default_factory=dict)
+    max_rate_deg_per_mm: float = 0.0
+    cone_deg: tuple[float, float] = (0.0, 0.0)
+    swing_deg: float = 0.0
+
+
+def slerp_mid(a: np.ndarray, b: np.ndarray, f: float = 0.5) -> np.ndarray:
+    """(n,3) unit vectors a fraction ``f`` of the way from ``a`` to ``b`` (n,3) along the great circle."""
+    cos = np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0)
+    th = np.arccos(cos)[:, None]
+    s = np.sin(th)
+    small = s[:, 0] < 1e-9
+    w0 = np.where(small[:, None], 1 - f, np.sin((1 - f) * th) / np.where(small[:, None], 1.0, s))
+    w1 = np.where(small[:, None], f, np.sin(f * th) / np.where(small[:, None], 1.0, s))
+    out = w0 * a + w1 * b
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
+
+
+class Admissible:
+    """``ok(centres, axes) -> bool (n,)`` for positions in the AREA frame (module docstring, step 2):
+    within ``max_swing_deg`` of the frame's +Z, the tool assembly clear of ``obstacles_f`` (area
+    frame), the shank and holder clear of ``stock_f`` (points on the boundary of the stock left
+    before this finishing, area frame: the flutes may cut it, the shank and holder may not; the
+    points are ``simulate.resolution_mm`` apart, so this is a screen and the guard on the stock
+    model decides), and, with ``machine`` (a :class:`planning.simulate.kinematics.MachineModel`) and
+    ``gauge_mm``, reachable: a rotary solution within travel putting the tip within the linear
+    travel."""
+
+    def __init__(self, frame: AreaFrame, obstacles_f: np.ndarray, tool: ToolAssembly, *, max_swing_deg: float,
+                 machine=None, gauge_mm: float | None = None, stock_f: np.ndarray | None = None):
+        self.frame = frame
+        self.tool = tool
+        self.grid = ObstacleGrid(obstacles_f, default_cell_mm(tool))
+        self.stock_grid = None
+        if stock_f is not None and len(stock_f):
+            self.stock_grid = ObstacleGrid(stock_f, default_cell_mm(tool, ("shank", "holder")))
+        self.cos_swing = math.cos(math.radians(float(max_swing_deg)))
+        self.machine = machine
+        self.gauge = gauge_mm
+        self.calls = 0
+
+    def reachable(self, centres_f: np.ndarray, axes_f: np.ndarray) -> np.ndarray:
+        """(n,) bool: some rotary solution within the rotary travel puts the tool tip within the linear
+        travel (both solutions of :func:`planning.orientations.kinematics.solve_rotary` tried)."""
+        from planning.orientations.kinematics import solve_rotary
+
+        m = self.machine
+        n = centres_f.shape[0]
+        if m is None or n == 0:
+            return np.ones(n, dtype=bool)
+        axes_p = axes_f @ self.frame.rotation
+        tips_p = self.frame.to_part(centres_f) - self.tool.radius_mm * axes_p
+        sols = solve_rotary(axes_p, m.profile)
+        out = np.zeros(n, dtype=bool)
+        (x0, x1), (y0, y1), (z0, z1) = m.profile.linear_limits_mm
+        lo, hi = np.array([x0, y0, z0]) - 1e-6, np.array([x1, y1, z1]) + 1e-6
+        for j in range(2):
+            valid = np.asarray(sols.valid[:, j], dtype=bool)
+            if not valid.any():
+                continue
+            mpos = m.machine_from_tip(tips_p[valid], sols.angles_deg[valid, j], self.gauge)
+            inside = np.all((mpos >= lo) & (mpos <= hi), axis=1)
+            out[np.flatnonzero(valid)[inside]] = True
+        return out
+
+    def __call__(self, centres_f: np.ndarray, axes_f: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        c = np.asarray(centres_f, dtype=np.float64).reshape(-1, 3)
+        a = np.asarray(axes_f, dtype=np.float64).reshape(-1, 3)
+        ok = a[:, 2] >= self.cos_swing - 1e-12
+        idx = np.flatnonzero(ok)
+        if idx.size:
+            ok[idx] = self.reachable(c[idx], a[idx])
+        idx = np.flatnonzero(ok)
+        if idx.size:
+            ok[idx] = self.grid.free(c[idx], a[idx], self.tool)
+        if self.stock_grid is not None:
+            idx = np.flatnonzero(ok)
+            if idx.size:
+                ok[idx] = self.stock_grid.free(c[idx], a[idx], self.tool, parts=("shank", "holder"))
+        return ok
+
+
+def _touching(tp: Toolpath) -> np.ndarray:
+    """(P,) bool: the points reached by a feed move that cuts or plunges (on the part)."""
+    return (tp.kind == FEED) & np.isin(tp.use, (USE_CUT, USE_PLUNGE))
+
+
+def _runs(touch: np.ndarray) -> np.ndarray:
+    """(P,) run id of consecutive touching points (-1 elsewhere): the stretches smoothed together."""
+    start = touch & ~np.concatenate([[False], touch[:-1]])
+    rid = np.cumsum(start) - 1
+    return np.where(touch, rid, -1)
+
+
+def _fill_axes(tp: Toolpath, touch: np.ndarray, axes_touch: np.ndarray) -> np.ndarray:
+    """(P,3) an axis for every point: the touching points their own; a retract the axis of the last
+    touching point before it; any other point (rapids, approaches) the next touching point's (the
+    last one's after the last)."""
+    P = tp.n_moves
+    out = np.empty((P, 3))
+    idx = np.flatnonzero(touch)
+    if idx.size == 0:
+        out[:] = [0.0, 0.0, 1.0]
+        return out
+    out[idx] = axes_touch
+    rest = np.flatnonzero(~touch)
+    prv = np.searchsorted(idx, rest) - 1
+    nxt = prv + 1
+    use_prev = ((tp.use[rest] == USE_RETRACT) & (prv >= 0)) | (nxt >= idx.size)
+    out[rest[use_prev]] = out[idx[np.maximum(prv[use_prev], 0)]]
+    out[rest[~use_prev]] = out[idx[nxt[~use_prev]]]
+    return out
+
+
+def axis_runs(tp: Toolpath, max_turn_deg: float = REDUCE_AXIS_DEG) -> np.ndarray:
+    """(P,) int32 run ids for :func:`planning.toolpath.reduce.reduce_cl` on a 5-axis path: consecutive
+    touching points whose axis has turned less than ``max_turn_deg`` in all since the run began
+    share an id (the reducer drops points only inside a run); -1 elsewhere."""
+    touch = _touching(tp)
+    P = tp.n_moves
+    turn = np.zeros(P)
+    if P > 1:
+        turn[1:] = turn_deg(tp.axis[1:], tp.axis[:-1])
+    start = touch & ~np.concatenate([[False], touch[:-1]])
+    run = np.cumsum(start)
+    # cumulative turn within each run of touching points, then a new id every max_turn_deg
+    cum = np.cumsum(np.where(touch & ~start, turn, 0.0))
+    base = np.zeros(P)
+    first = np.flatnonzero(start)
+    base[first] = cum[first]
+    base = np.maximum.accumulate(np.where(start, base, -np.inf)) if P else base
+    step = np.floor((cum - base) / float(max_turn_deg)).astype(np.int64)
+    key = run * (P + 1) + step
+    ids = np.concatenate([[0], np.cumsum(key[1:] != key[:-1])]) if P else np.zeros(0, np.int64)
+    return np.where(touch, ids, -1).astype(np.int32)
+
+
+def axis_columns(tp: Toolpath) -> Toolpath:
+    """``tp`` (with ``axis``) with its vertical columns turned onto the tool axis: a point off the part
+    (a retract, an approach, a rapid at the safe height) straight above (frame z) the touching point
+    next to it in the same run of such points, the last one before it for the points after a
+    touching point, the next one after for the points before it, is moved along that touching
+    point's axis to the same frame height: the tool leaves and enters along its own axis, as 5-axis
+    programs do, instead of sliding up with its shank leaning. Heights (frame z) are kept, so the
+    rapids stay at the safe height."""
+    if tp.axis is None or tp.n_moves == 0:
+        return tp
+    touch = _touching(tp)
+    idx = np.flatnonzero(touch)
+    if idx.size == 0:
+        return tp
+    xyz = tp.xyz_mm.copy()
+    rest = np.flatnonzero(~touch)
+    prv = np.searchsorted(idx, rest) - 1
+    nxt = prv + 1
+    for anchor_sel, anchor in (((prv >= 0), idx[np.maximum(prv, 0)]), ((nxt < idx.size), idx[np.minimum(nxt, idx.size - 1)])):
+        p = tp.xyz_mm[anchor]
+        q = xyz[rest]
+        col = anchor_sel & (np.hypot(q[:, 0] - p[:, 0], q[:, 1] - p[:, 1]) <= 1e-6) & (q[:, 2] >= p[:, 2])
+        col &= np.all(np.abs(q - tp.xyz_mm[rest]) <= 0, axis=1)     # each point moved once
+        a = tp.axis[anchor]
+        dz = (q[:, 2] - p[:, 2]) / np.maximum(a[:, 2], 1e-9)
+        moved = p + a * dz[:, None]
+        xyz[rest[col]] = moved[col]
+    return Toolpath(xyz_mm=xyz, kind=tp.kind, centre_mm=tp.centre_mm, plane=tp.plane, use=tp.use,
+                    tip_offset_mm=tp.tip_offset_mm, axis=tp.axis)
+
+
+def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.ndarray, admissible: Admissible,
+                   fp, cone_deg, safe_z_mm: float, tree: cKDTree | None = None,
+                   floor=None) -> tuple[Toolpath, np.ndarray, FiveAxisFigures]:
+    """The 5-axis version of the finishing toolpath ``tp`` (module docstring): ``(toolpath with
+    axis, pass_index, figures)``. ``cloud_f`` (N,3): the scan in the area frame (contact normals);
+    ``admissible``: the test of step 2; ``fp``: :class:`schemas.params.FinishingParams` (lead, tilt,
+    frame, rate); ``cone_deg``: ``visibility.cone_deg``; ``safe_z_mm``: the ball-centre height of
+    retracts (area frame); ``floor``: the part's :class:`planning.toolpath.carried.Footprint` (positions
+    whose ball reaches below the part's underside inside it are cut out first, as in 3+2)."""
+    figs = FiveAxisFigures()
+    blocked = {"no_axis": 0, "between": 0, "rate": 0, "floor": 0}
+    pi = None if pass_index is None else np.asarray(pass_index)
+    tree = cKDTree(cloud_f) if tree is None else tree
+    if floor is not None and tp.n_moves:
+        touch = _touching(tp)
+        low = np.zeros(tp.n_moves, dtype=bool)
+        low[touch] = floor.below_floor(admissible.frame.to_part(tp.xyz_mm[touch]), admissible.tool.radius_mm,
+                                       float(fp.tolerance_mm))
+        if low.any():
+            blocked["floor"] = int(low.sum())
+            cut = cut_moves(tp, low, safe_z_mm=safe_z_mm, pass_index=pi)
+            tp, pi = cut.toolpath, cut.pass_index
+    for attempt in range(3):
+        if tp.n_moves == 0:
+            break
+        touch = _touching(tp)
+        idx = np.flatnonzero(touch)
+        c = tp.xyz_mm[idx]
+        nrm = contact_normals(c, cloud_f, tree)
+        plan = plan_axes(c, _runs(touch)[idx], nrm, lead_deg=fp.lead_deg, tilt_deg=fp.tilt_deg, cone_deg=cone_deg,
+                         max_rate_deg_per_mm=fp.max_axis_rate_deg_per_mm, frame=fp.axis_frame, ok=admissible)
+        if attempt == 0:
+            figs.n_positions = int(idx.size)
+            figs.n_alternatives = int(plan.n_alternatives)
+        drop = np.zeros(tp.n_moves, dtype=bool)
+        drop[idx[plan.blocked]] = True
+        blocked["no_axis"] += int(plan.blocked.sum())
+        drop[idx[plan.breaks]] = True
+        blocked["rate"] += int((plan.breaks & ~plan.blocked).sum())
+        # halfway along every move between two kept touching positions
+        pair = np.flatnonzero(touch[1:] & touch[:-1]) + 1
+        ok_pos = np.zeros(tp.n_moves, dtype=bool)
+        ok_pos[idx[~plan.blocked]] = True
+        pair = pair[ok_pos[pair] & ok_pos[pair - 1]]
+        if pair.size:
+            ax = np.empty((tp.n_moves, 3))
+            ax[idx] = plan.axes
+            mid_c = 0.5 * (tp.xyz_mm[pair] + tp.xyz_mm[pair - 1])
+            mid_a = slerp_mid(ax[pair - 1], ax[pair])
+            bad = ~admissible(mid_c, mid_a)
+            drop[pair[bad]] = True
+            blocked["between"] += int((bad & ~drop[pair - 1]).sum())
+        with_axes = Toolpath(xyz_mm=tp.xyz_mm, kind=tp.kind, centre_mm=tp.centre_mm, plane=tp.plane, use=tp.use,
+                             tip_offset_mm=tp.tip_offset_mm, axis=_fill_axes(tp, touch, plan.axes))
+        if not drop.any():
+            tp = with_axes
+            break
+        cut = cut_moves(with_axes, drop, safe_z_mm=safe_z_mm, pass_index=pi)
+        tp, pi = cut.toolpath, cut.pass_index
+        if tp.n_moves == 0:
+            break
+    figs.blocked = blocked
+    tp = axis_columns(tp)
+    if tp.n_moves and tp.axis is not None:
+        touch = _touching(tp)
+        idx = np.flatnonzero(touch)
+        if idx.size:
+            a = tp.axis[idx]
+            nrm = contact_normals(tp.xyz_mm[idx], cloud_f, tree)
+            ang = turn_deg(a, nrm)
+            figs.cone_deg = (round(float(ang.min()), 3), round(float(ang.max()), 3))
+            figs.swing_deg = round(float(np.degrees(np.arccos(np.clip(a[:, 2].min(), -1, 1)))), 3)
+            lk = np.flatnonzero(touch[1:] & touch[:-1]) + 1
+            if lk.size:
+                d = np.linalg.norm(tp.xyz_mm[lk] - tp.xyz_mm[lk - 1], axis=1)
+                rate = turn_deg(tp.axis[lk], tp.axis[lk - 1]) / np.maximum(d, 1e-9)
+                figs.max_rate_deg_per_mm = round(float(rate[d > 1e-6].max()) if (d > 1e-6).any() else 0.0, 4)
+    return tp, pi, figs

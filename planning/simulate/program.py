@@ -2,10 +2,12 @@
 the PART frame, with its tool axis and where the machine's axes are (:class:`ProgramMotion`).
 
 The reader interprets the program TEXT block by block (not the planner's move list), for the
-subset the two posts emit (:mod:`planning.post.iso`, :mod:`planning.post.linuxcnc`); anything else
-raises :class:`ProgramError` naming the line. It tokenises the whole text at once and runs the
-plain motion blocks (``G0 G1 G2 G3 G17 G18 G19 X Y Z I J K F``) between two other blocks as
-whole arrays; the other blocks are interpreted one by one.
+subset the posts emit (:mod:`planning.post.iso`, :mod:`planning.post.linuxcnc` and the simultaneous
+5-axis posts of :mod:`planning.post.simultaneous`); anything else raises :class:`ProgramError`
+naming the line. It tokenises the whole text at once and runs the plain motion blocks (``G0 G1 G2
+G3 G17 G18 G19 X Y Z I J K F``) between two other blocks as whole arrays; the other blocks are
+interpreted one by one, and the moves of the axes they command are split into their steps together,
+as whole arrays, before the next plain motion block.
 
 Words (both dialects)
 ---------------------
@@ -41,19 +43,33 @@ feature +Z, the linear axes standing still (the rotary solution: the planner's r
 rotary axes stay). With ``G43 H`` active, ``X Y Z`` are the tool tip in the feature frame (in G54
 when no G68.2 is active, which needs the rotary axes at 0). ``G91 G28 X0 / Y0 / Z0`` and the
 profile's rotary letters (``G91 G28 B0. C0.``, as the ISO programs end): rapid of the named axes to
-the reference point (= machine home; the rotary axes at 0). Other rotary words are not in this
-subset.
+the reference point (= machine home; the rotary axes at 0).
+
+``G43.4 H`` (tool centre point control, "type 1", as :mod:`planning.post.simultaneous` assumes): the
+length offset of tool H as with ``G43``, and the programmed ``X Y Z`` are the tool TIP in G54 = the
+part frame whatever the rotary axes are (no G68.2 plane may be active: G68.2 under G43.4 and
+G43.4 under G68.2 raise). ``G0``/``G1`` blocks may then carry the profile's rotary words (planner
+angles, no sign change): the tip moves STRAIGHT in the part frame while the angles move linearly,
+split into steps of at most ``rotary_step_deg`` (tip and angles interpolated linearly, the machine
+position of each step end :meth:`~planning.simulate.kinematics.MachineModel.machine_from_tip`, for
+the travel check). ``G49`` (or ``G43``) cancels it. Rotary words without G43.4 are not in this subset
+(G53.1 turns the rotary axes in a G68.2 plane; ``G53 G0 B.. C..`` positions them in machine
+coordinates, as above).
 
 LinuxCNC (``dialect="linuxcnc"``)
 ---------------------------------
 ``G54`` is the machine frame (:mod:`planning.post.linuxcnc`). ``A``/``B``/``C`` words position the
 machine's rotary axes (the profile's tilt letter and C), moving together with any ``X Y Z`` of the
-block; the printed values are the planner's angles times ``rotary_sign`` (read from the post's
-header comment ``signs: B flipped, C as planned`` unless given). ``X Y Z`` are the machine
-position of the controlled point less the active length offset along machine Z: with ``G43 H``
-on a table-table machine the tool tip, with ``G49`` on a head-head machine the head's rotation
-centre. Rotary repositioning is split into RAPID steps of at most ``rotary_step_deg``, each with
-the tool axis at its end.
+block in ``G0`` or ``G1`` (trivial kinematics: every axis linear in joint space, as the
+simultaneous 5-axis programs move); the printed values are the planner's angles times
+``rotary_sign`` (read from the post's header comment ``signs: B flipped, C as planned`` unless
+given). ``X Y Z`` are the machine position of the controlled point less the active length offset
+along machine Z: with ``G43 H`` on a table-table machine the tool tip, with ``G49`` on a head-head
+machine the head's rotation centre. A move that turns the rotary axes is split into steps of at most
+``rotary_step_deg`` (RAPID for G0, FEED for G1), each with the tool axis at its end. ``G93``
+(inverse-time feed: ``F`` = 1 / the move's time in minutes) needs an ``F`` word on every feed block,
+as LinuxCNC does; ``G94`` returns to mm/min. A change of feed mode forgets the feed rate (a feed
+move then needs a new ``F``). Feed rates are checked, not simulated.
 """
 
 from __future__ import annotations
@@ -79,9 +95,9 @@ DIALECTS = ("iso", "linuxcnc")
 
 #: G codes (x10, so that G53.1 is 531) each dialect accepts.
 _G_COMMON = {0, 10, 20, 30, 170, 180, 190, 200, 210, 400, 430, 490, 530, 540, 640, 800, 900, 910, 940}
-_G_ISO = _G_COMMON | {280, 531, 682, 690}
-_G_LINUXCNC = set(_G_COMMON)
-_G_GROUPS = ({0, 10, 20, 30}, {170, 180, 190}, {200, 210}, {430, 490}, {900, 910}, {682, 690})
+_G_ISO = _G_COMMON | {280, 434, 531, 682, 690}
+_G_LINUXCNC = _G_COMMON | {930}
+_G_GROUPS = ({0, 10, 20, 30}, {170, 180, 190}, {200, 210}, {430, 434, 490}, {900, 910}, {682, 690}, {930, 940})
 _M_ALLOWED = {2, 3, 4, 5, 6, 7, 8, 9, 30}
 _PLANE_AXES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}
 
@@ -97,6 +113,9 @@ _SEMICOLON = re.compile(rb";[^\n]*")
 _BLANK_LETTERS = bytes(32 if 65 <= c <= 90 or c == 37 else c for c in range(256))
 _SIGNS = re.compile(r"signs:\s*([ABC])\s+(flipped|as planned)\s*,\s*([ABC])\s+(flipped|as planned)",
                     re.IGNORECASE)
+
+
+_NO_INVERSE_F = "inverse-time feed (G93): every feed move needs its own F word"
 
 
 class ProgramError(PlanningError):
@@ -236,7 +255,10 @@ class _State:
     ang: np.ndarray                  # (tilt, rotary), planner signs, deg
     tool: int = 0                    # T in the spindle
     t_word: int | None = None        # last T word
-    tlc: bool = False                # G43 active
+    tlc: bool = False                # G43 / G43.4 active
+    tcp: bool = False                # ISO G43.4 (tool centre point control) active
+    inverse_time: bool = False       # LinuxCNC G93: F = 1 / move time (min)
+    f_word: bool = False             # the block being interpreted has an F word
     h_tool: int = 0                  # the tool whose length G43 applies
     motion: float = math.nan         # modal 0..3
     plane: float = 17.0
@@ -266,6 +288,9 @@ class _Reader:
         self.t = _tokenise(text, dialect, program)
         self.st = _State(mpos=self.model.home.copy(), ang=np.zeros(2))
         self.chunks: list[tuple] = []
+        # machine / TCP moves not yet split into steps: interpolated together by _flush (whole arrays)
+        self.pending: list[tuple] = []
+        self.tcp_at: tuple | None = None      # (programmed point, the st.mpos object, (g, off)) after a TCP move
 
     def _tool_note(self) -> str:
         if self.tools is None:
@@ -330,8 +355,8 @@ class _Reader:
             raise self.fail(line, "ISO motion without tool length compensation G43 H (X Y Z are tool tips)")
         if st.frame is not None and not st.oriented:
             raise self.fail(line, "motion in a G68.2 plane before G53.1 oriented the tool")
-        if st.frame is None and np.any(np.abs(st.ang) > 1e-9):
-            raise self.fail(line, "motion in G54 with the rotary axes turned (no G68.2 / G53.1)")
+        if st.frame is None and not st.tcp and np.any(np.abs(st.ang) > 1e-9):
+            raise self.fail(line, "motion in G54 with the rotary axes turned (no G68.2 / G53.1, no G43.4)")
 
     def _frame(self) -> tuple[np.ndarray, np.ndarray]:
         return self.st.frame if self.st.frame is not None else (np.eye(3), np.zeros(3))
@@ -355,6 +380,8 @@ class _Reader:
         g, off = self.gauge(st.tool, line), self._offset(line)
         if not self.iso:
             return st.mpos - np.array([0.0, 0.0, off])
+        if st.tcp and self.tcp_at is not None and self.tcp_at[1] is st.mpos and self.tcp_at[2] == (g, off):
+            return self.tcp_at[0].copy()
         tip, axis = self.model.tip_from_machine(st.mpos, st.ang, g)
         R, o = self._frame()
         return R.T @ (tip[0] - (off - g) * axis[0] - o)
@@ -362,6 +389,7 @@ class _Reader:
     # ---- output
 
     def _emit(self, line, kind, t0, t1, axis, mpos, ang) -> None:
+        self._flush()
         k = t0.shape[0]
         self.chunks.append((np.broadcast_to(np.asarray(line, np.int64), (k,)),
                             np.broadcast_to(np.asarray(kind, np.int8), (k,)), np.full(k, self.st.tool, np.int64),
@@ -369,16 +397,40 @@ class _Reader:
 
     def _machine_move(self, line: int, kind: int, p1: np.ndarray, a1: np.ndarray) -> None:
         """A move of the machine's axes to ``p1`` (controlled point) and ``a1`` (angles), all axes
-        together; rotary turns split into steps of at most ``rotary_step_deg``."""
+        together; rotary turns split into steps of at most ``rotary_step_deg`` (by :meth:`_flush`)."""
         st = self.st
-        _, q0, q1, b0, b1 = interpolate_moves(st.mpos[None], p1[None], st.ang[None], a1[None], self.step)
-        g = self.gauge(st.tool, line)
-        t0, _ = self.model.tip_from_machine(q0, b0, g)
-        t1, ax = self.model.tip_from_machine(q1, b1, g)
-        self._emit(line, kind, t0, t1, ax, q1, b1)
-        st.mpos, st.ang = np.array(p1, dtype=np.float64), np.array(a1, dtype=np.float64)
+        p1, a1 = np.array(p1, dtype=np.float64), np.array(a1, dtype=np.float64)
+        self.pending.append((line, kind, st.tool, self.gauge(st.tool, line), st.mpos, p1, st.ang, a1, math.nan))
+        st.mpos, st.ang = p1, a1
+
+    def _flush(self) -> None:
+        """Split the pending machine and TCP moves into their steps, all at once, and emit them."""
+        if not self.pending:
+            return
+        P, self.pending = self.pending, []
+        line, kind, tool, gauge = (np.array([x[i] for x in P]) for i in range(4))
+        p0, p1, a0, a1 = (np.array([x[i] for x in P], dtype=np.float64) for i in range(4, 8))
+        shift = np.array([x[8] for x in P], dtype=np.float64)
+        owner, q0, q1, b0, b1 = interpolate_moves(p0, p1, a0, a1, self.step)
+        g = gauge[owner].astype(np.float64)
+        m = self.model
+        t0, t1, ax, mpos = np.empty_like(q0), np.empty_like(q0), np.empty_like(q0), q1.copy()
+        tcp = np.isfinite(shift)[owner]
+        mm = ~tcp
+        if mm.any():                                # the controlled point moves linearly with the angles
+            t0[mm], _ = m.tip_from_machine(q0[mm], b0[mm], g[mm])
+            t1[mm], ax[mm] = m.tip_from_machine(q1[mm], b1[mm], g[mm])
+        if tcp.any():                               # G43.4: the programmed point moves linearly with the angles
+            sh = shift[owner][tcp][:, None]
+            t0[tcp] = q0[tcp] + sh * m.axis(b0[tcp])
+            ax[tcp] = m.axis(b1[tcp])
+            t1[tcp] = q1[tcp] + sh * ax[tcp]
+            mpos[tcp] = m.machine_from_tip(t1[tcp], b1[tcp], g[tcp])
+        self.chunks.append((line[owner].astype(np.int64), kind[owner].astype(np.int8), tool[owner].astype(np.int64),
+                            t0, t1, ax, mpos, b1))
 
     def _result(self) -> ProgramMotion:
+        self._flush()
         if self.chunks:
             cols = [np.concatenate([c[j] for c in self.chunks]) for j in range(8)]
         else:
@@ -403,6 +455,10 @@ class _Reader:
         st.motion, st.plane, st.feed = float(mode[-1]), float(plane[-1]), float(feed[-1])
         xyz, ijk = T.xyz[a:b], T.ijk[a:b]
         rows = np.flatnonzero(~(np.isnan(xyz).all(axis=1) & np.isnan(ijk).all(axis=1)))
+        if st.inverse_time and rows.size:
+            no_f = (mode[rows] > 0) & np.isnan(T.feed[a:b][rows])
+            if no_f.any():
+                raise self.fail(a + int(rows[int(np.argmax(no_f))]) + 1, _NO_INVERSE_F)
         if rows.size:
             self._motion(a + rows, mode[rows], plane[rows], feed[rows], xyz[rows], ijk[rows])
 
@@ -515,6 +571,12 @@ class _Reader:
         st = self.st
         if 200 in gs:
             raise self.fail(line, "G20 (inches): the reader takes millimetre programs (G21) only")
+        if 930 in gs or 940 in gs:
+            inverse = 930 in gs
+            if inverse != st.inverse_time:
+                st.feed = math.nan                   # a new feed mode needs a new F (as LinuxCNC)
+            st.inverse_time = inverse
+        st.f_word = "F" in vals
         if "F" in vals:
             st.feed = vals.pop("F")
         vals.pop("S", None)
@@ -531,14 +593,16 @@ class _Reader:
             st.tool = st.t_word
         for g in gs & {170, 180, 190}:
             st.plane = g / 10.0
-        if 430 in gs:
+        if 430 in gs or 434 in gs:
             if "H" not in vals and self.iso:
-                raise self.fail(line, "G43 without H")
+                raise self.fail(line, f"G43{'.4' if 434 in gs else ''} without H")
+            if 434 in gs and st.frame is not None:
+                raise self.fail(line, "G43.4 with a G68.2 plane active is not in the subset (G69 first)")
             st.h_tool = int(vals.pop("H")) if "H" in vals else st.tool
             self.gauge(st.h_tool, line)
-            st.tlc = True
+            st.tlc, st.tcp = True, 434 in gs
         if 490 in gs:
-            st.tlc = False
+            st.tlc = st.tcp = False
         if 640 in gs:
             vals.pop("P", None)
         if 900 in gs or 910 in gs:
@@ -554,6 +618,8 @@ class _Reader:
         if 682 in gs:
             if st.frame is not None:
                 raise self.fail(line, "G68.2 while a G68.2 plane is active (cancel it with G69 first)")
+            if st.tcp:
+                raise self.fail(line, "G68.2 with G43.4 active is not in the subset (G49 first)")
             o = np.array([vals.pop(k, 0.0) for k in "XYZ"])
             i, j, k = (vals.pop(w, 0.0) for w in "IJK")
             st.frame, st.oriented = (_rz(i) @ _rx(j) @ _rz(k), o), False
@@ -576,6 +642,7 @@ class _Reader:
         elif any(k in vals for k in "ABC"):
             self._rotary(line, vals)
         elif any(k in vals for k in "XYZIJK"):
+            self._check_inverse_f(line)
             xyz = np.array([vals.pop(k, math.nan) for k in "XYZ"])
             ijk = np.array([vals.pop(k, math.nan) for k in "IJK"])
             self._motion(np.array([line - 1]), np.array([st.motion]), np.array([st.plane]), np.array([st.feed]),
@@ -613,6 +680,7 @@ class _Reader:
             raise self.fail(line, f"G53 needs X, Y, Z, {names[0]} or {names[1]} words only")
         if st.motion == 1.0 and not st.feed > 0:
             raise self.fail(line, "feed move without a feed rate F")
+        self._check_inverse_f(line)
         p1 = st.mpos.copy()
         for i in axes:
             p1[i] = self.model.home[i] + vals.pop("XYZ"[i])
@@ -621,11 +689,18 @@ class _Reader:
             a1[j] = vals.pop(names[j]) * self.sign[j]
         self._machine_move(line, RAPID if st.motion == 0.0 else FEED, p1, a1)
 
+    def _check_inverse_f(self, line: int) -> None:
+        """LinuxCNC G93: a feed move needs its own F word."""
+        if self.st.inverse_time and self.st.motion > 0 and not self.st.f_word:
+            raise self.fail(line, _NO_INVERSE_F)
+
     def _rotary(self, line: int, vals: dict) -> None:
-        """LinuxCNC ``G0``/``G1`` with rotary words (and optionally X Y Z): all axes move together."""
+        """``G0``/``G1`` with rotary words (and optionally X Y Z), all axes moving together:
+        LinuxCNC (joint space), ISO with G43.4 (tip straight, angles linear)."""
         st, p = self.st, self.model.profile
-        if self.iso:
-            raise self.fail(line, "rotary words are not in the ISO subset (G53.1 turns the rotary axes)")
+        if self.iso and not st.tcp:
+            raise self.fail(line, "rotary words are not in the ISO subset without G43.4 (G53.1 turns the rotary axes "
+                                  "in a G68.2 plane, G53 / G28 in machine coordinates)")
         a1 = st.ang.copy()
         for k in "ABC":
             if k in vals:
@@ -639,12 +714,31 @@ class _Reader:
             raise self.fail(line, "incremental motion (G91) is not in the subset")
         if st.motion == 1.0 and not st.feed > 0:
             raise self.fail(line, "feed move without a feed rate F")
+        self._check_inverse_f(line)
+        kind = RAPID if st.motion == 0.0 else FEED
         X = self._program_position(line)
         for i, k in enumerate("XYZ"):
             if k in vals:
                 X[i] = vals.pop(k)
+        if self.iso:
+            self._tcp_move(line, kind, X, a1)
+            return
         p1 = X + np.array([0.0, 0.0, self._offset(line)])
-        self._machine_move(line, RAPID if st.motion == 0.0 else FEED, p1, a1)
+        self._machine_move(line, kind, p1, a1)
+
+    def _tcp_move(self, line: int, kind: int, X1: np.ndarray, a1: np.ndarray) -> None:
+        """ISO G43.4: the programmed point (the tip, for ``H`` = the tool in the spindle) moves
+        straight to ``X1`` in G54 = the part frame while the angles move linearly to ``a1``, in
+        steps of at most ``rotary_step_deg``; the machine position of each step end is
+        :meth:`~planning.simulate.kinematics.MachineModel.machine_from_tip` of its tip."""
+        st, m = self.st, self.model
+        g, off = self.gauge(st.tool, line), self._offset(line)
+        X0 = self._program_position(line)                 # the programmed point now
+        X1, a1 = np.array(X1, dtype=np.float64), np.array(a1, dtype=np.float64)
+        self.pending.append((line, kind, st.tool, g, X0, X1, st.ang, a1, off - g))
+        st.mpos = m.machine_from_tip(X1 + (off - g) * m.axis(a1), a1, g)[0]
+        st.ang = a1
+        self.tcp_at = (X1.copy(), st.mpos, (g, off))
 
 
 def read_program(text: str, *, dialect: str, program: str, area: int, profile, placement_mm,

@@ -234,16 +234,21 @@ def _visibility_warnings(vis: _Visibility) -> list[str]:
     return []
 
 
-def _finishing_visibility(gv: GlobalVisibility, ori: _Orientations, nrm: _Normals, config: PlanConfig) -> np.ndarray:
-    """(n, m) which set-up axis can finish which sample: the visibility matrix in 3+2; in 5-axis
-    finishing (``paths.finishing.mode``), the points some candidate axis within the swing sees
+def selection_matrix(visible: np.ndarray, axes: np.ndarray, normals: np.ndarray, config: PlanConfig) -> np.ndarray:
+    """(n, m) which set-up axis can finish which sample: ``visible`` itself in 3+2; in 5-axis finishing
+    (``paths.finishing.mode``), the points some candidate axis within the swing sees
     (:func:`planning.visibility.five_axis.five_axis_visibility`)."""
     fp = config.paths.finishing
     if fp.mode != "5axis":
-        return gv.visible
+        return visible
     from planning.visibility.five_axis import five_axis_visibility
 
-    return five_axis_visibility(gv.visible, ori.axes, nrm.normals, fp.max_swing_deg)
+    return five_axis_visibility(visible, axes, normals, fp.max_swing_deg)
+
+
+def _finishing_visibility(gv: GlobalVisibility, ori: _Orientations, nrm: _Normals, config: PlanConfig) -> np.ndarray:
+    """:func:`selection_matrix` of the plan's visibility."""
+    return selection_matrix(gv.visible, ori.axes, nrm.normals, config)
 
 
 def _setups(visible: np.ndarray, zmask: np.ndarray, config: PlanConfig, progress) -> SetupSelection:

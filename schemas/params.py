@@ -478,6 +478,11 @@ class FinishingParams(_Strict):
         10.0, gt=0, le=180, description="5axis: the tool axis turns at most this much per mm of ball-centre path, degrees; "
                                         "where the surface turns faster than the cone allows to follow, the pass is "
                                         "broken (the tool leaves, turns in air and comes back).")
+    pole_clearance_deg: float = Field(
+        3.0, ge=0, le=45, description="5axis: no position's tool axis lies within this angle of the machine's rotary pole "
+                                      "(the axis along the C axis at zero tilt), degrees: near it a small change of the "
+                                      "tool axis needs a large turn of C, which the controls cannot follow on the "
+                                      "surface (docs/programs.md, the pole).")
     max_swing_deg: float = Field(
         75.0, gt=0, lt=90, description="5axis: largest angle between a position's tool axis and its set-up's axis, "
                                        "degrees (retracts run along the set-up axis to the safe height, so the tool "

@@ -109,6 +109,33 @@ class GuardSummary(_Out):
     removed_mm3: float = Field(0.0, description="Material the operation removes from the carried stock, mm^3.")
 
 
+class FiveAxisSummary(_Out):
+    """Simultaneous 5-axis finishing of one area (issue 19; paths.finishing.mode '5axis'): the axes given
+    to the ball-drop positions and the 3D biarcs of the ball-centre path (Chui 2008)."""
+
+    n_positions: int = Field(..., description="Positions on the part (dense CL points) given a tool axis.")
+    n_alternatives: int = Field(..., description="Positions whose lead/tilt axis was not admissible and that took "
+                                                 "the nearest admissible axis on rings inside the cone.")
+    blocked: dict[str, int] = Field(
+        default_factory=dict, description="Positions cut out, per reason: 'no_axis' (no admissible axis: cloud, "
+                                          "stock, swing or travel), 'between' (the move into it not admissible "
+                                          "halfway), 'rate' (the axis would turn faster than "
+                                          "max_axis_rate_deg_per_mm), 'floor' (the ball below the part's underside).")
+    cone_deg: tuple[float, float] = Field(..., description="Smallest and largest angle between a kept axis and its "
+                                                           "contact normal, degrees.")
+    swing_deg: float = Field(..., description="Largest angle between a kept axis and the set-up axis, degrees.")
+    max_rate_deg_per_mm: float = Field(..., description="Fastest axis turn between neighbouring positions kept, "
+                                                        "degrees per mm of ball-centre path.")
+    n_moves_before_biarcs: int = Field(..., description="Cutting moves of the ball-centre path the biarcs fit.")
+    n_biarcs: int = Field(..., description="3D biarcs fitted to the ball-centre path within tolerance_mm (Chui App. A).")
+    n_arcs: int = Field(..., description="Arcs (and straight pieces) of those biarcs: the moves after fitting.")
+    biarc_max_error_mm: float = Field(..., description="Largest distance of a ball-centre position from its biarc, mm.")
+    biarc_min_clearance_mm: float = Field(
+        ..., description="Smallest distance between the biarc curve (as chords within 0.002 mm) and any cloud point, "
+                         "mm; the programs are G1 through the positions, the biarcs are the fitted curve reported "
+                         "(gouge free when >= R - tolerance_mm).")
+
+
 class FinishingSummary(_Out):
     """Ball-end finishing of one area (frame units: mm)."""
 
@@ -140,6 +167,8 @@ class FinishingSummary(_Out):
     handed_in_points: int = Field(0, description="Scan points of other areas, left unmachined by the set-ups before, "
                                                  "that this set-up sees and finished.")
     guard: GuardSummary | None = None
+    mode: Literal["3+2", "5axis"] = Field("3+2", description="Fixed axis (3+2) or an axis per position (5axis).")
+    five_axis: FiveAxisSummary | None = None
 
 
 class RoughingSummary(_Out):

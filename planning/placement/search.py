@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -170,9 +170,9 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
     tried: list[Tried] = []
     survivors: list[Tried] = []        # screened feasible (the placed clouds are turned again to confirm)
 
-    def setups(visible: np.ndarray, cone=None, gv=None):
-        shim = pl._Visibility(cone, replace(gv, visible=visible), None)
-        return pl._setups(shim, zm if zm is not None else np.zeros(n, bool), config, None)
+    def setups(visible: np.ndarray, normals: np.ndarray):
+        return pl._setups(pl.selection_matrix(visible, ori.axes, normals, config),
+                          zm if zm is not None else np.zeros(n, bool), config, None)
 
     for j, (i, pose) in enumerate(listed):
         say(j / max(m, 1) * 0.8, f"candidate {j + 1} of {m}: {pose.label}")
@@ -184,7 +184,7 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
                                fixtures_params=config.fixtures, check_global=vp.global_, check_travel=vp.travel,
                                obstacles=vp.obstacles, base_dir=base_dir, check_cloud=False)
         if not vp.global_:
-            sel = setups(g0.visible, cone, g0)
+            sel = setups(g0.visible, N)
             t = _from_selection(i, pose, "confirmed", sel, exact=True)
             t.seconds = time.perf_counter() - c0
             tried.append(t)
@@ -199,7 +199,7 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
         forbidden = g0.forbidden_mm
         ok = cloud_collision_free(P[sidx], np.arange(n), N, ori.axes, tool, candidates=g0.visible,
                                   obstacles=forbidden if forbidden.size else None)
-        sel = setups(g0.visible & ok, cone, g0)
+        sel = setups(g0.visible & ok, N)
         t = _from_selection(i, pose, "screened", sel, exact=False)
         t.seconds = time.perf_counter() - c0
         tried.append(t)
@@ -214,7 +214,7 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
         c0 = time.perf_counter()
         P, N = apply_pose(pts, t.pose), turn(nrm, t.pose.rotation)
         cone, gv = pl._visibility(P, pl._Normals(sidx, N, None), ori, config, tool, profile, base_dir, None)
-        sel = pl._setups(pl._Visibility(cone, gv, None), zm if zm is not None else np.zeros(n, bool), config, None)
+        sel = setups(gv.visible, N)
         c = _from_selection(t.index, t.pose, "confirmed", sel, exact=True)
         c.seconds = t.seconds + time.perf_counter() - c0
         tried[[x.index for x in tried].index(t.index)] = c

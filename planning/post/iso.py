@@ -112,7 +112,7 @@ def euler_zxz_deg(R) -> tuple[float, float, float]:
 
 def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis, setup_id=None, area_id=None,
                 rotary_deg=None, profile=None, placement_mm=None, gauge_length_mm=None,
-                options: PostOptions | None = None) -> str:
+                options: PostOptions | None = None, five_axis=()) -> str:
     """ISO / Fanuc G-code (str) machining one area in its tilted work plane (see the module docstring).
 
     ``operations``: :class:`~planning.post.options.Operation` list, run in order (one tool change
@@ -126,10 +126,14 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
     arguments, and are not used: G54 is the part frame and G43 takes the tool length from the
     control's tool table. ``options``: :class:`~planning.post.options.PostOptions`
     (``rotary_sign`` does not apply; ``chord_tol_mm`` only to the arcs printed as chords). X Y Z
-    are tool-tip positions in the area frame, mm; feeds mm/min.
+    are tool-tip positions in the area frame, mm; feeds mm/min. ``five_axis``:
+    :class:`planning.post.simultaneous.FiveAxisOperation` list run after ``operations`` with ``G43.4``
+    tool centre point control (they need ``profile`` and ``placement_mm``; ``operations`` may then be
+    empty).
     """
     o = check_options(options)
-    ops = check_operations(operations)
+    five = list(five_axis)
+    ops = check_operations(operations, allow_empty=bool(five))
     t = check_frame(frame, tool_axis)
     if placement_mm is not None:
         check_placement(placement_mm)
@@ -143,6 +147,14 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
     _program_start(w, o, t, rot, axis_names, setup_id=setup_id, area_id=area_id)
     for k, op in enumerate(ops):
         _operation_blocks(w, o, k, op, g682, A, b)
+    for k, op in enumerate(five):
+        # simultaneous 5-axis operations (issue 19): G43.4 tool centre point control
+        from planning.post.simultaneous import iso_5axis_blocks
+
+        if profile is None or placement_mm is None:
+            raise ParameterError("a simultaneous 5-axis operation needs the machine profile and the placement",
+                                 parameter="profile")
+        iso_5axis_blocks(w, o, op, profile, placement_mm, index=len(ops) + k)
     _program_end(w, axis_names)
     return w.text()
 

@@ -105,7 +105,7 @@ def printed_rotary_deg(rotary_deg, options: PostOptions | None = None) -> tuple[
 
 def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis, rotary_deg, profile,
                      placement_mm, setup_id=None, area_id=None, gauge_length_mm=None,
-                     options: PostOptions | None = None) -> str:
+                     options: PostOptions | None = None, five_axis=()) -> str:
     """LinuxCNC G-code (str) machining one area with the rotary axes positioned once (module docstring).
 
     ``operations``: :class:`~planning.post.options.Operation` list, run in order. ``frame``: the area
@@ -115,12 +115,15 @@ def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_
     ``placement_mm`` (3,): part origin in the table frame (:func:`planning.orientations.positions.default_placement`).
     Head-head machines need the tool's gauge length (tip to spindle gauge line, mm): an operation's
     own ``gauge_length_mm``, else the ``gauge_length_mm`` argument (unused for table-table). X Y Z in the machine frame, mm;
-    feeds mm/min; angles degrees.
+    feeds mm/min; angles degrees. ``five_axis``: :class:`planning.post.simultaneous.FiveAxisOperation` list
+    run after ``operations`` (simultaneous motion, G93 inverse-time feeds; ``operations`` may then be
+    empty).
     """
     from planning.orientations.kinematics import as_profile
 
     o = check_options(options)
-    ops = check_operations(operations)
+    five = list(five_axis)
+    ops = check_operations(operations, allow_empty=bool(five))
     t = check_frame(frame, tool_axis)
     p = as_profile(profile)
     if p.kinematics not in SUPPORTED_KINEMATICS:          # pragma: no cover - schema allows no other
@@ -137,6 +140,11 @@ def linuxcnc_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_
     _program_start(w, o, p, t, rot, place, ang, setup_id=setup_id, area_id=area_id)
     for k, op in enumerate(ops):
         _operation_blocks(w, o, k, op, frame, p, place, gauge, ang)
+    for k, op in enumerate(five):
+        # simultaneous 5-axis operations (issue 19): every block positions X Y Z and the rotary axes
+        from planning.post.simultaneous import linuxcnc_5axis_blocks
+
+        linuxcnc_5axis_blocks(w, o, op, p, place, index=len(ops) + k)
     # the rotary axes home, Z at machine Z0 and the spindle stopped since the last operation's end
     w.block("G53", "G0", f"{p.axis_names[0]}0", f"{p.axis_names[1]}0")
     w.block("M30")

@@ -174,18 +174,23 @@ def check_options(options: PostOptions | None) -> PostOptions:
     return o
 
 
-def check_operations(operations: Sequence[Operation]) -> list[Operation]:
-    """The operations as a list, each checked (ParameterError naming the operation and the field)."""
+def check_operations(operations: Sequence[Operation], *, allow_empty: bool = False) -> list[Operation]:
+    """The operations as a list, each checked (ParameterError naming the operation and the field);
+    ``allow_empty``: none is accepted (a program whose only operation is a simultaneous 5-axis one,
+    :mod:`planning.post.simultaneous`)."""
     if isinstance(operations, Operation):
         operations = [operations]
     ops = list(operations) if operations is not None else []
-    if not ops:
+    if not ops and not allow_empty:
         raise ParameterError("a post needs at least one operation", parameter="operations")
     for k, op in enumerate(ops):
         where = f"operation {k}"
         if not isinstance(op, Operation):
             raise ParameterError(f"{where}: expected an Operation, got {type(op).__name__}", parameter="operations")
         where = f"operation {k} ({op.name!r})"
+        if op.toolpath.axis is not None:
+            raise ParameterError(f"{where}: a toolpath with a tool axis per move is simultaneous 5-axis: post it as a "
+                                 "planning.post.simultaneous.FiveAxisOperation", parameter="operations")
         if isinstance(op.tool_number, bool) or not isinstance(op.tool_number, (int, np.integer)) \
                 or not 1 <= int(op.tool_number) <= 9999:
             raise ParameterError(f"{where}: tool_number = {op.tool_number!r}: must be an integer in [1, 9999]",

@@ -19,12 +19,44 @@ from planning.toolpath.moves import machining_time_s
 from schemas.plan import (
     AreaPathSummary,
     FinishingSummary,
+    FiveAxisSummary,
     FrameSummary,
     GuardSummary,
     RoughingSummary,
 )
 
 _POSTS = {"iso": iso_program, "linuxcnc": linuxcnc_program}
+
+
+def _five_axis_operations(ap, config, gauge_length_mm) -> list:
+    """The area's simultaneous 5-axis finishing (a toolpath with an axis per move) as a
+    :class:`planning.post.simultaneous.FiveAxisOperation` in the part frame; [] otherwise."""
+    from planning.post.simultaneous import FiveAxisOperation
+
+    tp = ap.finishing
+    if tp is None or tp.axis is None:
+        return []
+    post = config.post
+    return [FiveAxisOperation(name="finishing 5-axis", centre_mm=ap.frame.to_part(tp.xyz_mm),
+                              axis=tp.axis @ ap.frame.rotation, kind=tp.kind.copy(), use=tp.use.copy(),
+                              tool_number=post.finishing_tool_number, radius_mm=config.tool.diameter_mm / 2.0,
+                              spindle_rpm=post.spindle_rpm, feed_mm_min=post.feed_mm_min,
+                              plunge_mm_min=post.plunge_mm_min, gauge_length_mm=float(gauge_length_mm))]
+
+
+def _five_axis_moves(text: str, five: list, decimals: int) -> str:
+    """The neutral moves JSON with the simultaneous operations added under ``five_axis_operations``: per
+    move the ball centre, the tool tip and the tool axis in the part frame, the kind and the use."""
+    import json
+
+    doc = json.loads(text) if text else {}
+    doc["five_axis_operations"] = [
+        {"name": op.name, "tool_number": int(op.tool_number), "radius_mm": float(op.radius_mm),
+         "centre_mm": np.round(op.centre_mm, decimals).tolist(),
+         "tip_mm": np.round(op.centre_mm - op.radius_mm * op.axis, decimals).tolist(),
+         "axis": np.round(op.axis, 9).tolist(), "kind": op.kind.astype(int).tolist(), "use": op.use.astype(int).tolist()}
+        for op in five]
+    return json.dumps(doc, separators=(",", ":"))
 
 
 def _operations(ap, config) -> list[Operation]:
@@ -35,7 +67,7 @@ def _operations(ap, config) -> list[Operation]:
                              tool_diameter_mm=rp.diameter_mm, tool_type=rp.tool_type,
                              spindle_rpm=post.roughing_spindle_rpm, feed_mm_min=post.roughing_feed_mm_min,
                              plunge_mm_min=post.plunge_mm_min))
-    if ap.finishing is not None:
+    if ap.finishing is not None and ap.finishing.axis is None:
         ops.append(Operation(name="finishing", toolpath=ap.finishing, tool_number=post.finishing_tool_number,
                              tool_diameter_mm=config.tool.diameter_mm, tool_type="ball",
                              spindle_rpm=post.spindle_rpm, feed_mm_min=post.feed_mm_min,
@@ -55,8 +87,9 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
     for ap in area_paths:
         i = ap.area
         ops = _operations(ap, config)
+        five = _five_axis_operations(ap, config, gauge_length_mm)
         names = {}
-        if ops:
+        if ops or five:
             # retracts and rapids: the tip at the area's safe height (the posts never go lower)
             options = PostOptions(program_number=post.program_number + i, coolant=post.coolant,
                                   decimals=post.decimals, rotary_sign=tuple(post.rotary_sign),
@@ -66,12 +99,13 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
                 name = f"area_{i}.{dialect}.nc"
                 files[name] = _POSTS[dialect](ops, ap.frame, setup_id=i, area_id=i, tool_axis=setups_axes[i],
                                               rotary_deg=rotary_deg[i], profile=profile, placement_mm=placement_mm,
-                                              gauge_length_mm=gauge_length_mm, options=options)
+                                              gauge_length_mm=gauge_length_mm, options=options, five_axis=five)
                 names[dialect] = name
             moves_name = f"area_{i}.moves.json"
-            files[moves_name] = neutral_json(
+            text = neutral_json(
                 ops, ap.frame, setup_id=i, area_id=i, tool_axis=setups_axes[i], rotary_deg=rotary_deg[i], profile=profile,
-                placement_mm=placement_mm, decimals=post.decimals) + "\n"
+                placement_mm=placement_mm, decimals=post.decimals) if ops else ""
+            files[moves_name] = (_five_axis_moves(text, five, post.decimals) if five else text) + "\n"
         fin = rough = None
         if ap.finishing is not None:
             info = ap.finishing_info
@@ -86,6 +120,8 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
                 unmachined_points=int(0 if getattr(ap, "unmachined", None) is None else ap.unmachined.size),
                 handed_in_points=int(getattr(ap, "handed_in", 0)),
                 guard=_guard_summary(getattr(ap, "finishing_guard", None)),
+                mode="5axis" if ap.finishing.axis is not None else "3+2",
+                five_axis=_five_axis_summary(getattr(ap, "five_axis", None)),
                 machining_time_s=round(machining_time_s(ap.finishing, feed_mm_min=post.feed_mm_min,
                                                         plunge_mm_min=post.plunge_mm_min,
                                                         rapid_mm_min=post.rapid_mm_min), 1))
@@ -112,6 +148,17 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
             safe_z_mm=round(float(ap.safe_z_mm), 4), finishing=fin, roughing=rough, programs=names,
             moves=f"area_{i}.moves.json" if ops else None, seconds=ap.seconds)
     return files, summaries
+
+
+def _five_axis_summary(f):
+    """plan.json's figures of a :class:`planning.toolpath.fiveaxis.finishing.FiveAxisFigures` (None: 3+2)."""
+    if f is None:
+        return None
+    return FiveAxisSummary(
+        n_positions=f.n_positions, n_alternatives=f.n_alternatives, blocked=dict(f.blocked), cone_deg=f.cone_deg,
+        swing_deg=f.swing_deg, max_rate_deg_per_mm=f.max_rate_deg_per_mm, n_moves_before_biarcs=f.n_moves_before_biarcs,
+        n_biarcs=f.n_biarcs, n_arcs=f.n_arcs, biarc_max_error_mm=f.biarc_max_error_mm,
+        biarc_min_clearance_mm=float(f.biarc_min_clearance_mm) if np.isfinite(f.biarc_min_clearance_mm) else 0.0)
 
 
 def _guard_summary(g):

@@ -452,7 +452,9 @@ def rotary_path(axes, profile, *, start_deg=None, pole_deg: float = POLE_DEG) ->
                     cands = tuple(cw + w for w in wraps)
                 for c in cands:
                     dt, dc = abs(t - pt), abs(c - pc)
-                    key = (max(dt, dc), dt + dc)
+                    # the other solution has the tilt of the other sign: going there the tilt passes
+                    # through 0, the pole, where the rotary axis swings; taken only when it must be
+                    key = (t * pt < 0.0, max(dt, dc), dt + dc)
                     if best_any is None or key < best_any[0]:
                         best_any = (key, t, c)
                     if t_ok and rmin <= c <= rmax and (best is None or key < best[0]):
@@ -619,7 +621,14 @@ class _Path:
             if not bad.any():
                 break
             if depth == MAX_DEPTH:
-                i = int(np.flatnonzero(bad)[0])
+                # a rapid (in the air, at the safe height or along the axis) that turns the table to
+                # another rotary solution cannot follow its segment: it is posted as it is (the
+                # simulation runs it as the control does); a feed move must follow
+                air = self.kind[j] == RAPID
+                if not (bad & ~air).any():
+                    done.append(_take(B, bad))
+                    break
+                i = int(np.flatnonzero(bad & ~air)[0])
                 jj = int(j[i])
                 turn = np.abs(self.ang[jj] - self.ang[jj - 1])
                 tn, rn = self.p.axis_names

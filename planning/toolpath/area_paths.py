@@ -502,7 +502,8 @@ class _FiveAxisArea:
                 machine = self.carried.machines[ap.area].model
                 gauge = self.carried.finishing_shape.gauge_length_mm
         ok = Admissible(ap.frame, ap.frame.to_frame(self.obstacles), self.tool, max_swing_deg=self.fp.max_swing_deg,
-                        machine=machine, gauge_mm=gauge, stock_f=stock_f)
+                        machine=machine, gauge_mm=gauge, stock_f=stock_f,
+                        pole_clearance_deg=self.fp.pole_clearance_deg)
         out, _, figs = five_axis_path(tp, pass_index, cloud_f=cloud_f, admissible=ok, fp=self.fp,
                                       cone_deg=self.cone_deg, safe_z_mm=ap.safe_z_mm, floor=floor)
         self.figures = figs
@@ -550,10 +551,11 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
         t0 = time.perf_counter()
         if tp.n_moves == 0:
             return
-        if fp.reduce:
-            from planning.toolpath.fiveaxis.finishing import axis_runs
+        from planning.toolpath.fiveaxis.finishing import axis_runs, biarc_figures
 
+        if fp.reduce:
             tp = reduce_cl(tp, binned, R, tol_mm=tol, pass_index=axis_runs(tp))
+        biarc_figures(tp, ap.five_axis, binned=binned, radius_mm=R, tol_mm=tol)
     elif fp.arcs:
         tp = fit_arcs(tp, binned, R, tol_mm=tol, reduce_lines=fp.reduce, pass_index=fin.pass_index)
     elif fp.reduce:

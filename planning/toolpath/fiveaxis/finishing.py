@@ -43,7 +43,10 @@ from planning.toolpath.frames import AreaFrame
 from planning.toolpath.moves import FEED, USE_CUT, USE_PLUNGE, USE_RETRACT, Toolpath
 from planning.toolpath.safety import cut_moves
 
-__all__ = ["Admissible", "FiveAxisFigures", "axis_runs", "five_axis_path", "slerp_mid"]
+__all__ = ["Admissible", "FiveAxisFigures", "axis_runs", "biarc_figures", "five_axis_path", "slerp_mid"]
+
+#: Chord tolerance (mm) with which the fitted biarcs are sampled for their clearance from the cloud.
+BIARC_CHORD_MM = 0.002
 
 #: A 5-axis path is reduced (straight moves replacing CL points) only where its axis turns less than
 #: this along the replaced stretch, degrees: the axes of the points kept stand for the dropped ones.
@@ -57,7 +60,8 @@ class FiveAxisFigures:
     reason (``no_axis``: no admissible axis in the cone; ``between``: the move into it is not
     admissible halfway; ``rate``: the turn rate could not be met), ``max_rate_deg_per_mm`` the
     fastest turn between linked positions kept, ``cone_deg`` the range of angles between the axes
-    and the normals, ``swing_deg`` the largest angle from the set-up axis."""
+    and the normals, ``swing_deg`` the largest angle from the set-up axis; the biarcs of
+    :func:`biarc_figures`."""
 
     n_positions: int = 0
     n_alternatives: int = 0
@@ -65,6 +69,11 @@ class FiveAxisFigures:
     max_rate_deg_per_mm: float = 0.0
     cone_deg: tuple[float, float] = (0.0, 0.0)
     swing_deg: float = 0.0
+    n_moves_before_biarcs: int = 0
+    n_biarcs: int = 0
+    n_arcs: int = 0
+    biarc_max_error_mm: float = 0.0
+    biarc_min_clearance_mm: float = math.inf
 
 
 def slerp_mid(a: np.ndarray, b: np.ndarray, f: float = 0.5) -> np.ndarray:
@@ -87,10 +96,12 @@ class Admissible:
     points are ``simulate.resolution_mm`` apart, so this is a screen and the guard on the stock
     model decides), and, with ``machine`` (a :class:`planning.simulate.kinematics.MachineModel`) and
     ``gauge_mm``, reachable: a rotary solution within travel putting the tip within the linear
-    travel."""
+    travel, and at least ``pole_clearance_deg`` from the machine's rotary pole (the tool axis at zero
+    tilt: near it the rotary axis turns fast for a small change of the tool axis)."""
 
     def __init__(self, frame: AreaFrame, obstacles_f: np.ndarray, tool: ToolAssembly, *, max_swing_deg: float,
-                 machine=None, gauge_mm: float | None = None, stock_f: np.ndarray | None = None):
+                 machine=None, gauge_mm: float | None = None, stock_f: np.ndarray | None = None,
+                 pole_clearance_deg: float = 0.0):
         self.frame = frame
         self.tool = tool
         self.grid = ObstacleGrid(obstacles_f, default_cell_mm(tool))
@@ -101,6 +112,12 @@ class Admissible:
         self.machine = machine
         self.gauge = gauge_mm
         self.calls = 0
+        self.pole_f = None
+        self.cos_pole = math.cos(math.radians(float(pole_clearance_deg)))
+        if machine is not None and pole_clearance_deg > 0:
+            from planning.orientations.kinematics import tool_axis_from_angles
+
+            self.pole_f = frame.rotation @ tool_axis_from_angles(np.zeros((1, 2)), machine.profile)[0]
 
     def reachable(self, centres_f: np.ndarray, axes_f: np.ndarray) -> np.ndarray:
         """(n,) bool: some rotary solution within the rotary travel puts the tool tip within the linear
@@ -131,6 +148,8 @@ class Admissible:
         c = np.asarray(centres_f, dtype=np.float64).reshape(-1, 3)
         a = np.asarray(axes_f, dtype=np.float64).reshape(-1, 3)
         ok = a[:, 2] >= self.cos_swing - 1e-12
+        if self.pole_f is not None:
+            ok &= (a @ self.pole_f) < self.cos_pole
         idx = np.flatnonzero(ok)
         if idx.size:
             ok[idx] = self.reachable(c[idx], a[idx])
@@ -308,3 +327,53 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
                 rate = turn_deg(tp.axis[lk], tp.axis[lk - 1]) / np.maximum(d, 1e-9)
                 figs.max_rate_deg_per_mm = round(float(rate[d > 1e-6].max()) if (d > 1e-6).any() else 0.0, 4)
     return tp, pi, figs
+
+
+def biarc_figures(tp: Toolpath, figs: FiveAxisFigures, *, binned, radius_mm: float, tol_mm: float) -> None:
+    """3D biarcs through the ball centres of the touching runs of ``tp`` (Chui 2008 App. A,
+    :func:`planning.toolpath.fiveaxis.biarc.fit_biarcs`, every centre within ``tol_mm``), their move
+    count against the path's, their largest error and the clearance of the fitted curve from the cloud
+    (``binned``: :class:`planning.toolpath.verify.BinnedCloud` of the area frame; chords within
+    :data:`BIARC_CHORD_MM`) into ``figs``."""
+    from planning.toolpath.fiveaxis.biarc import biarc_chords, fit_biarcs
+    from planning.toolpath.moves import lines
+    from planning.toolpath.verify import move_clearance
+
+    touch = _touching(tp)
+    idx = np.flatnonzero(touch)
+    if idx.size < 2:
+        return
+    # a new piece wherever the run of touching points is interrupted
+    breaks = np.flatnonzero(np.diff(idx) > 1) + 1
+    pts = tp.xyz_mm[idx]
+    corners: set[int] = set()
+    R = float(radius_mm)
+    for _ in range(8):
+        fit = fit_biarcs(pts, float(tol_mm), breaks=breaks, corners=sorted(corners))
+        if fit.n_biarcs == 0:
+            break
+        owner, chords = biarc_chords(fit.biarcs, BIARC_CHORD_MM)
+        # one polyline per piece: a new piece starts where the previous biarc does not end
+        piece = np.asarray(fit.path_piece)[owner]
+        use = np.where(np.r_[True, piece[1:] != piece[:-1]], 0, 1).astype(np.int8)
+        clear = move_clearance(lines(chords, use), binned, R)
+        bad = np.isfinite(clear) & (clear < R - float(tol_mm))
+        if not bad.any():
+            break
+        # gouge-checked: a biarc that comes too close to the cloud is split at its middle point and refitted
+        spans = np.unique(owner[bad])
+        s0, s1 = np.asarray(fit.span_start)[spans], np.asarray(fit.span_end)[spans]
+        mid = (s0 + s1) // 2
+        new = {int(m) for m, a, b in zip(mid, s0, s1) if a < m < b}
+        # a biarc between two neighbouring points that still comes too close: both become corners, so
+        # the piece between them is the straight move itself (which the path's gouge check passed)
+        new |= {int(v) for a, b in zip(s0, s1) if b == a + 1 for v in (a, b)}
+        if not new - corners:
+            break
+        corners |= new
+    figs.n_moves_before_biarcs = int(idx.size - 1 - breaks.size)
+    figs.n_biarcs, figs.n_arcs = int(fit.n_biarcs), int(fit.n_arcs_out)
+    figs.biarc_max_error_mm = round(float(fit.max_error_mm), 6)
+    if fit.n_biarcs:
+        ok = np.isfinite(clear)
+        figs.biarc_min_clearance_mm = round(float(min(np.min(clear[ok]) if ok.any() else R, R)), 6)

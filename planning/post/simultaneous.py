@@ -299,6 +299,7 @@ class _Kin:
         pole = _positive(pole_deg, "pole_deg", "pole_deg", zero_ok=True)
         if pole >= 90.0:
             raise ParameterError(f"pole_deg = {pole_deg!r}: must be below 90 degrees", parameter="pole_deg")
+        self.pole_deg = pole
         self.sin_pole = math.sin(math.radians(pole))
         self.tmin, self.tmax = float(p.tilt_min_deg), float(p.tilt_max_deg)
         self.cont = bool(p.rotary_continuous)
@@ -454,7 +455,8 @@ def rotary_path(axes, profile, *, start_deg=None, pole_deg: float = POLE_DEG) ->
                     dt, dc = abs(t - pt), abs(c - pc)
                     # the other solution has the tilt of the other sign: going there the tilt passes
                     # through 0, the pole, where the rotary axis swings; taken only when it must be
-                    key = (t * pt < 0.0, max(dt, dc), dt + dc)
+                    # (from a point in the pole cone the tilt does change sign: the path went through it)
+                    key = (t * pt < 0.0 and abs(pt) > kin.pole_deg, max(dt, dc), dt + dc)
                     if best_any is None or key < best_any[0]:
                         best_any = (key, t, c)
                     if t_ok and rmin <= c <= rmax and (best is None or key < best[0]):

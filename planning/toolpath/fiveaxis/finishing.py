@@ -208,11 +208,10 @@ def axis_runs(tp: Toolpath, max_turn_deg: float = REDUCE_AXIS_DEG) -> np.ndarray
     run = np.cumsum(start)
     # cumulative turn within each run of touching points, then a new id every max_turn_deg
     cum = np.cumsum(np.where(touch & ~start, turn, 0.0))
-    base = np.zeros(P)
-    first = np.flatnonzero(start)
-    base[first] = cum[first]
-    base = np.maximum.accumulate(np.where(start, base, -np.inf)) if P else base
-    step = np.floor((cum - base) / float(max_turn_deg)).astype(np.int64)
+    # the cumulative turn where the current run began (forward fill of the run starts)
+    at = np.maximum.accumulate(np.where(start, np.arange(P), 0)) if P else np.zeros(0, np.int64)
+    base = cum[at] if P else cum
+    step = np.where(touch, np.floor((cum - base) / float(max_turn_deg)), 0).astype(np.int64)
     key = run * (P + 1) + step
     ids = np.concatenate([[0], np.cumsum(key[1:] != key[:-1])]) if P else np.zeros(0, np.int64)
     return np.where(touch, ids, -1).astype(np.int32)

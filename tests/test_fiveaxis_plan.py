@@ -1,0 +1,182 @@
+"""Simultaneous 5-axis finishing through the whole plan (issue 19): a deep narrow slot no fixed axis
+finishes, finished from one set-up with an axis per position, verified on the simulated machine and
+read back by LinuxCNC's interpreter."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from planning.inputs import Cloud, samples
+from planning.pipeline import run_plan
+from planning.simulate.program import check_travel, read_program
+from planning.simulate.rs274 import INSTALL_HINT, rs274_available, run_rs274
+from planning.simulate.verify import tool_shapes
+from planning.toolpath.fiveaxis.axes import contact_normals, turn_deg
+from planning.toolpath.moves import FEED, USE_CUT
+from planning.visibility.five_axis import five_axis_visibility
+from schemas.params import apply_overrides, parse_config
+
+CONE = (10.0, 45.0)
+SETS = [f"visibility.cone_deg=[{CONE[0]},{CONE[1]}]", "normals.method=input", "paths.finishing.scallop_mm=0.2",
+        "paths.roughing.step_down_mm=5", "simulate.resolution_mm=1.0"]
+
+
+def _slot():
+    return samples.draft_slot(density_per_mm2=1.0, seed=1, include_sides=False)
+
+
+def _plan(mode: str, max_setups: int, extra=()):
+    s = _slot()
+    cfg = parse_config(apply_overrides({}, SETS + [f"paths.finishing.mode={mode}",
+                                                   f"setups.max_setups={max_setups}", *extra]))
+    return s, cfg, run_plan(Cloud(points=s.points, normals=s.normals, source_format="generated"), cfg, name="draft_slot")
+
+
+@pytest.fixture(scope="module")
+def five():
+    return _plan("5axis", 1)
+
+
+def test_no_fixed_axis_has_the_floor_and_both_walls_in_its_cone():
+    a = math.radians(_slot().meta["wall_deg"])
+    normals = np.array([[0, 0, 1.0], [math.sin(a), 0, math.cos(a)], [-math.sin(a), 0, math.cos(a)]])
+    # every axis of a fine near-uniform sampling of the sphere (about 0.5 degree apart)
+    n = 200_000
+    i = np.arange(n) + 0.5
+    phi = np.arccos(1 - 2 * i / n)
+    th = math.pi * (1 + 5 ** 0.5) * i
+    axes = np.stack([np.cos(th) * np.sin(phi), np.sin(th) * np.sin(phi), np.cos(phi)], axis=1)
+    ang = np.degrees(np.arccos(np.clip(axes @ normals.T, -1, 1)))
+    in_cone = (ang >= CONE[0]) & (ang <= CONE[1])
+    assert in_cone.any(axis=0).all()               # each face alone has axes
+    assert not in_cone.all(axis=1).any()           # no axis has all three
+    # the nearest miss is a whole 5 degrees: the two walls need the axis 70 - 45 = 25 deg each way
+    assert (ang[:, 1:] - CONE[1]).clip(0).max(axis=1).min() > 5.0
+
+
+def test_3_plus_2_from_one_set_up_cannot_cover_the_slot():
+    _, _, out = _plan("3+2", 1, ["simulate.enabled=false", "paths.roughing.enabled=false",
+                                 "paths.finishing.enabled=false"])
+    assert out.result.status == "infeasible"
+    assert out.result.selection.coverage < 0.8
+
+
+def test_5_axis_finishes_the_slot_from_one_set_up_and_verifies_clean(five):
+    s, cfg, out = five
+    r = out.result
+    assert r.status == "planned" and r.selection.k == 1 and r.coverage >= 0.95
+    v = r.verification
+    assert v.status == "passed", v.message
+    assert (v.rapids_into_material, v.holder_collisions, v.fixture_collisions, v.travel_excursions) == (0, 0, 0, 0)
+    assert v.deviation.n_gouged == 0 and v.unreadable_programs == 0
+    assert v.deviation.finished_share > 0.85
+    # the floor and both walls are finished within tolerance, not just the top: every point a ball of
+    # radius R can touch at all (the inner corners it cannot: the ball in the corner touches the floor
+    # at |x| = w/2 - R (1 - cos a) / sin a and the wall at z = floor + R (1 - cos a)), 0.3 mm margin
+    dev = out.extra["simulation"].deviation_mm
+    limit = cfg.paths.finishing.tolerance_mm + cfg.paths.finishing.scallop_mm + v.measuring_bound_mm
+    lab, names = s.meta["labels"], s.meta["label_names"]
+    R, a, zf = cfg.tool.diameter_mm / 2, math.radians(s.meta["wall_deg"]), s.meta["floor_z_mm"]
+    x_reach = s.meta["floor_width_mm"] / 2 - R * (1 - math.cos(a)) / math.sin(a)
+    reach = {"slot_floor": np.abs(s.points[:, 0]) < x_reach - 0.3,
+             "slot_wall": s.points[:, 2] > zf + R * (1 - math.cos(a)) + 0.3}
+    for face in ("slot_floor", "slot_wall"):
+        on = (lab == names.index(face)) & reach[face]
+        for side in (s.points[:, 0] < 0, s.points[:, 0] > 0):
+            share = float((np.abs(dev[on & side]) <= limit).mean())
+            assert share > 0.85, (face, share)
+    fin = r.setups[0].path.finishing
+    assert fin.mode == "5axis" and fin.five_axis is not None and fin.gouge_free and fin.holder_collisions == 0
+
+
+def test_every_position_s_axis_is_in_the_cone_within_the_swing_and_under_the_rate(five):
+    s, cfg, out = five
+    fp = cfg.paths.finishing
+    ap = out.extra["area_paths"][0]
+    tp = ap.finishing
+    touch = (tp.kind == FEED) & (tp.use == USE_CUT)
+    idx = np.flatnonzero(touch)
+    centres_p = ap.frame.to_part(tp.xyz_mm[idx])
+    axes_p = tp.axis[idx] @ ap.frame.rotation
+    nrm = contact_normals(centres_p, s.points)
+    ang = turn_deg(axes_p, nrm)
+    # the cone about the contact normal (a little slack: the normal is read from the nearest scan point)
+    assert ang.min() >= CONE[0] - 1.0 and ang.max() <= CONE[1] + 1.0
+    assert np.degrees(np.arccos(tp.axis[idx, 2].min())) <= fp.max_swing_deg + 1e-9
+    pair = np.flatnonzero(touch[1:] & touch[:-1]) + 1
+    d = np.linalg.norm(tp.xyz_mm[pair] - tp.xyz_mm[pair - 1], axis=1)
+    turn = turn_deg(tp.axis[pair], tp.axis[pair - 1])
+    assert (turn <= fp.max_axis_rate_deg_per_mm * d + 1e-6).all()
+    # the axes really vary: they follow the floor and the two walls
+    assert np.ptp(axes_p[:, 0]) > 0.8
+    f5 = out.result.setups[0].path.finishing.five_axis
+    assert f5.biarc_max_error_mm <= fp.tolerance_mm + 1e-9
+    assert f5.biarc_min_clearance_mm >= cfg.tool.diameter_mm / 2 - fp.tolerance_mm - 1e-9
+    assert 0 < f5.n_arcs < f5.n_moves_before_biarcs
+
+
+def _planned_tips(out, cfg):
+    ap = out.extra["area_paths"][0]
+    tp = ap.finishing
+    touch = (tp.kind == FEED) & (tp.use == USE_CUT)
+    R = cfg.tool.diameter_mm / 2
+    return ap.frame.to_part(tp.xyz_mm[touch] - R * tp.axis[touch])
+
+
+@pytest.mark.skipif(not rs274_available(), reason=INSTALL_HINT)
+def test_rs274_reads_the_5_axis_program_and_its_tips_are_the_planned_ones(five):
+    s, cfg, out = five
+    prog = out.extra["programs"]["area_0.linuxcnc.nc"]
+    assert "G93" in prog
+    gv_place = out.result.visibility.placement_mm
+    tools = tool_shapes(cfg, cfg.tool.assembly())
+    motion = run_rs274(prog, program="area_0.linuxcnc.nc", area=0, profile=cfg.machine.profile,
+                       placement_mm=gv_place, tools=tools)
+    assert check_travel(motion, cfg.machine.profile) == []
+    fin = motion.tool == cfg.post.finishing_tool_number
+    ends = motion.end_mm[fin & (motion.kind == 1)]
+    planned = _planned_tips(out, cfg)
+    d, _ = cKDTree(ends).query(planned)
+    assert d.max() <= 0.001, d.max()
+    # and the text reader runs the same program to the same tips
+    text = read_program(prog, dialect="linuxcnc", program="area_0.linuxcnc.nc", area=0,
+                        profile=cfg.machine.profile, placement_mm=gv_place, tools=tools)
+    d2, _ = cKDTree(text.end_mm[(text.tool == cfg.post.finishing_tool_number) & (text.kind == 1)]).query(planned)
+    assert d2.max() <= 0.001
+
+
+def test_the_iso_program_drives_the_tool_tip_with_g43_4_to_the_planned_tips(five):
+    s, cfg, out = five
+    prog = out.extra["programs"]["area_0.iso.nc"]
+    assert "G43.4" in prog
+    tools = tool_shapes(cfg, cfg.tool.assembly())
+    motion = read_program(prog, dialect="iso", program="area_0.iso.nc", area=0, profile=cfg.machine.profile,
+                          placement_mm=out.result.visibility.placement_mm, tools=tools)
+    assert check_travel(motion, cfg.machine.profile) == []
+    ends = motion.end_mm[(motion.tool == cfg.post.finishing_tool_number) & (motion.kind == 1)]
+    d, _ = cKDTree(ends).query(_planned_tips(out, cfg))
+    assert d.max() <= 0.001, d.max()
+
+
+def test_five_axis_visibility_matches_a_brute_force_reading_of_its_rule():
+    rng = np.random.default_rng(5)
+    n, m = 300, 40
+    axes = rng.normal(size=(m, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    vis = rng.random((n, m)) < 0.08
+    swing = 50.0
+    got = five_axis_visibility(vis, axes, nrm, swing)
+    want = np.zeros((n, m), dtype=bool)
+    for i in range(n):
+        for j in range(m):
+            facing = math.degrees(math.acos(np.clip(nrm[i] @ axes[j], -1, 1))) <= swing
+            near = [k for k in range(m) if math.degrees(math.acos(np.clip(axes[k] @ axes[j], -1, 1))) <= swing]
+            want[i, j] = facing and bool(vis[i, near].any())
+    assert np.array_equal(got, want)
+    assert got.sum() > vis.sum() // 4          # a real mix of both outcomes

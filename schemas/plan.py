@@ -120,7 +120,9 @@ class FiveAxisSummary(_Out):
         default_factory=dict, description="Positions cut out, per reason: 'no_axis' (no admissible axis: cloud, "
                                           "stock, swing or travel), 'between' (the move into it not admissible "
                                           "halfway), 'rate' (the axis would turn faster than "
-                                          "max_axis_rate_deg_per_mm), 'floor' (the ball below the part's underside).")
+                                          "max_axis_rate_deg_per_mm), 'floor' (the ball below the part's underside), "
+                                          "'flip' (the machine would change rotary solution there, swinging "
+                                          "through the pole on the surface).")
     cone_deg: tuple[float, float] = Field(..., description="Smallest and largest angle between a kept axis and its "
                                                            "contact normal, degrees.")
     swing_deg: float = Field(..., description="Largest angle between a kept axis and the set-up axis, degrees.")

@@ -58,7 +58,8 @@ class FiveAxisFigures:
     """What :func:`five_axis_path` did: ``n_positions`` positions given an axis, ``n_alternatives``
     whose ideal axis was not admissible and that took another, ``blocked`` positions cut out by
     reason (``no_axis``: no admissible axis in the cone; ``between``: the move into it is not
-    admissible halfway; ``rate``: the turn rate could not be met), ``max_rate_deg_per_mm`` the
+    admissible halfway; ``rate``: the turn rate could not be met; ``floor``: the ball below the part's
+    underside; ``flip``: the rotary solution changes there), ``max_rate_deg_per_mm`` the
     fastest turn between linked positions kept, ``cone_deg`` the range of angles between the axes
     and the normals, ``swing_deg`` the largest angle from the set-up axis; the biarcs of
     :func:`biarc_figures`."""
@@ -118,6 +119,24 @@ class Admissible:
             from planning.orientations.kinematics import tool_axis_from_angles
 
             self.pole_f = frame.rotation @ tool_axis_from_angles(np.zeros((1, 2)), machine.profile)[0]
+
+    def solution_flips(self, axes_f: np.ndarray, runs: np.ndarray) -> np.ndarray:
+        """(n,) bool: position i is the first after a change of rotary solution along its run (the tilt
+        changes sign outside the pole cone, as :func:`planning.post.simultaneous.rotary_path` picks
+        the angles: it keeps the branch while the travel allows): between i-1 and i the machine would
+        swing the table through the pole on the surface, which no control can follow; the pass is
+        broken there."""
+        n = axes_f.shape[0]
+        out = np.zeros(n, dtype=bool)
+        if self.machine is None or n < 2:
+            return out
+        from planning.post.simultaneous import POLE_DEG, rotary_path
+
+        ang, _ = rotary_path(axes_f @ self.frame.rotation, self.machine.profile)
+        t = ang[:, 0]
+        linked = (runs[1:] == runs[:-1]) & (runs[1:] >= 0)
+        out[1:] = linked & (t[1:] * t[:-1] < 0) & (np.abs(t[1:]) > POLE_DEG) & (np.abs(t[:-1]) > POLE_DEG)
+        return out
 
     def reachable(self, centres_f: np.ndarray, axes_f: np.ndarray) -> np.ndarray:
         """(n,) bool: some rotary solution within the rotary travel puts the tool tip within the linear
@@ -258,7 +277,7 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
     retracts (area frame); ``floor``: the part's :class:`planning.toolpath.carried.Footprint` (positions
     whose ball reaches below the part's underside inside it are cut out first, as in 3+2)."""
     figs = FiveAxisFigures()
-    blocked = {"no_axis": 0, "between": 0, "rate": 0, "floor": 0}
+    blocked = {"no_axis": 0, "between": 0, "rate": 0, "floor": 0, "flip": 0}
     pi = None if pass_index is None else np.asarray(pass_index)
     tree = cKDTree(cloud_f) if tree is None else tree
     if floor is not None and tp.n_moves:
@@ -287,6 +306,9 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
         blocked["no_axis"] += int(plan.blocked.sum())
         drop[idx[plan.breaks]] = True
         blocked["rate"] += int((plan.breaks & ~plan.blocked).sum())
+        flips = admissible.solution_flips(plan.axes, _runs(touch)[idx]) & ~plan.blocked & ~plan.breaks
+        drop[idx[flips]] = True
+        blocked["flip"] += int(flips.sum())
         # halfway along every move between two kept touching positions
         pair = np.flatnonzero(touch[1:] & touch[:-1]) + 1
         ok_pos = np.zeros(tp.n_moves, dtype=bool)

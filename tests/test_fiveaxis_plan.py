@@ -180,3 +180,40 @@ def test_five_axis_visibility_matches_a_brute_force_reading_of_its_rule():
             want[i, j] = facing and bool(vis[i, near].any())
     assert np.array_equal(got, want)
     assert got.sum() > vis.sum() // 4          # a real mix of both outcomes
+
+
+def test_an_axis_turn_is_kept_off_the_rotary_pole_along_its_whole_arc():
+    from planning.toolpath.fiveaxis.finishing import Admissible, slerp_mid
+
+    ad = Admissible.__new__(Admissible)          # only the pole test: no cloud, no machine needed
+    ad.pole_f = np.array([0.0, 0.0, 1.0])
+    ad.cos_pole = math.cos(math.radians(3.0))
+    rng = np.random.default_rng(9)
+    a0 = rng.normal(size=(4000, 3)) + [0, 0, 6]
+    a1 = rng.normal(size=(4000, 3)) + [0, 0, 6]
+    a0 /= np.linalg.norm(a0, axis=1, keepdims=True)
+    a1 /= np.linalg.norm(a1, axis=1, keepdims=True)
+    got = ad.arc_clear_of_pole(a0, a1)
+    # brute force: 2001 points along each great-circle arc
+    closest = np.full(4000, -1.0)
+    for f in np.linspace(0, 1, 2001):
+        closest = np.maximum(closest, slerp_mid(a0, a1, f)[:, 2])
+    want = closest < ad.cos_pole
+    sure = np.abs(np.degrees(np.arccos(np.clip(closest, -1, 1))) - 3.0) > 0.01   # not on the boundary
+    assert np.array_equal(got[sure], want[sure])
+    assert 0.05 < got.mean() < 0.95
+
+
+def test_the_retract_column_keeps_the_axis_of_the_point_it_leaves():
+    from planning.toolpath.fiveaxis.finishing import _fill_axes
+    from planning.toolpath.moves import USE_RAPID, USE_RETRACT, lines
+
+    # cut, cut, retract up, rapid up to the safe height (same x y), rapid across, rapid down, cut
+    xyz = np.array([[0, 0, 0], [1, 0, 0], [1, 0, 1], [1, 0, 10], [5, 0, 10], [5, 0, 0.0], [6, 0, 0]])
+    use = np.array([USE_RAPID, USE_CUT, USE_RETRACT, USE_RAPID, USE_RAPID, USE_RAPID, USE_CUT])
+    tp = lines(xyz, use, tip_offset_mm=3.0)
+    touch = (tp.kind == FEED) & (tp.use == USE_CUT)
+    a_first, a_last = np.array([0.0, 0.6, 0.8]), np.array([0.6, 0.0, 0.8])
+    out = _fill_axes(tp, touch, np.array([a_first, a_last]))
+    assert np.allclose(out[1:4], a_first)        # the retract and the rapid up to the safe height
+    assert np.allclose(out[4:], a_last)          # the rapid across turns the axis; down and on

@@ -16,7 +16,8 @@ reduction) and:
    travel (:mod:`planning.simulate.kinematics`); with a carried stock, the shank and holder also
    clear the points of the stock's boundary;
 3. checks the motion between neighbouring positions too: the midpoint of every move (centre halfway,
-   axis halfway along the great circle) must be admissible;
+   axis halfway along the great circle) must be admissible, and the axis's whole great-circle arc
+   must keep off the rotary pole;
 4. cuts out (:func:`planning.toolpath.safety.cut_moves`, linked through the safe height) the
    positions with no admissible axis, the ends of moves whose midpoint is not admissible and the
    positions where the turn rate could not be met (a pass broken there), and gives every other
@@ -120,6 +121,27 @@ class Admissible:
 
             self.pole_f = frame.rotation @ tool_axis_from_angles(np.zeros((1, 2)), machine.profile)[0]
 
+    def arc_clear_of_pole(self, a0: np.ndarray, a1: np.ndarray) -> np.ndarray:
+        """(n,) bool: the great-circle arc from ``a0`` to ``a1`` (n,3 unit, area frame), along which the
+        axis turns between two positions, stays ``pole_clearance_deg`` from the rotary pole (True
+        without a machine)."""
+        n = a0.shape[0]
+        if self.pole_f is None or n == 0:
+            return np.ones(n, dtype=bool)
+        p = self.pole_f
+        nrm = np.cross(a0, a1)
+        ln = np.linalg.norm(nrm, axis=1)
+        near_ends = np.maximum(a0 @ p, a1 @ p)                     # cos of the smaller end angle
+        # the pole's foot on the arc's great circle, and whether it lies between a0 and a1
+        u = nrm / np.where(ln > 1e-12, ln, 1.0)[:, None]
+        foot = p[None, :] - (u @ p)[:, None] * u
+        fl = np.linalg.norm(foot, axis=1)
+        foot = foot / np.where(fl > 1e-12, fl, 1.0)[:, None]
+        inside = (ln > 1e-12) & (fl > 1e-12) & (np.einsum("ij,ij->i", np.cross(a0, foot), u) >= 0) \
+            & (np.einsum("ij,ij->i", np.cross(foot, a1), u) >= 0)
+        cos_min = np.where(inside, np.einsum("ij,ij->i", foot, np.broadcast_to(p, foot.shape)), near_ends)
+        return cos_min < self.cos_pole
+
     def solution_flips(self, axes_f: np.ndarray, runs: np.ndarray) -> np.ndarray:
         """(n,) bool: position i is the first after a change of rotary solution along its run (the tilt
         changes sign outside the pole cone, as :func:`planning.post.simultaneous.rotary_path` picks
@@ -195,9 +217,11 @@ def _runs(touch: np.ndarray) -> np.ndarray:
 
 
 def _fill_axes(tp: Toolpath, touch: np.ndarray, axes_touch: np.ndarray) -> np.ndarray:
-    """(P,3) an axis for every point: the touching points their own; a retract the axis of the last
-    touching point before it; any other point (rapids, approaches) the next touching point's (the
-    last one's after the last)."""
+    """(P,3) an axis for every point: the touching points their own; a point straight above (frame z)
+    the touching point before it, the axis of that point (a retract and the rapid up to the safe
+    height); straight above the next one, the next one's; any other retract the one before, any
+    other point (rapids across) the next touching point's (the last one's after the last): the axis
+    turns during the rapid at the safe height."""
     P = tp.n_moves
     out = np.empty((P, 3))
     idx = np.flatnonzero(touch)
@@ -208,7 +232,12 @@ def _fill_axes(tp: Toolpath, touch: np.ndarray, axes_touch: np.ndarray) -> np.nd
     rest = np.flatnonzero(~touch)
     prv = np.searchsorted(idx, rest) - 1
     nxt = prv + 1
-    use_prev = ((tp.use[rest] == USE_RETRACT) & (prv >= 0)) | (nxt >= idx.size)
+    xy = tp.xyz_mm[:, :2]
+    over_prev = (prv >= 0) & (np.hypot(*(xy[rest] - xy[idx[np.maximum(prv, 0)]]).T) <= 1e-6)
+    over_next = (nxt < idx.size) & (np.hypot(*(xy[rest] - xy[idx[np.minimum(nxt, idx.size - 1)]]).T) <= 1e-6)
+    # a column over the touching point before (the retract, whatever its use) keeps its axis; a column
+    # over the next one takes the next's; otherwise a retract the one before, any other move the next
+    use_prev = over_prev | (~over_next & (tp.use[rest] == USE_RETRACT) & (prv >= 0)) | (nxt >= idx.size)
     out[rest[use_prev]] = out[idx[np.maximum(prv[use_prev], 0)]]
     out[rest[~use_prev]] = out[idx[nxt[~use_prev]]]
     return out
@@ -306,9 +335,6 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
         blocked["no_axis"] += int(plan.blocked.sum())
         drop[idx[plan.breaks]] = True
         blocked["rate"] += int((plan.breaks & ~plan.blocked).sum())
-        flips = admissible.solution_flips(plan.axes, _runs(touch)[idx]) & ~plan.blocked & ~plan.breaks
-        drop[idx[flips]] = True
-        blocked["flip"] += int(flips.sum())
         # halfway along every move between two kept touching positions
         pair = np.flatnonzero(touch[1:] & touch[:-1]) + 1
         ok_pos = np.zeros(tp.n_moves, dtype=bool)
@@ -319,11 +345,16 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
             ax[idx] = plan.axes
             mid_c = 0.5 * (tp.xyz_mm[pair] + tp.xyz_mm[pair - 1])
             mid_a = slerp_mid(ax[pair - 1], ax[pair])
-            bad = ~admissible(mid_c, mid_a)
+            bad = ~admissible(mid_c, mid_a) | ~admissible.arc_clear_of_pole(ax[pair - 1], ax[pair])
             drop[pair[bad]] = True
             blocked["between"] += int((bad & ~drop[pair - 1]).sum())
         with_axes = Toolpath(xyz_mm=tp.xyz_mm, kind=tp.kind, centre_mm=tp.centre_mm, plane=tp.plane, use=tp.use,
                              tip_offset_mm=tp.tip_offset_mm, axis=_fill_axes(tp, touch, plan.axes))
+        # the rotary solutions along the whole path as the post picks them: a change between two
+        # cutting positions breaks the pass there
+        flips = admissible.solution_flips(with_axes.axis, _runs(touch)) & ~drop
+        drop |= flips
+        blocked["flip"] += int(flips.sum())
         if not drop.any():
             tp = with_axes
             break

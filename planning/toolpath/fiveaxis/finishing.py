@@ -217,11 +217,11 @@ def _runs(touch: np.ndarray) -> np.ndarray:
 
 
 def _fill_axes(tp: Toolpath, touch: np.ndarray, axes_touch: np.ndarray) -> np.ndarray:
-    """(P,3) an axis for every point: the touching points their own; a point straight above (frame z)
-    the touching point before it, the axis of that point (a retract and the rapid up to the safe
-    height); straight above the next one, the next one's; any other retract the one before, any
-    other point (rapids across) the next touching point's (the last one's after the last): the axis
-    turns during the rapid at the safe height."""
+    """(P,3) an axis for every point: the touching points their own; the points that leave one (its
+    retracts, straight or as a lead-out ramp, then the column straight up, frame z, to the safe
+    height) the axis of that point; any other point (the rapid across at the safe height, the way
+    down to the next touching point) the next one's (the last one's after the last): the axis turns
+    during the rapid across."""
     P = tp.n_moves
     out = np.empty((P, 3))
     idx = np.flatnonzero(touch)
@@ -232,12 +232,20 @@ def _fill_axes(tp: Toolpath, touch: np.ndarray, axes_touch: np.ndarray) -> np.nd
     rest = np.flatnonzero(~touch)
     prv = np.searchsorted(idx, rest) - 1
     nxt = prv + 1
-    xy = tp.xyz_mm[:, :2]
-    over_prev = (prv >= 0) & (np.hypot(*(xy[rest] - xy[idx[np.maximum(prv, 0)]]).T) <= 1e-6)
-    over_next = (nxt < idx.size) & (np.hypot(*(xy[rest] - xy[idx[np.minimum(nxt, idx.size - 1)]]).T) <= 1e-6)
-    # a column over the touching point before (the retract, whatever its use) keeps its axis; a column
-    # over the next one takes the next's; otherwise a retract the one before, any other move the next
-    use_prev = over_prev | (~over_next & (tp.use[rest] == USE_RETRACT) & (prv >= 0)) | (nxt >= idx.size)
+    # leaving: the retracts after a touching point and the column straight up over the last of them
+    # (frame z; the rapid up to the safe height) keep its axis, as one chain
+    xyz = tp.xyz_mm
+    up = np.zeros(P, dtype=bool)
+    up[1:] = (np.hypot(*(xyz[1:, :2] - xyz[:-1, :2]).T) <= 1e-6) & (xyz[1:, 2] >= xyz[:-1, 2])
+    cond = (tp.use == USE_RETRACT) | up
+    fail = (~touch & ~cond).astype(np.int64)
+    run_start = ~touch & np.r_[True, touch[:-1]]
+    cum = np.cumsum(fail)
+    base = np.maximum.accumulate(np.where(run_start, np.arange(P), 0))
+    before = np.where(base > 0, cum[np.maximum(base - 1, 0)], 0)
+    chain = ~touch & (cum - before == 0)
+    chain[0] = False
+    use_prev = (chain[rest] & (prv >= 0)) | (nxt >= idx.size)
     out[rest[use_prev]] = out[idx[np.maximum(prv[use_prev], 0)]]
     out[rest[~use_prev]] = out[idx[nxt[~use_prev]]]
     return out

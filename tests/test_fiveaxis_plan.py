@@ -231,3 +231,13 @@ def test_a_lead_out_ramp_and_the_column_over_it_keep_the_axis_too():
     a_first, a_last = np.array([0.0, 0.6, 0.8]), np.array([0.6, 0.0, 0.8])
     out = _fill_axes(tp, touch, np.array([a_first, a_last]))
     assert np.allclose(out[1:4], a_first) and np.allclose(out[4:], a_last)
+
+
+def test_the_same_scan_gives_the_same_5_axis_plan(five):
+    # the default run's determinism check (test_pipeline's femur one is slow): programs and arrays equal
+    _, _, again = _plan("5axis", 1)
+    _, _, first = five
+    assert first.extra["programs"] == again.extra["programs"]
+    assert set(first.arrays) == set(again.arrays)
+    for key in first.arrays:
+        assert np.array_equal(first.arrays[key], again.arrays[key]), key

@@ -120,6 +120,9 @@ def _strip_times(d):
     return d
 
 
+# about 70 s (the sparse femur is finished on triangles, twice): slow; the default run keeps
+# tests/test_fiveaxis_plan.py's determinism check on the slot
+@pytest.mark.slow
 def test_same_input_same_plan():
     s = femur_like(n_points=40_000, seed=1)
     cfg = parse_config({"setups": {"max_setups": 5}, "visibility": {"cone_deg": [10, 60]},

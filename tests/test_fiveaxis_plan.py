@@ -204,12 +204,14 @@ def test_an_axis_turn_is_kept_off_the_rotary_pole_along_its_whole_arc():
     assert 0.05 < got.mean() < 0.95
 
 
-def test_the_retract_column_keeps_the_axis_of_the_point_it_leaves():
+@pytest.mark.parametrize("leave", [[1, 0, 1], [2, 0, 1]], ids=["straight_retract", "lead_out_ramp"])
+def test_the_way_out_keeps_the_axis_of_the_point_it_leaves(leave):
     from planning.toolpath.fiveaxis.finishing import _fill_axes
     from planning.toolpath.moves import USE_RAPID, USE_RETRACT, lines
 
-    # cut, cut, retract up, rapid up to the safe height (same x y), rapid across, rapid down, cut
-    xyz = np.array([[0, 0, 0], [1, 0, 0], [1, 0, 1], [1, 0, 10], [5, 0, 10], [5, 0, 0.0], [6, 0, 0]])
+    # cut, cut, a retract (straight up or a 45-degree lead-out), the rapid up over its end to the safe
+    # height, the rapid across, the rapid down, cut
+    xyz = np.array([[0, 0, 0], [1, 0, 0], leave, [leave[0], 0, 10], [5, 0, 10], [5, 0, 0.0], [6, 0, 0]], float)
     use = np.array([USE_RAPID, USE_CUT, USE_RETRACT, USE_RAPID, USE_RAPID, USE_RAPID, USE_CUT])
     tp = lines(xyz, use, tip_offset_mm=3.0)
     touch = (tp.kind == FEED) & (tp.use == USE_CUT)
@@ -217,20 +219,6 @@ def test_the_retract_column_keeps_the_axis_of_the_point_it_leaves():
     out = _fill_axes(tp, touch, np.array([a_first, a_last]))
     assert np.allclose(out[1:4], a_first)        # the retract and the rapid up to the safe height
     assert np.allclose(out[4:], a_last)          # the rapid across turns the axis; down and on
-
-
-def test_a_lead_out_ramp_and_the_column_over_it_keep_the_axis_too():
-    from planning.toolpath.fiveaxis.finishing import _fill_axes
-    from planning.toolpath.moves import USE_RAPID, USE_RETRACT, lines
-
-    # cut, cut, a 45-degree lead-out (retract), the rapid up over ITS end, across, down, cut
-    xyz = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 1], [2, 0, 10], [5, 0, 10], [5, 0, 0.0], [6, 0, 0]])
-    use = np.array([USE_RAPID, USE_CUT, USE_RETRACT, USE_RAPID, USE_RAPID, USE_RAPID, USE_CUT])
-    tp = lines(xyz, use, tip_offset_mm=3.0)
-    touch = (tp.kind == FEED) & (tp.use == USE_CUT)
-    a_first, a_last = np.array([0.0, 0.6, 0.8]), np.array([0.6, 0.0, 0.8])
-    out = _fill_axes(tp, touch, np.array([a_first, a_last]))
-    assert np.allclose(out[1:4], a_first) and np.allclose(out[4:], a_last)
 
 
 def test_the_same_scan_gives_the_same_5_axis_plan(five):

@@ -231,19 +231,36 @@ def _operation_blocks(w: BlockWriter, o: PostOptions, k: int, op: Operation, fra
     A_m, b_m = machine_position_affine(ang.printed, p, placement_mm=place, tool_radius_mm=0.0, gauge_length_mm=G)
     A = A_m[0] @ Rf
     b = A_m[0] @ origin + b_m[0]
+    operation_start(w, o, tool, op.spindle_rpm, table,
+                    (f"{tilt_name}{fmt(ang.words[0], ang.decimals)}", f"{rot_name}{fmt(ang.words[1], ang.decimals)}"),
+                    f"head rotation centre = tip + {fmt(G + p.pivot_length_mm, d)} mm along the tool axis "
+                    + " ".join(f"{n}{fmt(v, 6)}" for n, v in zip("XYZ", ang.tool_axis)))
+    emit_motion(w, o, A, b, "principal", op, safe_height_mm(op, o))
+    operation_end(w, o)
+
+
+def operation_start(w: BlockWriter, o: PostOptions, tool: int, spindle_rpm: float, table: bool, rotary_words,
+                    head_note: str) -> None:
+    """The blocks that begin an operation (this post's and :mod:`planning.post.simultaneous`'s): Z to
+    machine Z0, the tool change, the rotary axes to ``rotary_words`` (the printed tilt and C words),
+    the spindle, the coolant option, and the length offset: ``G43 H`` on a table-table machine, else
+    ``G49`` and the comment ``head_note`` (what X Y Z are on a head-head machine)."""
     w.block("G53", "G0", "Z0")
     w.block(f"T{tool}", "M6")
-    w.block("G0", f"{tilt_name}{fmt(ang.words[0], ang.decimals)}", f"{rot_name}{fmt(ang.words[1], ang.decimals)}")
-    w.block(spindle_word(op.spindle_rpm), "M3")
+    w.block("G0", *rotary_words)
+    w.block(spindle_word(spindle_rpm), "M3")
     if o.coolant:
         w.block("M8")
     if table:
         w.block("G43", f"H{tool}")
     else:
         w.block("G49")
-        w.raw(comment(f"head rotation centre = tip + {fmt(G + p.pivot_length_mm, d)} mm along the tool axis "
-                      + " ".join(f"{n}{fmt(v, 6)}" for n, v in zip("XYZ", ang.tool_axis))))
-    emit_motion(w, o, A, b, "principal", op, safe_height_mm(op, o))
+        w.raw(comment(head_note))
+
+
+def operation_end(w: BlockWriter, o: PostOptions) -> None:
+    """The blocks that end an operation: coolant off (option), Z to machine Z0, no length offset,
+    spindle stop."""
     if o.coolant:
         w.block("M9")
     w.block("G53", "G0", "Z0")

@@ -779,18 +779,11 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
     n_ins = len(posted["j"]) - path.c.shape[0]
 
     w.raw(_op_comment(index, op, n_ins, tol, upper=False))
-    w.block("G53", "G0", "Z0")
-    w.block(f"T{tool}", "M6")
-    w.block("G0", f"{tn}{words[0][0]}", f"{rn}{words[0][1]}")
-    w.block(spindle_word(op.spindle_rpm), "M3")
-    if o.coolant:
-        w.block("M8")
-    if table:
-        w.block("G43", f"H{tool}")
-    else:
-        w.block("G49")
-        w.raw(comment(f"X Y Z = head rotation centre = tip + {fmt(op.gauge_length_mm + p.pivot_length_mm, d)} mm "
-                      f"along the tool axis"))
+    from planning.post.linuxcnc import operation_end, operation_start
+
+    operation_start(w, o, tool, op.spindle_rpm, table, (f"{tn}{words[0][0]}", f"{rn}{words[0][1]}"),
+                    f"X Y Z = head rotation centre = tip + {fmt(op.gauge_length_mm + p.pivot_length_mm, d)} mm "
+                    f"along the tool axis")
     w.block("G0", f"X{fmt(pos_a[0], d)}", f"Y{fmt(pos_a[1], d)}", f"Z{fmt(pos_a[2], d)}", f"{tn}{words[0][0]}",
             f"{rn}{words[0][1]}")
     pos = posted["pos"].tolist()
@@ -817,11 +810,7 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
         lines.append(len(w.lines))
     if mode == 93:
         w.block("G94")
-    if o.coolant:
-        w.block("M9")
-    w.block("G53", "G0", "Z0")
-    w.block("G49")
-    w.block("M5")
+    operation_end(w, o)
     return _figures(path, posted, fig, lines, L, tol)
 
 

@@ -49,6 +49,12 @@ __all__ = ["Admissible", "FiveAxisFigures", "axis_runs", "biarc_figures", "five_
 #: Chord tolerance (mm) with which the fitted biarcs are sampled for their clearance from the cloud.
 BIARC_CHORD_MM = 0.002
 
+#: How far (frame z) above a touching point the way in and out runs along the tool axis, mm; above
+#: it the column to the safe height stays vertical (along the set-up axis), so a leaning tool does
+#: not travel sideways by (safe height - z) tan(swing) to reach it (beyond the machine's travel on a
+#: long part).
+AXIS_COLUMN_MM = 5.0
+
 #: A 5-axis path is reduced (straight moves replacing CL points) only where its axis turns less than
 #: this along the replaced stretch, degrees: the axes of the points kept stand for the dropped ones.
 REDUCE_AXIS_DEG = 0.5
@@ -274,13 +280,14 @@ def axis_runs(tp: Toolpath, max_turn_deg: float = REDUCE_AXIS_DEG) -> np.ndarray
 
 
 def axis_columns(tp: Toolpath) -> Toolpath:
-    """``tp`` (with ``axis``) with its vertical columns turned onto the tool axis: a point off the part
-    (a retract, an approach, a rapid at the safe height) straight above (frame z) the touching point
+    """``tp`` (with ``axis``) with the foot of its vertical columns turned onto the tool axis: a point off
+    the part (a retract, an approach) at most :data:`AXIS_COLUMN_MM` straight above (frame z) the
+    touching point
     next to it in the same run of such points, the last one before it for the points after a
     touching point, the next one after for the points before it, is moved along that touching
-    point's axis to the same frame height: the tool leaves and enters along its own axis, as 5-axis
-    programs do, instead of sliding up with its shank leaning. Heights (frame z) are kept, so the
-    rapids stay at the safe height."""
+    point's axis to the same frame height: the tool leaves and enters the surface along its own axis,
+    as 5-axis programs do, instead of sliding with its shank leaning; the rest of the column, to the
+    safe height, stays straight up. Heights (frame z) are kept."""
     if tp.axis is None or tp.n_moves == 0:
         return tp
     touch = _touching(tp)
@@ -295,6 +302,7 @@ def axis_columns(tp: Toolpath) -> Toolpath:
         p = tp.xyz_mm[anchor]
         q = xyz[rest]
         col = anchor_sel & (np.hypot(q[:, 0] - p[:, 0], q[:, 1] - p[:, 1]) <= 1e-6) & (q[:, 2] >= p[:, 2])
+        col &= q[:, 2] - p[:, 2] <= AXIS_COLUMN_MM + 1e-9       # the way off the surface, not to the safe height
         col &= np.all(np.abs(q - tp.xyz_mm[rest]) <= 0, axis=1)     # each point moved once
         a = tp.axis[anchor]
         dz = (q[:, 2] - p[:, 2]) / np.maximum(a[:, 2], 1e-9)

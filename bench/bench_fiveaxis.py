@@ -3,6 +3,10 @@ seams, machining and path time, offences, seconds.
 
     .venv/bin/python bench/bench_fiveaxis.py                      # femur-like, 1,000,000 points
     .venv/bin/python bench/bench_fiveaxis.py --points 200000 --five-setups 1 2
+    .venv/bin/python bench/bench_fiveaxis.py --sample draft_slot --three-setups 3 --five-setups 1
+
+``--sample draft_slot``: the draft-walled slot of tests/test_fiveaxis_plan.py (top only, exact
+normals, cone [10, 45], light paths) instead.
 
 Each plan runs the whole pipeline (paths, posts, the verification on the simulated machine) with the
 femur-like reference parameters (scripts/demo_service.py CONFIGS["femur_like"]: sphere 7 mm, tool
@@ -49,9 +53,13 @@ def seam_points(points: np.ndarray, labels: np.ndarray, k: int = 8) -> int:
     return int((labels[j[:, 1:]] != labels[:, None]).any(axis=1).sum())
 
 
-def one(cloud: Cloud, mode: str, max_setups: int) -> dict:
-    cfg = {**FEMUR, "setups": {**FEMUR["setups"], "max_setups": max_setups},
-           "paths": {"finishing": {"mode": mode}}}
+SLOT = {"normals": {"method": "input"}, "visibility": {"cone_deg": [10, 45]},
+        "paths": {"finishing": {"scallop_mm": 0.2}, "roughing": {"step_down_mm": 5}}, "simulate": {"resolution_mm": 1.0}}
+
+
+def one(cloud: Cloud, mode: str, max_setups: int, base: dict = FEMUR) -> dict:
+    cfg = {**base, "setups": {**base.get("setups", {}), "max_setups": max_setups},
+           "paths": {**base.get("paths", {}), "finishing": {**base.get("paths", {}).get("finishing", {}), "mode": mode}}}
     t0 = time.perf_counter()
     out = run_plan(cloud, parse_config(cfg), name=f"femur {mode}")
     wall = time.perf_counter() - t0
@@ -73,15 +81,20 @@ def one(cloud: Cloud, mode: str, max_setups: int) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sample", choices=["femur_like", "draft_slot"], default="femur_like")
     ap.add_argument("--points", type=int, default=1_000_000, help="femur-like points (default 1,000,000)")
     ap.add_argument("--three-setups", type=int, default=5, help="setups.max_setups of the 3+2 plan (default 5)")
     ap.add_argument("--five-setups", type=int, nargs="+", default=[1, 2],
                     help="setups.max_setups of the 5axis plans (default 1 2)")
     args = ap.parse_args(argv)
-    s = samples.femur_like(n_points=args.points, seed=0)
-    cloud = Cloud(points=s.points, normals=None, source_format="generated")
-    rows = [one(cloud, "3+2", args.three_setups)] + [one(cloud, "5axis", k) for k in args.five_setups]
-    print(f"femur-like, {cloud.points.shape[0]:,} points")
+    if args.sample == "draft_slot":
+        s = samples.draft_slot(density_per_mm2=1.0, seed=1, include_sides=False)
+        cloud, base = Cloud(points=s.points, normals=s.normals, source_format="generated"), SLOT
+    else:
+        s = samples.femur_like(n_points=args.points, seed=0)
+        cloud, base = Cloud(points=s.points, normals=None, source_format="generated"), FEMUR
+    rows = [one(cloud, "3+2", args.three_setups, base)] + [one(cloud, "5axis", k, base) for k in args.five_setups]
+    print(f"{args.sample}, {cloud.points.shape[0]:,} points")
     print(f"{'mode':6} {'max':>3} {'k':>2} {'status':10} {'cover':>6} {'finished':>8} {'unmach':>7} {'seam_pts':>8} "
           f"{'seam_mm':>8} {'verdict':8} {'offences':18} {'machine_s':>9} {'finish_s':>8} {'plan_s':>7} {'paths_s':>7}")
     for r in rows:

@@ -76,6 +76,9 @@ def one(cloud: Cloud, mode: str, max_setups: int, base: dict = FEMUR) -> dict:
         "verification": v.status if v else None, "machine_s": v.machining_time_s if v else float("nan"),
         "finish_s": sum(f.machining_time_s for f in fin), "plan_s": wall, "paths_s": paths_s,
         "five": [f.five_axis for f in fin if f.five_axis is not None],
+        "guards": [(s.id, s.path.finishing.guard.found, s.path.finishing.guard.dropped, s.path.finishing.guard.truncated)
+                   for s in r.setups if s.path is not None and s.path.finishing is not None
+                   and s.path.finishing.guard is not None],
     }
 
 
@@ -107,6 +110,7 @@ def main(argv=None) -> int:
         if base["finish_s"] > 0:
             print(f"5axis max_setups {r['max_setups']}: finishing path time {r['finish_s'] / base['finish_s']:.2f}x "
                   f"the 3+2 plan's, machining time {r['machine_s'] / max(base['machine_s'], 1e-9):.2f}x")
+        print(f"  finishing guard per set-up (found, dropped, truncated): {r['guards']}")
         for f in r["five"]:
             print(f"  positions {f.n_positions}, alternatives {f.n_alternatives}, blocked {f.blocked}, cone "
                   f"{f.cone_deg}, swing {f.swing_deg}, rate {f.max_rate_deg_per_mm} deg/mm, biarcs {f.n_biarcs} "

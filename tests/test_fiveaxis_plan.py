@@ -183,7 +183,8 @@ def test_five_axis_visibility_matches_a_brute_force_reading_of_its_rule():
 
 
 def test_an_axis_turn_is_kept_off_the_rotary_pole_along_its_whole_arc():
-    from planning.toolpath.fiveaxis.finishing import Admissible, slerp_mid
+    from planning.toolpath.fiveaxis.axes import slerp
+    from planning.toolpath.fiveaxis.finishing import Admissible
 
     ad = Admissible.__new__(Admissible)          # only the pole test: no cloud, no machine needed
     ad.pole_f = np.array([0.0, 0.0, 1.0])
@@ -197,7 +198,7 @@ def test_an_axis_turn_is_kept_off_the_rotary_pole_along_its_whole_arc():
     # brute force: 2001 points along each great-circle arc
     closest = np.full(4000, -1.0)
     for f in np.linspace(0, 1, 2001):
-        closest = np.maximum(closest, slerp_mid(a0, a1, f)[:, 2])
+        closest = np.maximum(closest, slerp(a0, a1, f)[:, 2])
     want = closest < ad.cos_pole
     sure = np.abs(np.degrees(np.arccos(np.clip(closest, -1, 1))) - 3.0) > 0.01   # not on the boundary
     assert np.array_equal(got[sure], want[sure])

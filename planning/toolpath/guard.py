@@ -39,6 +39,7 @@ from planning.simulate.kinematics import MachineModel, arc_chords
 from planning.simulate.motion import FEED as SIM_FEED
 from planning.simulate.motion import RAPID as SIM_RAPID
 from planning.simulate.motion import ToolShape
+from planning.toolpath.fiveaxis.axes import slerp
 from planning.toolpath.frames import AreaFrame
 from planning.toolpath.moves import (
     ARC_CCW,
@@ -149,12 +150,7 @@ def _part_moves_5axis(tp: Toolpath, frame: AreaFrame, start_tip_frame, step_deg:
     source = np.repeat(np.arange(P), n)
     k = np.arange(source.size) - (np.cumsum(n) - n)[source]
     f1 = ((k + 1) / n[source])[:, None]
-    th = np.radians(ang)[source][:, None]
-    sin_th = np.sin(th)
-    w0 = np.where(sin_th > 1e-12, np.sin((1 - f1) * th) / np.where(sin_th > 1e-12, sin_th, 1.0), 1 - f1)
-    w1 = np.where(sin_th > 1e-12, np.sin(f1 * th) / np.where(sin_th > 1e-12, sin_th, 1.0), f1)
-    a_end = w0 * a0[source] + w1 * ax[source]
-    a_end /= np.linalg.norm(a_end, axis=1, keepdims=True)
+    a_end = slerp(a0[source], ax[source], f1[:, 0])
     r_end = r0[source] + f1 * (ref - r0)[source]
     tip_end = r_end - tp.tip_offset_mm * a_end
     first = tp.tip_mm()[0] if start_tip_frame is None else np.asarray(start_tip_frame, dtype=np.float64)

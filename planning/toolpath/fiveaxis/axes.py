@@ -55,7 +55,8 @@ from planning.errors import ParameterError
 
 __all__ = [
     "AXIS_FRAMES", "KAPPA_MIN_PER_MM", "AxisPlan", "clamp_to_cone", "contact_normals", "feed_directions",
-    "lead_tilt_axes", "limit_axis_rate", "plan_axes", "reference_directions", "ring_candidates", "turn_deg",
+    "lead_tilt_axes", "limit_axis_rate", "plan_axes", "reference_directions", "ring_candidates", "slerp",
+    "turn_deg",
 ]
 
 AXIS_FRAMES = ("frenet", "surface")
@@ -78,6 +79,20 @@ def turn_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     c = np.einsum("ij,ij->i", a, b)
     s = np.linalg.norm(np.cross(a, b), axis=1)
     return np.degrees(np.arctan2(s, c))
+
+
+def slerp(a: np.ndarray, b: np.ndarray, f) -> np.ndarray:
+    """(n,3) unit vectors a fraction ``f`` (a scalar or (n,)) of the way from the unit vectors ``a`` to
+    ``b`` (n,3) along the great circle (linear, then normalised, where they are within 1e-9 rad)."""
+    f = np.broadcast_to(np.asarray(f, dtype=np.float64), (a.shape[0],))[:, None]
+    th = np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0))[:, None]
+    s = np.sin(th)
+    small = s < 1e-9
+    safe = np.where(small, 1.0, s)
+    w0 = np.where(small, 1 - f, np.sin((1 - f) * th) / safe)
+    w1 = np.where(small, f, np.sin(f * th) / safe)
+    out = w0 * a + w1 * b
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
 def contact_normals(centres: np.ndarray, surface_points: np.ndarray, tree: cKDTree | None = None) -> np.ndarray:

@@ -39,12 +39,12 @@ from scipy.spatial import cKDTree
 
 from planning.geometry.axis_collision import ObstacleGrid, default_cell_mm
 from planning.geometry.tool import ToolAssembly
-from planning.toolpath.fiveaxis.axes import contact_normals, plan_axes, turn_deg
+from planning.toolpath.fiveaxis.axes import contact_normals, plan_axes, slerp, turn_deg
 from planning.toolpath.frames import AreaFrame
 from planning.toolpath.moves import FEED, USE_CUT, USE_PLUNGE, USE_RETRACT, Toolpath
 from planning.toolpath.safety import cut_moves
 
-__all__ = ["Admissible", "FiveAxisFigures", "axis_runs", "biarc_figures", "five_axis_path", "slerp_mid"]
+__all__ = ["Admissible", "FiveAxisFigures", "axis_runs", "biarc_figures", "five_axis_path"]
 
 #: Chord tolerance (mm) with which the fitted biarcs are sampled for their clearance from the cloud.
 BIARC_CHORD_MM = 0.002
@@ -82,18 +82,6 @@ class FiveAxisFigures:
     n_arcs: int = 0
     biarc_max_error_mm: float = 0.0
     biarc_min_clearance_mm: float = math.inf
-
-
-def slerp_mid(a: np.ndarray, b: np.ndarray, f: float = 0.5) -> np.ndarray:
-    """(n,3) unit vectors a fraction ``f`` of the way from ``a`` to ``b`` (n,3) along the great circle."""
-    cos = np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0)
-    th = np.arccos(cos)[:, None]
-    s = np.sin(th)
-    small = s[:, 0] < 1e-9
-    w0 = np.where(small[:, None], 1 - f, np.sin((1 - f) * th) / np.where(small[:, None], 1.0, s))
-    w1 = np.where(small[:, None], f, np.sin(f * th) / np.where(small[:, None], 1.0, s))
-    out = w0 * a + w1 * b
-    return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
 class Admissible:
@@ -360,7 +348,7 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
             ax = np.empty((tp.n_moves, 3))
             ax[idx] = plan.axes
             mid_c = 0.5 * (tp.xyz_mm[pair] + tp.xyz_mm[pair - 1])
-            mid_a = slerp_mid(ax[pair - 1], ax[pair])
+            mid_a = slerp(ax[pair - 1], ax[pair], 0.5)
             bad = ~admissible(mid_c, mid_a) | ~admissible.arc_clear_of_pole(ax[pair - 1], ax[pair])
             drop[pair[bad]] = True
             blocked["between"] += int((bad & ~drop[pair - 1]).sum())

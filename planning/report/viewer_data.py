@@ -1,0 +1,251 @@
+"""The data of the browser viewer (issue 20): a small JSON index and two little-endian binary files.
+
+:func:`write_viewer_data` writes, next to ``plan.json``:
+
+* ``viewer.json``: the index. Format ``scanmill-viewer`` version 1: the plan's name, status and
+  message; the verification verdict and the deviation limit of its colour bar; per set-up its
+  colour, tool axis, polar/azimuth angles, machine rotary positions, point counts and finishing
+  mode; and a table of the binary arrays, each as ``{"file", "offset", "length", "dtype", "shape"}``
+  (byte offsets, dtype a numpy little-endian code such as ``<u2``).
+* ``viewer.points.bin``: the scan, every input point up to ``max_points`` (a fixed-seed random
+  subset above it, reported as ``points.n_shown`` of ``points.n_total``):
+
+  - ``position`` (n, 3) ``<u2``: coordinates quantised on the points' bounding box,
+    ``p = box_min + q / 65535 * (box_max - box_min)`` (mm; a 400 mm part has 0.006 mm steps);
+  - ``label`` (n,) ``u1``: the area (set-up id), 255 where no set-up machines the point;
+  - ``flags`` (n,) ``u1``: bit 0 integrated (attached to an area without a guaranteed axis),
+    bit 1 unmachined (no kept finishing move reaches it);
+  - ``deviation`` (n,) ``<i2`` when the programs were simulated: the point's deviation from the
+    simulated final stock in micrometres, positive where material is left, clipped to +-32.767 mm.
+
+* ``viewer.paths.bin``: per area and operation (``finishing``, ``roughing``) the tool-tip path in
+  the part frame, ``vertices`` (m, 3) ``<u2`` quantised on the paths' own box (safe heights
+  included) and ``use`` (m,) ``u1``, the use of the move ending at each vertex (0 rapid, 1 cut,
+  2 plunge, 3 retract, :mod:`planning.toolpath.moves`). Arcs are drawn as chords of at most
+  ``arc_step_mm`` (display only: the NC programs keep the arcs).
+
+The points come first in their own file so the page can draw the scan before the paths arrive.
+Quantised positions halve the bytes of float32 and the page hands them to the GPU as normalised
+attributes, with no decoding loop in JavaScript.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from planning.report.files import atomic_path
+from planning.report.preview import UNCOVERED_COLOR, area_colors
+from planning.toolpath.moves import ARC_CCW, ARC_CW, PLANE_AXES
+
+__all__ = ["VIEWER_FORMAT", "VIEWER_FORMAT_VERSION", "VIEWER_FILES", "viewer_index", "write_viewer_data"]
+
+VIEWER_FORMAT = "scanmill-viewer"
+VIEWER_FORMAT_VERSION = 1
+#: The files :func:`write_viewer_data` writes (index first, binaries after).
+VIEWER_FILES = ("viewer.json", "viewer.points.bin", "viewer.paths.bin")
+#: Default budget of points sent to the browser: 2 million points draw smoothly in WebGL.
+MAX_POINTS = 2_000_000
+UNLABELLED = 255
+FLAG_INTEGRATED, FLAG_UNMACHINED = 1, 2
+_Q = 65535.0
+_SEED = 0
+
+
+class _Buffers:
+    """Arrays appended to one binary file, with their index entries."""
+
+    def __init__(self, name: str):
+        self.name, self.parts, self.offset = name, [], 0
+
+    def add(self, array: np.ndarray) -> dict:
+        a = np.ascontiguousarray(array)
+        a = a.astype(a.dtype.newbyteorder("<"), copy=False)
+        entry = {"file": self.name, "offset": self.offset, "length": int(a.nbytes),
+                 "dtype": a.dtype.str, "shape": list(a.shape)}
+        self.parts.append(a.tobytes())
+        pad = (-a.nbytes) % 8                 # 8-byte alignment: typed arrays need their element size
+        if pad:
+            self.parts.append(b"\0" * pad)
+        self.offset += a.nbytes + pad
+        return entry
+
+    def write(self, path: Path) -> None:
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            for part in self.parts:
+                fh.write(part)
+
+
+def quantise(points: np.ndarray) -> tuple[np.ndarray, list[float], list[float]]:
+    """``(q (n,3) uint16, box_min, box_max)`` with ``p ~ box_min + q / 65535 * (box_max - box_min)``
+    (mm). A flat side gets a 1e-6 mm extent so the scale stays finite."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if p.shape[0] == 0:
+        return np.zeros((0, 3), np.uint16), [0.0] * 3, [1e-6] * 3
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    hi = np.maximum(hi, lo + 1e-6)
+    q = np.rint((p - lo) / (hi - lo) * _Q)
+    return np.clip(q, 0, _Q).astype(np.uint16), lo.tolist(), hi.tolist()
+
+
+def dequantise(q: np.ndarray, box_min, box_max) -> np.ndarray:
+    """Inverse of :func:`quantise` (mm)."""
+    lo, hi = np.asarray(box_min, float), np.asarray(box_max, float)
+    return lo + np.asarray(q, float) / _Q * (hi - lo)
+
+
+def chords(tp, frame, arc_step_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Tool-tip vertices (m,3) in the part frame, mm, and the use of the move ending at each, with every
+    arc replaced by chords of at most ``arc_step_mm`` (at least 2, at most 64 per arc); vectorised."""
+    tip = tp.tip_mm()
+    n = tip.shape[0]
+    if n == 0:
+        return np.zeros((0, 3)), np.zeros(0, np.uint8)
+    is_arc = (tp.kind == ARC_CW) | (tp.kind == ARC_CCW)
+    is_arc[0] = False
+    counts = np.ones(n, dtype=np.int64)
+    arcs = np.flatnonzero(is_arc)
+    if arcs.size:
+        start, end, centre = tp.xyz_mm[arcs - 1], tp.xyz_mm[arcs], tp.centre_mm[arcs]
+        ax = np.array([PLANE_AXES.get(int(p), (0, 1, 2)) for p in range(20)])[tp.plane[arcs].astype(int)]
+        rows = np.arange(arcs.size)
+        a, b, c = ax[:, 0], ax[:, 1], ax[:, 2]
+        u0, v0 = start[rows, a] - centre[rows, a], start[rows, b] - centre[rows, b]
+        u1, v1 = end[rows, a] - centre[rows, a], end[rows, b] - centre[rows, b]
+        t0, t1 = np.arctan2(v0, u0), np.arctan2(v1, u1)
+        ccw = tp.kind[arcs] == ARC_CCW
+        sweep = np.where(ccw, np.mod(t1 - t0, 2 * np.pi), -np.mod(t0 - t1, 2 * np.pi))
+        sweep = np.where(sweep == 0.0, np.where(ccw, 2 * np.pi, -2 * np.pi), sweep)
+        r0, r1 = np.hypot(u0, v0), np.hypot(u1, v1)
+        m = np.clip(np.ceil(np.abs(sweep) * np.maximum(r0, r1) / arc_step_mm), 2, 64).astype(np.int64)
+        counts[arcs] = m
+    total = int(counts.sum())
+    out = np.repeat(tip, counts, axis=0)             # straight moves: their end point; arcs: filled below
+    use = np.repeat(tp.use.astype(np.uint8), counts)
+    if arcs.size:
+        first = np.cumsum(counts) - counts           # first output row of each move
+        owner = np.repeat(rows, m)                   # arc row of each arc output point
+        k = np.arange(int(m.sum())) - np.repeat(np.cumsum(m) - m, m) + 1
+        t = k / np.repeat(m, m)
+        rr = np.repeat(r0, m) + (np.repeat(r1, m) - np.repeat(r0, m)) * t
+        ang = np.repeat(t0, m) + np.repeat(sweep, m) * t
+        s, e = start[owner], end[owner]
+        q = s + (e - s) * t[:, None]                 # the helix component along the normal: linear
+        aa, bb = a[owner], b[owner]
+        pts = np.arange(owner.size)
+        q[pts, aa] = centre[owner, aa] + rr * np.cos(ang)
+        q[pts, bb] = centre[owner, bb] + rr * np.sin(ang)
+        q[k == np.repeat(m, m)] = end[rows]          # exact end points
+        offset = tp.xyz_mm[arcs] - tip[arcs]         # reference point -> tip, constant along a 3+2 arc
+        dest = np.repeat(first[arcs], m) + k - 1
+        out[dest] = q - offset[owner]
+    assert out.shape[0] == total
+    return frame.to_part(out), use
+
+
+def _input_flags(outcome) -> np.ndarray:
+    n = outcome.points.shape[0]
+    flags = np.zeros(n, dtype=np.uint8)
+    areas = outcome.extra.get("areas")
+    if areas is not None and getattr(areas, "nearest_sample", None) is not None:
+        flags[np.asarray(outcome.arrays["integrated"], bool)[areas.nearest_sample]] |= FLAG_INTEGRATED
+    for ap in outcome.extra.get("area_paths", []) or []:
+        idx = getattr(ap, "unmachined", None)
+        if idx is not None and idx.size:
+            flags[idx] |= FLAG_UNMACHINED
+    return flags
+
+
+def _setup_rows(result, colors: np.ndarray) -> list[dict]:
+    rows = []
+    for s in result.setups:
+        fin = s.path.finishing if s.path is not None else None
+        rows.append({"id": s.id, "color": colors[s.id].tolist(), "tool_axis": list(s.tool_axis),
+                     "phi_deg": s.phi_deg, "theta_deg": s.theta_deg, "rotary_deg": dict(s.rotary_deg),
+                     "n_points": s.n_points, "n_input_points": s.n_input_points, "n_integrated": s.n_integrated,
+                     "finishing_mode": fin.mode if fin is not None else None,
+                     "order": (result.machining_order.index(s.id) if s.id in (result.machining_order or [])
+                               else None)})
+    return rows
+
+
+def viewer_index(outcome, *, max_points: int = MAX_POINTS, arc_step_mm: float = 0.5
+                 ) -> tuple[dict, _Buffers, _Buffers]:
+    """The index document and the two buffers of a plan (see the module docstring)."""
+    result = outcome.result
+    k = len(result.setups)
+    colors = area_colors(k)
+    pts = np.asarray(outcome.points, dtype=np.float64)
+    n_total = pts.shape[0]
+    keep = (np.arange(n_total) if n_total <= max_points else
+            np.sort(np.random.default_rng(_SEED).choice(n_total, size=max_points, replace=False)))
+    points_buf, paths_buf = _Buffers(VIEWER_FILES[1]), _Buffers(VIEWER_FILES[2])
+
+    q, lo, hi = quantise(pts[keep])
+    labels = np.asarray(outcome.input_labels)[keep]
+    label_u8 = np.where(labels < 0, UNLABELLED, labels).astype(np.uint8)
+    arrays = {"position": points_buf.add(q), "label": points_buf.add(label_u8),
+              "flags": points_buf.add(_input_flags(outcome)[keep])}
+    sim = outcome.extra.get("simulation")
+    deviation = None
+    if sim is not None and getattr(sim, "deviation_mm", None) is not None:
+        dev_um = np.clip(np.rint(np.asarray(sim.deviation_mm, float)[keep] * 1000.0), -32767, 32767)
+        arrays["deviation"] = points_buf.add(np.nan_to_num(dev_um).astype(np.int16))
+        fp = result.parameters.paths.finishing
+        v = result.verification
+        deviation = {"limit_mm": fp.tolerance_mm + fp.scallop_mm + ((v.measuring_bound_mm or 0.0) if v else 0.0),
+                     "min_mm": float(np.nanmin(sim.deviation_mm)), "max_mm": float(np.nanmax(sim.deviation_mm))}
+
+    paths = []
+    verts, uses, owners = [], [], []
+    for ap in outcome.extra.get("area_paths", []) or []:
+        for op in ("finishing", "roughing"):
+            tp = getattr(ap, op, None)
+            if tp is None or tp.n_moves == 0:
+                continue
+            v, u = chords(tp, ap.frame, arc_step_mm)
+            verts.append(v), uses.append(u), owners.append((int(ap.area), op, v.shape[0]))
+    if verts:
+        qp, plo, phi = quantise(np.concatenate(verts))
+        start = 0
+        for (area, op, m), u in zip(owners, uses):
+            paths.append({"area": area, "operation": op, "n_vertices": m,
+                          "vertices": paths_buf.add(qp[start:start + m]), "use": paths_buf.add(u)})
+            start += m
+        paths_box = {"min_mm": plo, "max_mm": phi}
+    else:
+        paths_box = None
+
+    v = result.verification
+    index = {
+        "format": VIEWER_FORMAT, "version": VIEWER_FORMAT_VERSION,
+        "name": result.input.name, "message": result.message,
+        "selection_status": result.selection.status,
+        "verification": ({"status": v.status, "message": v.message} if v is not None else None),
+        "deviation": deviation,
+        "rotary_axes": list(result.orientations.rotary_axes) if getattr(result, "orientations", None) else None,
+        "colors": {"areas": colors.tolist(), "uncovered": UNCOVERED_COLOR.tolist()},
+        "setups": _setup_rows(result, colors),
+        "points": {"n_total": int(n_total), "n_shown": int(keep.size), "box_min_mm": lo, "box_max_mm": hi,
+                   "arrays": arrays,
+                   "n_integrated": int(np.count_nonzero(_input_flags(outcome) & FLAG_INTEGRATED)),
+                   "n_unmachined": int(result.unmachined.n_points) if result.unmachined is not None else 0},
+        "paths": {"box": paths_box, "arc_step_mm": arc_step_mm, "items": paths},
+    }
+    return index, points_buf, paths_buf
+
+
+def write_viewer_data(outcome, out_dir, *, max_points: int = MAX_POINTS) -> dict[str, Path]:
+    """Write ``viewer.json``, ``viewer.points.bin`` and ``viewer.paths.bin`` into ``out_dir`` (atomically,
+    the index last); return their paths by kind."""
+    out = Path(out_dir)
+    index, points_buf, paths_buf = viewer_index(outcome, max_points=max_points)
+    paths = {"viewer_points": out / VIEWER_FILES[1], "viewer_paths": out / VIEWER_FILES[2],
+             "viewer_json": out / VIEWER_FILES[0]}
+    points_buf.write(paths["viewer_points"])
+    paths_buf.write(paths["viewer_paths"])
+    with atomic_path(paths["viewer_json"]) as tmp:
+        tmp.write_text(json.dumps(index, separators=(",", ":")) + "\n")
+    return paths

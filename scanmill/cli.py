@@ -215,6 +215,11 @@ def cmd_serve(args) -> int:
                  config=args.config, log_level=args.log_level)
 
 
+def cmd_view(args) -> int:
+    from scanmill.viewer.local import view
+    return view(args.plan_dir, host=args.host, port=args.port, open_browser=args.open)
+
+
 def cmd_worker(args) -> int:
     from scanmill.worker import run_worker
     return run_worker(concurrency=args.concurrency, name=args.name, config=args.config, log_level=args.log_level)
@@ -271,6 +276,14 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--config", help="settings file, TOML or JSON (SCANMILL_CONFIG)")
     v.add_argument("--log-level", choices=["critical", "error", "warning", "info", "debug"])
     v.set_defaults(func=cmd_serve)
+
+    vw = sub.add_parser("view", help="show a plan directory in the browser viewer (serves it on 127.0.0.1 and "
+                                     "prints the address to open)")
+    vw.add_argument("plan_dir", help="a directory `scanmill plan` wrote (it holds viewer.json)")
+    vw.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
+    vw.add_argument("--port", type=int, default=0, help="TCP port (default: a free one)")
+    vw.add_argument("--open", action="store_true", help="also open the address in the default browser")
+    vw.set_defaults(func=cmd_view)
 
     w = sub.add_parser("worker", help="run a Celery worker for the distributed backend (SCANMILL_BROKER_URL)")
     w.add_argument("--concurrency", type=int, help="jobs run at once on this machine (SCANMILL_WORKERS)")

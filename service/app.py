@@ -15,8 +15,10 @@ from contextlib import asynccontextmanager
 
 import anyio
 from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
 
 import scanmill
+from scanmill.viewer import STATIC_DIR
 from service.jobs import JobService
 from service.limits import BodyLimitMiddleware
 from service.openapi import build_openapi
@@ -24,6 +26,7 @@ from service.problems import install_handlers
 from service.retention import RetentionSweeper
 from service.routers import jobs as jobs_routes
 from service.routers import system as system_routes
+from service.routers import viewer as viewer_routes
 from service.settings import Settings, load_settings
 from service.backends import make_backend
 from service.db import database_url
@@ -89,5 +92,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodyLimitMiddleware, settings=settings)
     app.include_router(jobs_routes.router)
     app.include_router(system_routes.router)
+    app.include_router(viewer_routes.router)
+    # the viewer's own scripts and the vendored three.js (scanmill/viewer/static), public like the page
+    app.mount(viewer_routes.STATIC_PREFIX.rstrip("/"), StaticFiles(directory=STATIC_DIR, check_dir=False),
+              name="viewer-static")
     app.openapi = lambda: build_openapi(app)  # type: ignore[method-assign]
     return app

@@ -60,11 +60,17 @@ def wait_viewer(driver, *, paths: bool = False, polls: int = 600, interval_s: fl
     return state
 
 
-def js_errors(driver) -> list[str]:
-    """Errors the page caught (window error events) and SEVERE console entries."""
+def console_entries(driver) -> list[dict]:
+    """The SEVERE console entries since the last call (chromedriver hands each entry out once)."""
+    return [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
+
+
+def js_errors(driver, entries: list[dict] | None = None) -> list[str]:
+    """JavaScript errors: what the page caught (window error events, rejected promises) and SEVERE
+    console entries from scripts; failed resource loads (source ``network``) are not script errors."""
     page = driver.execute_script("return (window.scanmillViewer && window.scanmillViewer.errors) || []") or []
-    console = [e["message"] for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
-    return list(page) + console
+    entries = console_entries(driver) if entries is None else entries
+    return list(page) + [e["message"] for e in entries if e.get("source") != "network"]
 
 
 def canvas_pixels(driver) -> np.ndarray:

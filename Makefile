@@ -14,13 +14,17 @@ OUT ?= scanmill-out
 SETUP_DEPS := pyproject.toml scripts/setup.sh scripts/vendor_three.py
 RUN_STAMP := $(VENV)/.installed-run
 TEST_STAMP := $(VENV)/.installed-test$(if $(filter 1,$(SCANMILL_SKIP_SERVERS)),-noservers)
+# three.js for the viewer is not in git (setup.sh vendors it): fetch it again if the vendor directory was
+# removed (git clean -X) while the stamps stayed, without redoing the whole set-up.
+THREE_VERSION := scanmill/viewer/static/vendor/three/VERSION
+PYTHON ?= python3
 
 .PHONY: setup setup-run setup-test setup-dry-run run serve test test-slow bench bench-service bench-distributed
 
 # `setup` keeps its old meaning: everything, tests included.
 setup: setup-test
-setup-run: $(RUN_STAMP)
-setup-test: $(TEST_STAMP)
+setup-run: $(RUN_STAMP) $(THREE_VERSION)
+setup-test: $(TEST_STAMP) $(THREE_VERSION)
 
 # What each level would install on this machine (apt packages, venv, pip, three.js), changing nothing.
 setup-dry-run:
@@ -32,6 +36,10 @@ $(RUN_STAMP): $(SETUP_DEPS)
 
 $(TEST_STAMP): $(SETUP_DEPS)
 	VENV=$(VENV) bash scripts/setup.sh test
+
+# A no-op when the pinned release is there; touch keeps make from asking again after the script changed.
+$(THREE_VERSION): scripts/vendor_three.py
+	$(PYTHON) scripts/vendor_three.py $(if $(SCANMILL_THREE_TARBALL),--from-tarball '$(SCANMILL_THREE_TARBALL)') && touch $@
 
 run: setup-run
 	$(BIN)/python scripts/demo_service.py --sample femur_like --data-dir scanmill-data --out $(OUT)

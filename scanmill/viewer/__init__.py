@@ -34,8 +34,9 @@ def check_vendor() -> None:
     missing = [f for f in VENDOR_FILES if not (vendor / f).is_file()]
     if missing:
         raise VendorMissing(f"the viewer's three.js files are not installed ({', '.join(missing)} missing in "
-                            f"{vendor}); run `python scripts/vendor_three.py` (or `make setup`) once with access "
-                            "to the npm registry, or with --from-tarball three-0.187.0.tgz offline.")
+                            f"{vendor}); run `python3 scripts/vendor_three.py` (or `make setup-run`) once with "
+                            "access to the npm registry, or `python3 scripts/vendor_three.py --from-tarball "
+                            "three-0.187.0.tgz` offline.")
 
 
 def page_html(*, artifacts_base: str, static_base: str, title: str) -> tuple[str, dict[str, str]]:

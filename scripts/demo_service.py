@@ -178,6 +178,9 @@ def run(args) -> int:
             print(f"  warning: {w}")
         print(f"results: {out_dir}/ ({', '.join(sorted(p.name for p in out_dir.iterdir()))})")
         print(f"job: {url}/jobs/{job['id']} (kept in {Path(args.data_dir).resolve()})")
+        if (out_dir / "viewer.json").is_file():
+            print(f"see it in 3D: {Path(sys.executable).parent / 'scanmill'} view {out_dir}   (or, with the service "
+                  f"running, {url}/jobs/{job['id']}/viewer)")
         return 0 if plan["status"] == "planned" else 3
     finally:
         _say(t0, "stopping the service")

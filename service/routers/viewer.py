@@ -5,7 +5,7 @@ browser cannot send an ``Authorization`` header when it follows a link). It then
 ``viewer.*`` artifacts through ``GET /jobs/{id}/artifacts/{name}`` with the key as a Bearer header,
 exactly as any client does: without the right key it gets 401 or 404 and shows the key form or the
 refusal, never the plan. Not in the OpenAPI document: it is a page for people, not an operation for
-clients (docs/service.md, "Viewer").
+clients (docs/viewer.md).
 """
 
 from __future__ import annotations

@@ -40,7 +40,8 @@ from planning.report.files import atomic_path
 from planning.report.preview import UNCOVERED_COLOR, area_colors
 from planning.toolpath.moves import ARC_CCW, ARC_CW, PLANE_AXES
 
-__all__ = ["VIEWER_FORMAT", "VIEWER_FORMAT_VERSION", "VIEWER_FILES", "viewer_index", "write_viewer_data"]
+__all__ = ["VIEWER_FORMAT", "VIEWER_FORMAT_VERSION", "VIEWER_FILES", "input_integrated", "viewer_index",
+           "write_viewer_data"]
 
 VIEWER_FORMAT = "scanmill-viewer"
 VIEWER_FORMAT_VERSION = 1
@@ -145,12 +146,20 @@ def chords(tp, frame, arc_step_mm: float) -> tuple[np.ndarray, np.ndarray]:
     return frame.to_part(out), use
 
 
-def _input_flags(outcome) -> np.ndarray:
-    n = outcome.points.shape[0]
-    flags = np.zeros(n, dtype=np.uint8)
+def input_integrated(outcome) -> np.ndarray | None:
+    """(N,) bool: input points whose nearest sampled point is integrated (attached to an area by
+    distance; every input point takes its nearest sample's area), or None when the plan has no areas."""
     areas = outcome.extra.get("areas")
-    if areas is not None and getattr(areas, "nearest_sample", None) is not None:
-        flags[np.asarray(outcome.arrays["integrated"], bool)[areas.nearest_sample]] |= FLAG_INTEGRATED
+    if areas is None or getattr(areas, "nearest_sample", None) is None:
+        return None
+    return np.asarray(outcome.arrays["integrated"], bool)[areas.nearest_sample]
+
+
+def _input_flags(outcome) -> np.ndarray:
+    flags = np.zeros(outcome.points.shape[0], dtype=np.uint8)
+    integrated = input_integrated(outcome)
+    if integrated is not None:
+        flags[integrated] |= FLAG_INTEGRATED
     for ap in outcome.extra.get("area_paths", []) or []:
         idx = getattr(ap, "unmachined", None)
         if idx is not None and idx.size:
@@ -186,8 +195,9 @@ def viewer_index(outcome, *, max_points: int = MAX_POINTS, arc_step_mm: float = 
     q, lo, hi = quantise(pts[keep])
     labels = np.asarray(outcome.input_labels)[keep]
     label_u8 = np.where(labels < 0, UNLABELLED, labels).astype(np.uint8)
+    flags = _input_flags(outcome)
     arrays = {"position": points_buf.add(q), "label": points_buf.add(label_u8),
-              "flags": points_buf.add(_input_flags(outcome)[keep])}
+              "flags": points_buf.add(flags[keep])}
     sim = outcome.extra.get("simulation")
     deviation = None
     if sim is not None and getattr(sim, "deviation_mm", None) is not None:
@@ -230,7 +240,7 @@ def viewer_index(outcome, *, max_points: int = MAX_POINTS, arc_step_mm: float = 
         "setups": _setup_rows(result, colors),
         "points": {"n_total": int(n_total), "n_shown": int(keep.size), "box_min_mm": lo, "box_max_mm": hi,
                    "arrays": arrays,
-                   "n_integrated": int(np.count_nonzero(_input_flags(outcome) & FLAG_INTEGRATED)),
+                   "n_integrated": int(np.count_nonzero(flags & FLAG_INTEGRATED)),
                    "n_unmachined": int(result.unmachined.n_points) if result.unmachined is not None else 0},
         "paths": {"box": paths_box, "arc_step_mm": arc_step_mm, "items": paths},
     }

@@ -17,7 +17,7 @@ times it, and measures:
 * from plan.json: selection k / overlap / status / coverage, the ``areas`` stage and the sum of all
   stage timings, and per area the finishing CL moves (``n_cl``), retracts, passes, regions (when
   reported) and the roughing levels, length and time;
-* from each ``area_*.moves.json`` (planning/post/neutral.py), in the ``finishing`` operation:
+* from each ``area_*.moves.json.gz`` (planning/post/neutral.py; ``.moves.json`` of older plans), in the ``finishing`` operation:
   ``rapids`` = moves of type ``rapid``, ``plunges`` / ``retracts`` = feed moves with that ``use``,
   ``links`` = maximal runs of consecutive rapid moves with a feed move before and after (an air
   move from one cut to the next, through the safe height; the approach and the departure are not
@@ -153,8 +153,11 @@ def graph_figures(points: np.ndarray, labels: np.ndarray) -> dict:
 
 def moves_figures(path: Path) -> dict | None:
     """Rapids, plunges, retracts, links (runs of rapids) and rapid length of the finishing operation
-    of one neutral move file (None without a finishing operation)."""
-    doc = json.loads(path.read_text())
+    of one neutral move file, ``.moves.json.gz`` or an older plan's ``.moves.json`` (None without a
+    finishing operation)."""
+    from planning.report.moves_files import read_moves_text
+
+    doc = json.loads(read_moves_text(path))
     ops = [op for op in doc["operations"] if op["name"] == "finishing"]
     if not ops:
         return None

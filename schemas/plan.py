@@ -207,7 +207,10 @@ class AreaPathSummary(_Out):
     finishing: FinishingSummary | None = None
     roughing: RoughingSummary | None = None
     programs: dict[str, str] = Field(default_factory=dict, description="NC program artifact per post dialect.")
-    moves: str | None = Field(None, description="Neutral JSON moves artifact.")
+    moves: str | None = Field(None, description="Neutral moves artifact: the JSON (format scanmill-neutral-moves), gzip "
+                                                "compressed, area_<i>.moves.json.gz.")
+    moves_npz: str | None = Field(None, description="The same moves as arrays, area_<i>.moves.npz (format "
+                                                    "scanmill-neutral-moves-npz; planning/report/moves_files.py).")
     seconds: dict[str, float] = Field(default_factory=dict, description="Time per path step, s.")
 
 

@@ -39,7 +39,14 @@ from service.intake import (
 )
 from service.problems import ApiError
 from service.settings import Settings
-from service.storage import Storage, is_job_id, media_type, new_job_id, tree_bytes
+from service.storage import (
+    Storage,
+    gzip_alias,
+    is_job_id,
+    media_type,
+    new_job_id,
+    tree_bytes,
+)
 from service.store import IdempotencyConflict, JobRecord, JobStore, QuotaExceeded
 
 log = logging.getLogger("scanmill.service")
@@ -217,8 +224,14 @@ class JobService:
         return ArtifactList(job_id=job.id, items=items)
 
     def artifact_path(self, job_id: str, name: str, who: Principal) -> Path:
+        """The stored file of artifact ``name``. A name with no file of its own but a stored gzip form
+        (``area_0.moves.json`` -> ``area_0.moves.json.gz``, :func:`service.storage.gzip_alias`) gives that
+        file: the caller tells by ``path.name != name`` and serves it decoded or with Content-Encoding."""
         job = self._finished(job_id, who)
         path = self.storage.artifact_path(job.id, name)
+        alias = gzip_alias(name) if path is None else None
+        if alias is not None:
+            path = self.storage.artifact_path(job.id, alias)
         if path is None:
             raise ApiError(404, "artifact_not_found",
                            f"Job {job.id} has no artifact named {name[:100]!r}; GET /jobs/{job.id}/artifacts "

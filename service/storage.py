@@ -56,8 +56,11 @@ CLOUD_SUFFIXES = EXTENSIONS
 MEDIA_TYPES = {
     ".json": "application/json", ".png": "image/png", ".npz": "application/octet-stream",
     ".ply": "application/octet-stream", ".nc": "text/plain", ".ngc": "text/plain", ".gcode": "text/plain",
-    ".tap": "text/plain", ".txt": "text/plain", ".csv": "text/plain",
+    ".tap": "text/plain", ".txt": "text/plain", ".csv": "text/plain", ".gz": "application/gzip",
 }
+#: Artifact names also served from their gzip form: ``X.json`` asked for, ``X.json.gz`` stored (the moves
+#: of each area, ``area_<i>.moves.json.gz`` since issue 20; clients of older plans ask for ``.moves.json``).
+GZIP_ALIAS_SUFFIXES = (".json",)
 
 
 class StorageLocked(RuntimeError):
@@ -88,6 +91,52 @@ def cloud_suffix(filename: str | None) -> str:
 def media_type(name: str) -> str:
     """The media type an artifact is served with."""
     return MEDIA_TYPES.get(Path(name).suffix.lower(), "application/octet-stream")
+
+
+def gzip_alias(name: str) -> str | None:
+    """The stored gzip file name that serves artifact ``name`` when no file has that name (``X.json`` ->
+    ``X.json.gz``), or None for names without one."""
+    return name + ".gz" if name.endswith(GZIP_ALIAS_SUFFIXES) else None
+
+
+def accepts_gzip(accept_encoding: str | None) -> bool:
+    """Whether an ``Accept-Encoding`` header value admits ``gzip`` (RFC 9110 12.5.3): ``gzip`` or
+    ``x-gzip`` listed with a q-value above 0, or else ``*`` with one. A missing or empty header admits
+    only the identity here (a client that sends none may well not decode gzip)."""
+    best: dict[str, float] = {}
+    for item in (accept_encoding or "").split(","):
+        token, *params = [part.strip() for part in item.split(";")]
+        if not token:
+            continue
+        q = 1.0
+        for param in params:
+            key, _, value = param.partition("=")
+            if key.strip().lower() == "q":
+                try:
+                    q = float(value.strip())
+                except ValueError:
+                    q = 0.0
+                if not 0.0 <= q <= 1.0:        # NaN included
+                    q = 0.0
+        best[token.lower()] = max(q, best.get(token.lower(), 0.0))
+    for token in ("gzip", "x-gzip"):
+        if token in best:
+            return best[token] > 0.0
+    return best.get("*", 0.0) > 0.0
+
+
+def iter_gunzipped(path: Path, chunk: int = 1 << 16):
+    """The decompressed bytes of the gzip file ``path``, piece by piece (about ``chunk`` bytes of
+    output at a time; the file is read as it goes, never whole); the file is closed at the end or
+    when the generator is closed."""
+    import gzip
+
+    with open(path, "rb") as fh, gzip.GzipFile(fileobj=fh, mode="rb") as gz:
+        while True:
+            piece = gz.read(chunk)
+            if not piece:
+                return
+            yield piece
 
 
 def fsync_dir(path: Path) -> None:

@@ -313,7 +313,7 @@ def test_programs_pass_the_limit_to_the_posts(monkeypatch):
 
     monkeypatch.setitem(programs._POSTS, "iso", fake)
     monkeypatch.setitem(programs._POSTS, "linuxcnc", fake)
-    monkeypatch.setattr(programs, "neutral_json", lambda *a, **k: "{}")
+    monkeypatch.setattr(programs, "neutral_json_arrays", lambda *a, **k: ("{}", None))
     config = parse_config({"post": {"max_arc_radius_mm": 123.5}})
     tp = random_arc_path(1, 5, big=False)
     info = SimpleNamespace(n_passes=1, n_regions=1, step_over_mm=0.5, toolpath=tp, n_retracts=0)
@@ -323,7 +323,8 @@ def test_programs_pass_the_limit_to_the_posts(monkeypatch):
     files, _ = programs.post_areas([ap], setups_axes=[np.array([0, 0, 1.0])], rotary_deg=[(0.0, 0.0)],
                                    profile="compact_trunnion_bc", placement_mm=[0, 0, 60], gauge_length_mm=100.0,
                                    config=config)
-    assert seen == [123.5, 123.5] and sorted(files) == ["area_0.iso.nc", "area_0.linuxcnc.nc", "area_0.moves.json"]
+    assert seen == [123.5, 123.5] and sorted(files) == ["area_0.iso.nc", "area_0.linuxcnc.nc", "area_0.moves.json.gz",
+                                                        "area_0.moves.npz"]
 
 
 def cylinder_path(Rs: float, R: float = 3.0, half: float = 30.0, step: float = 0.5):

@@ -3,6 +3,7 @@ list, delete, idempotency, failures, and isolation between two API keys."""
 
 from __future__ import annotations
 
+import gzip
 import http.client
 import io
 import json
@@ -110,7 +111,7 @@ def test_artifacts_list_and_download(a, done_job):
         nc = a.get(items[st["path"]["programs"]["iso"]]["href"])
         assert nc.status_code == 200 and nc.headers["content-type"].startswith("text/plain")
         assert "G68.2" in nc.text and nc.text.rstrip().endswith("%")
-        moves = a.get(items[st["path"]["moves"]]["href"]).json()
+        moves = json.loads(gzip.decompress(a.get(items[st["path"]["moves"]]["href"]).content))   # .moves.json.gz
         assert moves["area_id"] == st["id"] and moves["setup"]["tool_axis_part"] == pytest.approx(st["tool_axis"])
         assert nc.text.count("\n") > 20
         assert npz[f"cl_{st['id']}"].shape[0] == st["path"]["finishing"]["n_cl"]

@@ -10,6 +10,7 @@ rs274 is required: where it is missing the tests FAIL and say how to install it.
 
 from __future__ import annotations
 
+import gzip
 import json
 import math
 
@@ -178,7 +179,7 @@ def test_reader_agrees_with_the_moves_json(plans):
     for name, plan in plans.items():
         prof = plan["profile"]
         for a in range(plan["k"]):
-            mj = json.loads(plan["programs"][f"area_{a}.moves.json"])
+            mj = json.loads(gzip.decompress(plan["programs"][f"area_{a}.moves.json.gz"]))
             for dialect in ("iso", "linuxcnc"):
                 m = read(plan, f"area_{a}.{dialect}.nc")
                 for op in mj["operations"]:

@@ -42,7 +42,10 @@ table-table, head rotation centre for head-head). Lengths are rounded to ``10^-d
 
 :func:`neutral_json` returns ``json.dumps(neutral_moves(...), separators=(",", ":"))`` byte for byte,
 with the long lists written as text at once (on large tool paths ``json`` encoding the floats one by
-one costs several times more than building the dict).
+one costs several times more than building the dict). :func:`neutral_json_arrays` gives that text and
+the same document with every long list as the numpy values the text prints (:class:`Picked` for the
+lists of names and feeds), from which :mod:`planning.report.moves_files` writes the binary
+``area_<i>.moves.npz``.
 """
 
 from __future__ import annotations
@@ -85,7 +88,8 @@ from .options import (
     gauge_of,
 )
 
-__all__ = ["NEUTRAL_FORMAT", "NEUTRAL_FORMAT_VERSION", "neutral_json", "neutral_moves"]
+__all__ = ["NEUTRAL_FORMAT", "NEUTRAL_FORMAT_VERSION", "Picked", "neutral_json", "neutral_json_arrays",
+           "neutral_moves"]
 
 NEUTRAL_FORMAT = "scanmill-neutral-moves"
 NEUTRAL_FORMAT_VERSION = 1
@@ -144,11 +148,36 @@ def neutral_json(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis
     shortest repr is not its rounded decimal digits for certain (15 significant digits or more,
     below 1e-4, or a float that is not the nearest one to those digits), Python's ``repr`` writes it.
     """
-    lists = _JsonLists()
-    doc = _document(operations, frame, tool_axis=tool_axis, rotary_deg=rotary_deg, profile=profile,
-                    placement_mm=placement_mm, setup_id=setup_id, area_id=area_id, gauge_length_mm=gauge_length_mm,
-                    decimals=decimals, lists=lists)
-    return lists.splice(json.dumps(doc, separators=(",", ":")))
+    return _json_text(operations, frame, tool_axis=tool_axis, rotary_deg=rotary_deg, profile=profile,
+                      placement_mm=placement_mm, setup_id=setup_id, area_id=area_id, gauge_length_mm=gauge_length_mm,
+                      decimals=decimals, keep=False)[0]
+
+
+class Picked(NamedTuple):
+    """A long list of :func:`neutral_json_arrays`' document given by a table and indices:
+    the list is ``[table[i] for i in index]`` (names such as ``"rapid"``, or feeds with None for rapids)."""
+
+    table: tuple
+    index: np.ndarray
+
+
+def neutral_json_arrays(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis, rotary_deg, profile,
+                        placement_mm, setup_id=None, area_id=None, gauge_length_mm=None,
+                        decimals: int = 4) -> tuple[str, dict]:
+    """``(text, doc)``: :func:`neutral_json`'s text (the same arguments) and the document it encodes
+    with every long list (the per-move, per-arc and ``controlled_machine_mm`` lists) as the numpy
+    values the text prints: float rows as (k,3) float64 (already rounded: ``v.tolist()`` is the
+    list of the text), integer lists as int64, lists of names and feeds as :class:`Picked`."""
+    return _json_text(operations, frame, tool_axis=tool_axis, rotary_deg=rotary_deg, profile=profile,
+                      placement_mm=placement_mm, setup_id=setup_id, area_id=area_id, gauge_length_mm=gauge_length_mm,
+                      decimals=decimals, keep=True)
+
+
+def _json_text(operations, frame, *, keep: bool, **kw) -> tuple[str, dict | None]:
+    lists = _JsonLists(keep=keep)
+    doc = _document(operations, frame, lists=lists, **kw)
+    text = lists.splice(json.dumps(doc, separators=(",", ":")))
+    return text, (lists.materialise(doc) if keep else None)
 
 
 class _Lists:
@@ -169,31 +198,49 @@ class _Lists:
 class _JsonLists:
     """The long lists of the document as placeholders, their JSON text kept aside (:func:`neutral_json`)."""
 
-    def __init__(self):
+    def __init__(self, keep: bool = False):
         self.tag = secrets.token_hex(8)
         self.texts: list[str] = []
+        self.keep = keep
+        self.values: list = []          #: with ``keep``: each list's values (:func:`neutral_json_arrays`)
 
-    def _put(self, text: str) -> str:
+    def _put(self, text: str, value=None) -> str:
         self.texts.append(text)
+        if self.keep:
+            self.values.append(value)
         return f"\x00{self.tag}:{len(self.texts) - 1}"
 
     def floats(self, a, decimals: int, groups=None) -> str:
-        return self._put(_json_float_rows(a, decimals, groups))
+        v = np.round(np.asarray(a, dtype=np.float64), decimals) + 0.0
+        return self._put(_json_float_rows(v, decimals, groups, rounded=True), v.reshape(-1, 3))
 
     def pick(self, table: Sequence, idx: np.ndarray) -> str:
+        idx = np.asarray(idx, dtype=np.int64)
+        value = Picked(tuple(table), idx)
         if not len(idx):
-            return self._put("[]")
+            return self._put("[]", value)
         rows = _Rows(len(idx), sep=",", end=",")
-        rows.table(np.asarray(idx, dtype=np.int64), [json.dumps(v) for v in table], np.ones(len(idx), dtype=bool))
-        return self._put("[" + rows.text()[:-1] + "]")
+        rows.table(idx, [json.dumps(v) for v in table], np.ones(len(idx), dtype=bool))
+        return self._put("[" + rows.text()[:-1] + "]", value)
 
     def ints(self, a: np.ndarray) -> str:
         a = np.asarray(a, dtype=np.int64)
         if not a.size:
-            return self._put("[]")
+            return self._put("[]", a)
         rows = _Rows(a.size, sep=",", end=",")
         rows.number("", a, 0, np.ones(a.size, dtype=bool), point=False)
-        return self._put("[" + rows.text()[:-1] + "]")
+        return self._put("[" + rows.text()[:-1] + "]", a)
+
+    def materialise(self, doc):
+        """``doc`` (the skeleton :func:`_document` built with this object) with every placeholder
+        replaced by its list's values (``keep``); ``doc`` itself is left as it is."""
+        if isinstance(doc, dict):
+            return {k: self.materialise(v) for k, v in doc.items()}
+        if isinstance(doc, list):
+            return [self.materialise(v) for v in doc]
+        if isinstance(doc, str) and doc.startswith(f"\x00{self.tag}:"):
+            return self.values[int(doc.rsplit(":", 1)[1])]
+        return doc
 
     def splice(self, skeleton: str) -> str:
         """The document's JSON text with every placeholder replaced by its list's text."""
@@ -211,14 +258,15 @@ def _object_array(values: Sequence) -> np.ndarray:
     return out
 
 
-def _json_float_rows(a, decimals: int, groups: np.ndarray | None = None) -> str:
+def _json_float_rows(a, decimals: int, groups: np.ndarray | None = None, rounded: bool = False) -> str:
     """``json.dumps(_r(a, decimals), separators=(",", ":"))`` for ``a`` (k,3), the numbers written
     from their rounded digits at once. A float ``v`` with ``v == K / 10^decimals`` (the nearest
     float to the decimal ``K 10^-decimals``), ``|K| < 10^15`` and ``|v| >= 1e-4`` (or 0) has that
     decimal as its shortest repr (at most 15 significant digits name one float each), printed
     positionally; the rows with any other number go through ``repr``. ``groups`` (k,) int: rows
-    that are likely equal where their groups are (checked)."""
-    v = np.round(np.asarray(a, dtype=np.float64), decimals) + 0.0
+    that are likely equal where their groups are (checked). ``rounded``: ``a`` is already
+    ``np.round(a, decimals) + 0.0`` (float64)."""
+    v = np.asarray(a, dtype=np.float64) if rounded else np.round(np.asarray(a, dtype=np.float64), decimals) + 0.0
     k = v.shape[0]
     if k == 0:
         return "[]"

@@ -3,8 +3,10 @@ tool paths (:mod:`planning.toolpath.area_paths`) and the posts (:mod:`planning.p
 :mod:`planning.post.linuxcnc`, :mod:`planning.post.neutral`).
 
 Artifacts per area ``i``: ``area_<i>.<dialect>.nc`` for each dialect in ``post.dialects``
-(``area_0.iso.nc``, ``area_0.linuxcnc.nc``) and ``area_<i>.moves.json`` (neutral moves, part and
-machine frames). Operations in each program: roughing (when computed) then finishing.
+(``area_0.iso.nc``, ``area_0.linuxcnc.nc``), ``area_<i>.moves.json.gz`` (the neutral moves JSON, part and
+machine frames, gzip compressed) and ``area_<i>.moves.npz`` (the same moves as arrays); both files
+are made here as bytes (:mod:`planning.report.moves_files`). Operations in each program: roughing (when
+computed) then finishing.
 """
 
 from __future__ import annotations
@@ -13,8 +15,9 @@ import numpy as np
 
 from planning.post.iso import iso_program
 from planning.post.linuxcnc import linuxcnc_program
-from planning.post.neutral import neutral_json
+from planning.post.neutral import neutral_json_arrays
 from planning.post.options import Operation, PostOptions
+from planning.report.moves_files import gzip_bytes, moves_npz_bytes
 from planning.toolpath.moves import machining_time_s
 from schemas.plan import (
     AreaPathSummary,
@@ -44,19 +47,25 @@ def _five_axis_operations(ap, config, gauge_length_mm) -> list:
                               plunge_mm_min=post.plunge_mm_min, gauge_length_mm=float(gauge_length_mm))]
 
 
-def _five_axis_moves(text: str, five: list, decimals: int) -> str:
-    """The neutral moves JSON with the simultaneous operations added under ``five_axis_operations``: per
-    move the ball centre, the tool tip and the tool axis in the part frame, the kind and the use."""
+def _five_axis_lists(five: list, decimals: int) -> list[dict]:
+    """The simultaneous operations' entries of ``five_axis_operations``: per move the ball centre, the
+    tool tip and the tool axis in the part frame (rounded float64 arrays), the kind and the use."""
+    return [{"name": op.name, "tool_number": int(op.tool_number), "radius_mm": float(op.radius_mm),
+             "centre_mm": np.round(op.centre_mm, decimals),
+             "tip_mm": np.round(op.centre_mm - op.radius_mm * op.axis, decimals),
+             "axis": np.round(op.axis, 9), "kind": op.kind.astype(np.int64), "use": op.use.astype(np.int64)}
+            for op in five]
+
+
+def _five_axis_moves(text: str, five: list[dict]) -> str:
+    """The neutral moves JSON ``text`` ("" for none) with ``five`` (:func:`_five_axis_lists`) added under
+    ``five_axis_operations``: ``json.dumps`` of the parsed text with that key added, without parsing it."""
     import json
 
-    doc = json.loads(text) if text else {}
-    doc["five_axis_operations"] = [
-        {"name": op.name, "tool_number": int(op.tool_number), "radius_mm": float(op.radius_mm),
-         "centre_mm": np.round(op.centre_mm, decimals).tolist(),
-         "tip_mm": np.round(op.centre_mm - op.radius_mm * op.axis, decimals).tolist(),
-         "axis": np.round(op.axis, 9).tolist(), "kind": op.kind.astype(int).tolist(), "use": op.use.astype(int).tolist()}
-        for op in five]
-    return json.dumps(doc, separators=(",", ":"))
+    entries = json.dumps([{k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in f.items()} for f in five],
+                         separators=(",", ":"))
+    head = text[:-1] + "," if text else "{"
+    return head + '"five_axis_operations":' + entries + "}"
 
 
 def _operations(ap, config) -> list[Operation]:
@@ -76,7 +85,8 @@ def _operations(ap, config) -> list[Operation]:
 
 
 def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, gauge_length_mm, config):
-    """Programs ``{artifact name: text}`` and path summaries ``{area: AreaPathSummary}`` for every
+    """Programs ``{artifact name: text}`` (the NC programs as str, the moves files as bytes) and path
+    summaries ``{area: AreaPathSummary}`` for every
     area in ``area_paths``; ``rotary_deg`` (k,2) (tilt, rotary) of each set-up; ``gauge_length_mm``:
     tool tip to spindle gauge line of the finishing tool."""
     post = config.post
@@ -101,11 +111,16 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
                                               rotary_deg=rotary_deg[i], profile=profile, placement_mm=placement_mm,
                                               gauge_length_mm=gauge_length_mm, options=options, five_axis=five)
                 names[dialect] = name
-            moves_name = f"area_{i}.moves.json"
-            text = neutral_json(
+            text, doc = neutral_json_arrays(
                 ops, ap.frame, setup_id=i, area_id=i, tool_axis=setups_axes[i], rotary_deg=rotary_deg[i], profile=profile,
-                placement_mm=placement_mm, decimals=post.decimals) if ops else ""
-            files[moves_name] = (_five_axis_moves(text, five, post.decimals) if five else text) + "\n"
+                placement_mm=placement_mm, decimals=post.decimals) if ops else ("", None)
+            five_lists = _five_axis_lists(five, post.decimals)
+            if five:
+                text = _five_axis_moves(text, five_lists)
+            # the same numbers twice: the JSON text gzip compressed, and as arrays (planning/report/moves_files.py)
+            files[f"area_{i}.moves.json.gz"] = gzip_bytes(text + "\n")
+            del text
+            files[f"area_{i}.moves.npz"] = moves_npz_bytes(doc, five_lists)
         fin = rough = None
         if ap.finishing is not None:
             info = ap.finishing_info
@@ -146,7 +161,8 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
             frame=FrameSummary(origin_mm=tuple(map(float, ap.frame.origin_mm)), x_axis=tuple(map(float, rot[0])),
                                y_axis=tuple(map(float, rot[1])), z_axis=tuple(map(float, rot[2]))),
             safe_z_mm=round(float(ap.safe_z_mm), 4), finishing=fin, roughing=rough, programs=names,
-            moves=f"area_{i}.moves.json" if ops else None, seconds=ap.seconds)
+            moves=f"area_{i}.moves.json.gz" if ops or five else None,
+            moves_npz=f"area_{i}.moves.npz" if ops or five else None, seconds=ap.seconds)
     return files, summaries
 
 

@@ -84,8 +84,9 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike, progress=None) 
 
     say(0.4, "NC programs")
     for name, text in outcome.extra.get("programs", {}).items():
+        # NC programs are text; the moves files (.moves.json.gz, .moves.npz) come encoded as bytes
         paths[name] = out / name
-        _atomic_bytes(paths[name], text.encode())
+        _atomic_bytes(paths[name], text if isinstance(text, bytes) else text.encode())
 
     paths.update(_write_simulation(outcome, out, say))
     say(0.9, "unmachined points")

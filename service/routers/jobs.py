@@ -12,14 +12,14 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Header, Query, Request, Response
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 
 from schemas.api import ArtifactList, Job, JobPage, JobStatus
 from schemas.plan import PlanResult
 from service.deps import Principal, get_jobs, get_principal
 from service.jobs import JobService
 from service.openapi import CREATE_JOB_REQUEST_BODY, EXAMPLE_JOB, problem_responses
-from service.storage import media_type
+from service.storage import accepts_gzip, iter_gunzipped, media_type
 
 router = APIRouter(prefix="/jobs")
 
@@ -106,15 +106,38 @@ def list_artifacts(job_id: str, who: Caller, jobs: Jobs):
     return jobs.artifacts(job_id, who)
 
 
+_GET_ARTIFACT_DESCRIPTION = (
+    "A file of GET /jobs/{id}/artifacts, as stored, with the media type of its extension "
+    "(`.json.gz` is `application/gzip`, sent as is, no Content-Encoding). The neutral moves of each area are "
+    "stored as `area_<i>.moves.json.gz` (the JSON, gzip compressed) and `area_<i>.moves.npz` (the same moves "
+    "as arrays). For clients of plans before that, the old name `area_<i>.moves.json` (any `X.json` whose "
+    "stored file is `X.json.gz`) still answers with the JSON, `application/json`: with `Content-Encoding: "
+    "gzip` (the stored bytes) when the request's `Accept-Encoding` admits gzip (`gzip` or `*` with q > 0), "
+    "decompressed while it is sent when it does not or is absent; `Vary: Accept-Encoding`. Such names are "
+    "not listed.")
+
+
 @router.get("/{job_id}/artifacts/{name}", operation_id="get_artifact", tags=["artifacts"],
-            summary="Download one artifact",
+            summary="Download one artifact", description=_GET_ARTIFACT_DESCRIPTION,
             response_class=Response,
             responses={200: {"description": "The file.",
                              "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
                                          "application/json": {"schema": {}},
+                                         "application/gzip": {"schema": {"type": "string", "format": "binary"}},
                                          "image/png": {"schema": {"type": "string", "format": "binary"}},
                                          "text/plain": {"schema": {"type": "string"}}}},
                        **problem_responses(401, 403, 404, 409)})
-def get_artifact(job_id: str, name: str, who: Caller, jobs: Jobs):
+def get_artifact(job_id: str, name: str, who: Caller, jobs: Jobs, request: Request):
+    """One artifact as stored; ``X.json`` stored as ``X.json.gz`` (the moves since issue 20) is served
+    as JSON: the gzip bytes with ``Content-Encoding: gzip`` when ``Accept-Encoding`` admits gzip, else
+    decompressed on the fly (streamed in 64 KiB pieces, never whole in memory). A missing
+    ``Accept-Encoding`` gets the plain JSON (clients that send none may not decode gzip)."""
     path = jobs.artifact_path(job_id, name, who)
-    return FileResponse(path, media_type=media_type(path.name), filename=path.name)
+    if path.name == name:
+        return FileResponse(path, media_type=media_type(path.name), filename=path.name)
+    vary = {"Vary": "Accept-Encoding"}
+    if accepts_gzip(request.headers.get("accept-encoding")):
+        return FileResponse(path, media_type="application/json", filename=name,
+                            headers={**vary, "Content-Encoding": "gzip"})
+    return StreamingResponse(iter_gunzipped(path), media_type="application/json",
+                             headers={**vary, "Content-Disposition": f'attachment; filename="{name}"'})

@@ -295,6 +295,11 @@ class Artifacts(_Out):
                                                          "reaches in red (plan.json unmachined).")
     placed_ply: str | None = Field(None, description="fixtures.placement 'auto': every scan point as placed on the table "
                                                      "(the plan's frame: rotation and translation in plan.json placement).")
+    viewer_json: str | None = Field(
+        "viewer.json", description="Index of the browser viewer's data (format scanmill-viewer): the set-ups, the "
+                                   "verdict and the table of the little-endian arrays in viewer.points.bin (the scan: "
+                                   "quantised positions, area, flags, deviation) and viewer.paths.bin (tool-tip paths "
+                                   "per area and operation); docs/viewer.md.")
 
 
 class VerificationOffence(_Out):

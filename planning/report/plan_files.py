@@ -1,5 +1,6 @@
-"""Writes a finished plan to a directory: plan.json, plan.npz, segmentation.ply, preview.png, and per
-area the NC programs ``area_<i>.<dialect>.nc`` and neutral moves ``area_<i>.moves.json``.
+"""Writes a finished plan to a directory: plan.json, plan.npz, segmentation.ply, preview.png (every
+input point), the viewer's data (viewer.json, viewer.points.bin, viewer.paths.bin), and per area the NC
+programs ``area_<i>.<dialect>.nc`` and neutral moves ``area_<i>.moves.json.gz`` and ``area_<i>.moves.npz``.
 
 Every file is written to a temporary name and renamed into place; ``plan.json`` is written last,
 so a directory holding ``plan.json`` holds a complete plan.
@@ -18,6 +19,7 @@ import numpy as np
 from planning.pipeline import PlanOutcome
 from planning.report.files import atomic_path, write_ply
 from planning.report.preview import point_colors, render_preview
+from planning.report.viewer_data import input_integrated, write_viewer_data
 
 
 def _atomic_bytes(path: Path, data: bytes) -> None:
@@ -71,10 +73,9 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike, progress=None) 
     write_ply(paths["segmentation_ply"], outcome.points, colors=colors, labels=labels, binary=True)
 
     say(0.3, names.preview_png)
-    a = outcome.arrays
-    sampled_points = outcome.points[a["sample_index"]]
-    render_preview(paths["preview_png"], sampled_points, a["labels"], outcome.selected_axes,
-                   integrated=a["integrated"],
+    render_preview(paths["preview_png"], outcome.points, labels, outcome.selected_axes,
+                   integrated=input_integrated(outcome),
+                   angles=[dict(s.rotary_deg) for s in outcome.result.setups],
                    title=f"{outcome.result.input.name or 'cloud'}: {outcome.result.message}")
 
     if names.placed_ply:                 # fixtures.placement = auto: the cloud as the plan placed it
@@ -89,6 +90,8 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike, progress=None) 
         _atomic_bytes(paths[name], text if isinstance(text, bytes) else text.encode())
 
     paths.update(_write_simulation(outcome, out, say))
+    say(0.85, "viewer data")
+    paths.update(write_viewer_data(outcome, out))
     say(0.9, "unmachined points")
     paths.update(_write_unmachined(outcome, out))
     say(0.95, "plan.json")

@@ -88,7 +88,7 @@ def _paths_table(result) -> str:
             parts.append(f"finishing {f.n_passes} passes, {f.n_cl} moves ({f.n_arcs} arcs), "
                          f"{f.length_mm / 1000:.1f} m, {f.machining_time_s / 60:.0f} min, min clearance "
                          f"{f.min_clearance_mm:.4f} mm ({'gouge free' if f.gouge_free else 'GOUGES'});")
-        parts.append(", ".join(list(p.programs.values()) + ([p.moves] if p.moves else [])))
+        parts.append(", ".join(list(p.programs.values()) + [m for m in (p.moves, p.moves_npz) if m]))
         out.append(" ".join(parts))
     return "\n".join(out)
 

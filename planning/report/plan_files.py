@@ -70,7 +70,8 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike, progress=None) 
     say(0.15, names.segmentation_ply)
     labels = outcome.input_labels
     colors = point_colors(labels, len(outcome.result.setups))
-    write_ply(paths["segmentation_ply"], outcome.points, colors=colors, labels=labels, binary=True)
+    write_ply(paths["segmentation_ply"], outcome.points, colors=colors, labels=labels, binary=True,
+              single=True)
 
     say(0.3, names.preview_png)
     render_preview(paths["preview_png"], outcome.points, labels, outcome.selected_axes,

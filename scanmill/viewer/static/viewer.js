@@ -237,13 +237,13 @@ function buildPoints(idx, buffers) {
 }
 
 // the camera sees the whole scan and every tool axis with its label: a sphere about the box centre
-// holding the box and the arrows (0.6 x the diagonal, label beyond), at the distance that fits it in
+// holding the box and the arrows (0.45 x the diagonal, label beyond), at the distance that fits it in
 // the narrower field of view
 function frameCamera(idx) {
   const lo = new THREE.Vector3(...idx.points.box_min_mm), hi = new THREE.Vector3(...idx.points.box_max_mm);
   const centre = lo.clone().add(hi).multiplyScalar(0.5);
   const size = hi.clone().sub(lo).length();
-  const radius = idx.setups.length ? 0.6 * size * 1.2 : 0.5 * size;
+  const radius = idx.setups.length ? 0.45 * size * 1.25 : 0.5 * size;
   const vfov = THREE.MathUtils.degToRad(camera.fov) / 2;
   const hfov = Math.atan(Math.tan(vfov) * camera.aspect);
   const dist = radius / Math.sin(Math.min(vfov, hfov));
@@ -260,7 +260,7 @@ function buildAxes(idx, centre, size) {
   for (const s of idx.setups) {
     const dir = new THREE.Vector3(...s.tool_axis).normalize();
     const colour = new THREE.Color(s.color[0] / 255, s.color[1] / 255, s.color[2] / 255);
-    const len = 0.6 * size;
+    const len = 0.45 * size;
     axesGroup.add(new THREE.ArrowHelper(dir, centre, len, colour, 0.08 * len, 0.04 * len));
     const el = document.createElement('span');
     const angles = rot.map((r) => `${r} ${fmt(s.rotary_deg[r], 1)}°`).join(' ');

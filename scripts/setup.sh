@@ -48,7 +48,7 @@ LEVEL=${LEVEL:-test}
 
 # System packages. Each is looked for where the code that uses it looks, not in dpkg's database, so that
 # one installed another way (from source, a backport) is not installed twice.
-have_lib() { PATH="$PATH:/sbin:/usr/sbin" ldconfig -p 2>/dev/null | grep -q "$1"; }  # ldconfig: /sbin for non-root
+have_lib() { PATH="$PATH:/sbin:/usr/sbin" ldconfig -p 2>/dev/null | grep "$1" >/dev/null; }  # ldconfig: /sbin for non-root; not grep -q: under pipefail its early exit gives ldconfig SIGPIPE and the test fails
 APT=()
 # libusb-1.0-0: Open3D's wheel links it, so `import open3d` fails without it.
 have_lib 'libusb-1.0.so.0' || APT+=(libusb-1.0-0)

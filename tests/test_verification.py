@@ -234,3 +234,45 @@ def test_the_deviation_read_in_chunks_is_the_same_and_reports_each(slot_plan, mo
                                input_labels=outcome.input_labels, progress=lambda f, m: said.append(m))
     assert np.array_equal(again.deviation_mm, sim.deviation_mm, equal_nan=True)
     assert sum("deviation of the scan" in m for m in said) == 3
+
+
+def test_the_viewer_marks_and_lists_the_offences_of_a_failed_plan(unguarded_slot_plan):
+    """Issue 20: the viewer's data carries the verification's worst offences, and the page (real headless
+    Chromium through `scanmill view`) lists each with its program line and draws its marker."""
+    import re
+    import subprocess
+    import sys
+    import time
+
+    from browser import canvas_pixels, chromium, js_errors, wait_viewer
+    from service_fixtures import ROOT
+
+    outcome, paths = unguarded_slot_plan
+    worst = outcome.result.verification.worst
+    index = json.loads(paths["viewer_json"].read_text())
+    assert index["verification"]["status"] == "failed"
+    assert [(o["kind"], o["program"], o["line"]) for o in index["offences"]] == \
+        [(o.kind, o.program, o.line) for o in worst]
+    proc = subprocess.Popen([sys.executable, "-m", "scanmill.cli", "view", str(paths["plan_json"].parent)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        url = re.search(r"(http://\S+)", proc.stdout.readline()).group(1)
+        with chromium() as browser:
+            for _ in range(50):                       # the server may take a moment to listen
+                browser.get(url)
+                if "scanmill" in browser.title:
+                    break
+                time.sleep(0.2)
+            state = wait_viewer(browser)
+            assert state["ready"], state
+            rows = browser.find_elements("css selector", "#offences tbody tr")
+            assert len(rows) == len(worst)
+            assert f"{worst[0].program}" in rows[0].text and str(worst[0].line) in rows[0].text
+            assert browser.find_element("id", "verdict").text.lower() == "verification failed"
+            px = canvas_pixels(browser)
+            magenta = np.all(np.abs(px.astype(int) - [255, 0, 255]) <= 2, axis=-1)
+            assert magenta.sum() >= 50
+            assert js_errors(browser) == []
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)

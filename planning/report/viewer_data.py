@@ -3,7 +3,8 @@
 :func:`write_viewer_data` writes, next to ``plan.json``:
 
 * ``viewer.json``: the index. Format ``scanmill-viewer`` version 1: the plan's name, status and
-  message; the verification verdict and the deviation limit of its colour bar; per set-up its
+  message; the verification verdict, its worst offences (kind, program, line, tool tip in the part
+  frame, amount) and the deviation limit of its colour bar; per set-up its
   colour, tool axis, polar/azimuth angles, machine rotary positions, point counts and finishing
   mode; and a table of the binary arrays, each as ``{"file", "offset", "length", "dtype", "shape"}``
   (byte offsets, dtype a numpy little-endian code such as ``<u2``).
@@ -234,6 +235,10 @@ def viewer_index(outcome, *, max_points: int = MAX_POINTS, arc_step_mm: float = 
         "name": result.input.name, "message": result.message,
         "selection_status": result.selection.status,
         "verification": ({"status": v.status, "message": v.message} if v is not None else None),
+        # the worst offences of each class (plan.json verification.worst): where the programs would harm
+        # the machine, the tool or the part, drawn as markers at the tool tip (part frame, mm)
+        "offences": ([{"kind": o.kind, "program": o.program, "line": o.line, "position_mm": list(o.position_mm),
+                       "amount": o.amount, "detail": o.detail} for o in v.worst] if v is not None else []),
         "deviation": deviation,
         "rotary_axes": list(result.orientations.rotary_axes) if getattr(result, "orientations", None) else None,
         "colors": {"areas": colors.tolist(), "uncovered": UNCOVERED_COLOR.tolist()},

@@ -346,6 +346,35 @@ function buildPaths(idx, buffers) {
   }
 }
 
+// ---------------------------------------------------------------------------------------- offences
+// the verification's worst offences: magenta markers drawn over everything, and a table naming the
+// program line of each (what to look at before running anything)
+const OFFENCE_COLOUR = [255, 0, 255];
+function buildOffences(idx) {
+  const list = idx.offences || [];
+  if (!list.length) return;
+  const pos = new Float32Array(list.length * 3);
+  list.forEach((o, i) => pos.set(o.position_mm, 3 * i));
+  const g = new THREE.BufferGeometry();
+  g.setAttribute('position', new THREE.BufferAttribute(pos, 3));
+  const m = new THREE.PointsMaterial({ size: 12, sizeAttenuation: false, depthTest: false,
+    color: new THREE.Color(OFFENCE_COLOUR[0] / 255, OFFENCE_COLOUR[1] / 255, OFFENCE_COLOUR[2] / 255) });
+  const markers = new THREE.Points(g, m);
+  markers.renderOrder = 10;
+  scene.add(markers);
+  const body = document.querySelector('#offences tbody');
+  for (const o of list) {
+    const tr = document.createElement('tr');
+    for (const v of [o.kind.replaceAll('_', ' '), o.program, o.line, fmt(o.amount, 3), o.detail || '']) {
+      const td = document.createElement('td');
+      td.textContent = String(v);
+      tr.appendChild(td);
+    }
+    body.appendChild(tr);
+  }
+  $('offences').hidden = false;
+}
+
 // -------------------------------------------------------------------------------------------- main
 async function main() {
   takeKeyFromFragment();
@@ -364,6 +393,7 @@ async function main() {
   buildPoints(idx, buffers);
   const { centre, size } = frameCamera(idx);
   buildAxes(idx, centre, size);
+  buildOffences(idx);
   wireScanToggles(idx);
   renderNow();
   await new Promise((r) => requestAnimationFrame(() => r()));   // the frame has reached the screen

@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from planning.report import preview as current  # noqa: E402
+from planning.report import preview as current
 
 
 def _module_at(rev: str):

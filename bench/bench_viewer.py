@@ -26,7 +26,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "scripts")]
 
-from browser import chromium, js_errors, wait_viewer  # noqa: E402
+from browser import chromium, js_errors, wait_viewer
 
 KEY = "bench-viewer-key-0123456789"
 

@@ -75,8 +75,9 @@ def js_errors(driver, entries: list[dict] | None = None) -> list[str]:
 
 def canvas_pixels(driver) -> np.ndarray:
     """(h, w, 3) uint8 RGB of the page's WebGL canvas (read through toDataURL: the drawing buffer is kept)."""
-    from PIL import Image
     import base64
+
+    from PIL import Image
 
     url = driver.execute_script("return document.getElementById('canvas').toDataURL('image/png')")
     data = base64.b64decode(url.split(",", 1)[1])

@@ -21,10 +21,6 @@ import numpy as np
 import pytest
 from service_fixtures import (
     KEY_A,
-    ServerProcess,
-    submit,
-    wait_status,
-    write_half_sphere,
 )
 from test_post import PROFILES, cloud, random_ops, unit
 
@@ -226,22 +222,13 @@ def test_media_types():
 
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    root = tmp_path_factory.mktemp("svc")
-    srv = ServerProcess(root / "data", api_keys=[KEY_A], workers=1).start()
-    yield srv
-    srv.stop()
+def server(half_sphere_service):
+    return half_sphere_service[0]
 
 
 @pytest.fixture(scope="module")
-def done_job(server, tmp_path_factory):
-    cloud_path = write_half_sphere(tmp_path_factory.mktemp("in") / "half_sphere.ply")
-    with server.client(KEY_A) as c:
-        r = submit(c, cloud_path)
-        assert r.status_code == 202, r.text
-        job = wait_status(c, r.json()["id"])
-    assert job["status"] == "succeeded", job
-    return job
+def done_job(half_sphere_service):
+    return half_sphere_service[1]
 
 
 def raw_get(server, path: str, accept_encoding: str | None):

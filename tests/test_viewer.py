@@ -16,17 +16,28 @@ import time
 import httpx
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
-
 from browser import canvas_pixels, chromium, console_entries, js_errors, wait_viewer
+from scipy.spatial import cKDTree
+from service_fixtures import (
+    KEY_A,
+    KEY_B,
+    ROOT,
+)
+
 from planning.inputs import Cloud, samples
 from planning.pipeline import run_plan
 from planning.report.plan_files import write_plan
-from planning.report.viewer_data import (FLAG_INTEGRATED, FLAG_UNMACHINED, UNLABELLED, VIEWER_FILES, chords,
-                                         dequantise, viewer_index)
+from planning.report.viewer_data import (
+    FLAG_INTEGRATED,
+    FLAG_UNMACHINED,
+    UNLABELLED,
+    VIEWER_FILES,
+    chords,
+    dequantise,
+    viewer_index,
+)
 from planning.toolpath.moves import ARC_CCW, ARC_CW, densify
 from schemas.params import apply_overrides, parse_config
-from service_fixtures import KEY_A, KEY_B, ROOT, ServerProcess, submit, wait_status, write_half_sphere
 
 LIGHT = ["normals.method=input", "setups.max_setups=2", "tool.diameter_mm=10", "paths.finishing.scallop_mm=0.2",
          "paths.roughing.step_down_mm=5"]
@@ -111,14 +122,14 @@ def test_viewer_paths_are_the_tool_tips_with_arcs_on_their_circles(plan):
 def test_viewer_points_are_decimated_to_the_budget_deterministically(plan):
     out, _ = plan
     i1, b1, _ = viewer_index(out, max_points=1000)
-    i2, b2, _ = viewer_index(out, max_points=1000)
+    _, b2, _ = viewer_index(out, max_points=1000)
     assert i1["points"]["n_shown"] == 1000 and i1["points"]["n_total"] == out.points.shape[0]
     assert b"".join(b1.parts) == b"".join(b2.parts)
 
 
 def test_chords_of_a_full_circle_have_the_requested_step():
     from planning.toolpath.frames import area_frame
-    from planning.toolpath.moves import PLANE_XY, Toolpath, USE_CUT
+    from planning.toolpath.moves import PLANE_XY, USE_CUT, Toolpath
 
     xyz = np.array([[10.0, 0, 0], [10.0, 0, 0]])          # one full ccw circle of radius 10 about the origin
     tp = Toolpath(xyz_mm=xyz, kind=np.array([0, ARC_CCW], np.int8), centre_mm=np.array([[np.nan] * 3, [0, 0, 0.0]]),
@@ -135,21 +146,14 @@ def test_chords_of_a_full_circle_have_the_requested_step():
 # -------------------------------------------------------------------------------------- service
 
 @pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    root = tmp_path_factory.mktemp("viewer")
-    srv = ServerProcess(root / "data", api_keys=[KEY_A, KEY_B], workers=1).start()
-    yield srv
-    srv.stop()
+def server(half_sphere_service):
+    return half_sphere_service[0]
 
 
 @pytest.fixture(scope="module")
-def job(server, tmp_path_factory):
-    cloud = write_half_sphere(tmp_path_factory.mktemp("in") / "half_sphere.ply")
-    with server.client(KEY_A) as c:
-        r = submit(c, cloud)
-        assert r.status_code == 202, r.text
-        j = wait_status(c, r.json()["id"])
-        assert j["status"] == "succeeded", j
+def job(half_sphere_service):
+    srv, j = half_sphere_service
+    with srv.client(KEY_A) as c:
         plan = c.get(f"/jobs/{j['id']}/result").json()
     return j["id"], plan
 
@@ -198,7 +202,7 @@ def test_page_loads_the_job_with_its_key(server, job, browser):
 
 
 def test_paths_and_deviation_map_draw_on_request(server, job, browser):
-    job_id, plan = job
+    job_id, _ = job
     browser.get(f"{server.url}/jobs/{job_id}/viewer")         # the key is kept for the tab's session
     state = wait_viewer(browser, paths=True)
     assert state["pathsReady"], state
@@ -291,5 +295,5 @@ def test_scanmill_view_serves_a_plan_directory(plan, browser, tmp_path):
 
 def test_scanmill_view_refuses_a_directory_without_a_plan(tmp_path):
     r = subprocess.run([sys.executable, "-m", "scanmill.cli", "view", str(tmp_path)], cwd=ROOT, capture_output=True,
-                       text=True, timeout=120)
+                       check=False, text=True, timeout=120)
     assert r.returncode == 2 and "error [not_a_plan]" in r.stderr and "viewer.json" in r.stderr

@@ -41,8 +41,14 @@ from planning.report.files import atomic_path
 from planning.report.preview import UNCOVERED_COLOR, area_colors
 from planning.toolpath.moves import ARC_CCW, ARC_CW, PLANE_AXES
 
-__all__ = ["VIEWER_FORMAT", "VIEWER_FORMAT_VERSION", "VIEWER_FILES", "input_integrated", "viewer_index",
-           "write_viewer_data"]
+__all__ = [
+    "VIEWER_FILES",
+    "VIEWER_FORMAT",
+    "VIEWER_FORMAT_VERSION",
+    "input_integrated",
+    "viewer_index",
+    "write_viewer_data",
+]
 
 VIEWER_FORMAT = "scanmill-viewer"
 VIEWER_FORMAT_VERSION = 1
@@ -76,8 +82,7 @@ class _Buffers:
 
     def write(self, path: Path) -> None:
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            for part in self.parts:
-                fh.write(part)
+            fh.writelines(self.parts)
 
 
 def quantise(points: np.ndarray) -> tuple[np.ndarray, list[float], list[float]]:
@@ -113,7 +118,7 @@ def chords(tp, frame, arc_step_mm: float) -> tuple[np.ndarray, np.ndarray]:
         start, end, centre = tp.xyz_mm[arcs - 1], tp.xyz_mm[arcs], tp.centre_mm[arcs]
         ax = np.array([PLANE_AXES.get(int(p), (0, 1, 2)) for p in range(20)])[tp.plane[arcs].astype(int)]
         rows = np.arange(arcs.size)
-        a, b, c = ax[:, 0], ax[:, 1], ax[:, 2]
+        a, b = ax[:, 0], ax[:, 1]
         u0, v0 = start[rows, a] - centre[rows, a], start[rows, b] - centre[rows, b]
         u1, v1 = end[rows, a] - centre[rows, a], end[rows, b] - centre[rows, b]
         t0, t1 = np.arctan2(v0, u0), np.arctan2(v1, u1)

@@ -47,7 +47,7 @@ def page_html(*, artifacts_base: str, static_base: str, title: str) -> tuple[str
     text = (STATIC_DIR / "index.html").read_text(encoding="utf-8")
     for name, value in (("{{ARTIFACTS}}", artifacts_base), ("{{STATIC}}", static_base), ("{{TITLE}}", title)):
         text = text.replace(name, html.escape(value, quote=True))
-    m = re.search(r'<script type="importmap">(.*?)</script>', text, re.S)
+    m = re.search(r'<script type="importmap">(.*?)</script>', text, re.DOTALL)
     digest = base64.b64encode(hashlib.sha256(m.group(1).encode()).digest()).decode() if m else ""
     headers = {
         "Cache-Control": "no-store",

@@ -81,6 +81,8 @@ def test_viewer_points_decode_to_the_plan(plan):
         if ap.unmachined is not None:
             unmachined[ap.unmachined] = True
     assert unmachined.any() and np.array_equal((a["flags"] & FLAG_UNMACHINED) > 0, unmachined)
+    nrm = out.arrays["normals"][areas.nearest_sample]
+    assert np.all(np.abs(a["normal"] / 127.0 - nrm / np.linalg.norm(nrm, axis=1, keepdims=True)) <= 0.5 / 127 + 1e-9)
     dev = out.extra["simulation"].deviation_mm
     assert np.all(np.abs(a["deviation"] / 1000.0 - np.clip(dev, -32.767, 32.767)) <= 0.0005 + 1e-9)
     # the set-up rows carry the plan's machine angles
@@ -168,6 +170,26 @@ def _colour_pixels(px: np.ndarray, rgb) -> int:
     return int(np.count_nonzero(np.all(np.abs(px.astype(int) - np.array(rgb)) <= 2, axis=-1)))
 
 
+def _shaded_pixels(px: np.ndarray, rgb) -> int:
+    """Pixels that are ``rgb`` times a shading factor in [0.3, 1] (the headlight's range is [0.35, 1])."""
+    c = np.array(rgb, float)
+    p = px.reshape(-1, 3).astype(float)
+    f = p @ c / (c @ c)
+    ok = (f >= 0.3) & (f <= 1.02) & (np.abs(p - f[:, None] * c).max(axis=1) <= 3.0)
+    return int(np.count_nonzero(ok))
+
+
+def _click_and_draw(browser, selector: str) -> None:
+    """Click a control and wait (bounded) until the page has drawn a new frame."""
+    frames = browser.execute_script("return window.scanmillViewer.frames")
+    browser.find_element("css selector", selector).click()
+    for _ in range(100):
+        if browser.execute_script("return window.scanmillViewer.frames") > frames:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"no new frame after clicking {selector}")
+
+
 def test_page_loads_the_job_with_its_key(server, job, browser):
     job_id, plan = job
     browser.get(f"{server.url}/jobs/{job_id}/viewer")
@@ -178,9 +200,15 @@ def test_page_loads_the_job_with_its_key(server, job, browser):
     state = wait_viewer(browser, paths=True)
     assert state["ready"] and state["pathsReady"] and state["error"] is None, state
     assert KEY_A not in browser.current_url
-    px = canvas_pixels(browser)
     colours = browser.execute_script("return window.scanmillViewer.index.colors.areas")
     assert len(colours) == len(plan["setups"]) == 2
+    # shaded by default (the light from the eye): every area's colour, darkened by the shading
+    px = canvas_pixels(browser)
+    for rgb in colours:
+        assert _shaded_pixels(px, rgb) >= 500, (rgb, _shaded_pixels(px, rgb))
+    # flat: the palette's exact bytes
+    _click_and_draw(browser, "#shading")
+    px = canvas_pixels(browser)
     for rgb in colours:
         assert _colour_pixels(px, rgb) >= 200, (rgb, _colour_pixels(px, rgb))
     # the set-up table: one row per set-up with the plan's machine angles
@@ -206,18 +234,13 @@ def test_paths_and_deviation_map_draw_on_request(server, job, browser):
     browser.get(f"{server.url}/jobs/{job_id}/viewer")         # the key is kept for the tab's session
     state = wait_viewer(browser, paths=True)
     assert state["pathsReady"], state
+    _click_and_draw(browser, "#show-axes")             # axes off: only scan and paths
+    _click_and_draw(browser, "#shading")               # flat colours: exact bytes below
     before = canvas_pixels(browser)
-    browser.find_element("css selector", "#show-axes").click()             # axes off: only scan and paths
-    browser.find_element("css selector", 'tr[data-setup="0"] .toggle-path[data-op="finishing"]').click()
-    frames = browser.execute_script("return window.scanmillViewer.frames")
-    for _ in range(100):
-        if browser.execute_script("return window.scanmillViewer.frames") > frames:
-            break
-        time.sleep(0.05)
+    _click_and_draw(browser, 'tr[data-setup="0"] .toggle-path[data-op="finishing"]')
     after = canvas_pixels(browser)
     assert np.count_nonzero(np.any(after != before, axis=-1)) > 1000
-    browser.find_element("css selector", "#colour-deviation").click()
-    time.sleep(0.3)
+    _click_and_draw(browser, "#colour-deviation")
     dev = canvas_pixels(browser)
     assert _colour_pixels(dev, (40, 170, 60)) > 200               # within tolerance: green
     assert browser.find_element("id", "colourbar").is_displayed()

@@ -16,6 +16,7 @@
   - ``label`` (n,) ``u1``: the area (set-up id), 255 where no set-up machines the point;
   - ``flags`` (n,) ``u1``: bit 0 integrated (attached to an area without a guaranteed axis),
     bit 1 unmachined (no kept finishing move reaches it);
+  - ``normal`` (n, 3) ``i1``: the unit normal times 127 (the nearest sampled point's), for shading;
   - ``deviation`` (n,) ``<i2`` when the programs were simulated: the point's deviation from the
     simulated final stock in micrometres, positive where material is left, clipped to +-32.767 mm.
 
@@ -161,6 +162,18 @@ def input_integrated(outcome) -> np.ndarray | None:
     return np.asarray(outcome.arrays["integrated"], bool)[areas.nearest_sample]
 
 
+def input_normals(outcome) -> np.ndarray | None:
+    """(N,3) unit normals of the input points: the nearest sampled point's (the ones the plan used), or
+    None when the plan has none. Only shading uses them, so the nearest sample's is close enough."""
+    areas = outcome.extra.get("areas")
+    nrm = outcome.arrays.get("normals")
+    if areas is None or getattr(areas, "nearest_sample", None) is None or nrm is None:
+        return None
+    n = np.asarray(nrm, dtype=np.float64)[areas.nearest_sample]
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
+
+
 def _input_flags(outcome) -> np.ndarray:
     flags = np.zeros(outcome.points.shape[0], dtype=np.uint8)
     integrated = input_integrated(outcome)
@@ -204,6 +217,9 @@ def viewer_index(outcome, *, max_points: int = MAX_POINTS, arc_step_mm: float = 
     flags = _input_flags(outcome)
     arrays = {"position": points_buf.add(q), "label": points_buf.add(label_u8),
               "flags": points_buf.add(flags[keep])}
+    normals = input_normals(outcome)
+    if normals is not None:
+        arrays["normal"] = points_buf.add(np.clip(np.rint(normals[keep] * 127.0), -127, 127).astype(np.int8))
     sim = outcome.extra.get("simulation")
     deviation = None
     if sim is not None and getattr(sim, "deviation_mm", None) is not None:

@@ -92,6 +92,7 @@ function view(buffers, entry) {
     case '<u2': return new Uint16Array(buf, entry.offset, n);
     case '<i2': return new Int16Array(buf, entry.offset, n);
     case '|u1': case '<u1': return new Uint8Array(buf, entry.offset, n);
+    case '|i1': case '<i1': return new Int8Array(buf, entry.offset, n);
     case '<f4': return new Float32Array(buf, entry.offset, n);
     case '<u4': return new Uint32Array(buf, entry.offset, n);
     default: throw new Error('unknown array type ' + entry.dtype);
@@ -217,14 +218,44 @@ function drawColourBar(idx) {
   $('colourbar-ticks').innerHTML = ticks.map((t) => `<span>${t}</span>`).join('');
 }
 
+// the scan's points: flat colours, or shaded by a headlight (the light comes from the eye: a point
+// facing the viewer keeps its colour exactly, one seen edge-on falls to 35 %) so the shape reads;
+// normals arrive as int8 and the GPU normalises them
+const POINTS_VERTEX = `
+  uniform float pointSize;
+  uniform bool shade;
+  attribute vec3 normal8;
+  varying vec3 vColour;
+  void main() {
+    vec4 mv = modelViewMatrix * vec4(position, 1.0);
+    gl_Position = projectionMatrix * mv;
+    gl_PointSize = pointSize;
+    float f = 1.0;
+    if (shade) {
+      vec3 n = mat3(viewMatrix) * normal8;
+      float len = length(n);
+      f = len > 0.0 ? 0.35 + 0.65 * abs(dot(n / len, normalize(-mv.xyz))) : 1.0;
+    }
+    vColour = color * f;
+  }`;
+const POINTS_FRAGMENT = `
+  varying vec3 vColour;
+  void main() { gl_FragColor = vec4(vColour, 1.0); }`;
+
 function buildPoints(idx, buffers) {
   const a = idx.points.arrays;
   const arrays = { position: view(buffers, a.position), label: view(buffers, a.label), flags: view(buffers, a.flags),
-                   deviation: a.deviation ? view(buffers, a.deviation) : null };
+                   deviation: a.deviation ? view(buffers, a.deviation) : null,
+                   normal: a.normal ? view(buffers, a.normal) : null };
   const g = new THREE.BufferGeometry();
   g.setAttribute('position', new THREE.BufferAttribute(arrays.position, 3, true));
   g.setAttribute('color', new THREE.BufferAttribute(new Uint8Array(arrays.label.length * 3), 3, true));
-  const m = new THREE.PointsMaterial({ size: 2, sizeAttenuation: false, vertexColors: true });
+  g.setAttribute('normal8', arrays.normal ? new THREE.BufferAttribute(arrays.normal, 3, true)
+                                          : new THREE.BufferAttribute(new Int8Array(arrays.label.length * 3), 3, true));
+  const m = new THREE.ShaderMaterial({
+    uniforms: { pointSize: { value: 2 }, shade: { value: !!arrays.normal } },
+    vertexShader: POINTS_VERTEX, fragmentShader: POINTS_FRAGMENT, vertexColors: true,
+  });
   cloud = new THREE.Points(g, m);
   placeQuantised(cloud, idx.points.box_min_mm, idx.points.box_max_mm);
   cloud.frustumCulled = false;
@@ -232,7 +263,10 @@ function buildPoints(idx, buffers) {
   colourPoints(idx, arrays);
   for (const id of ['show-unmachined', 'show-integrated']) $(id).onchange = () => colourPoints(idx, arrays);
   for (const r of document.querySelectorAll('input[name=colour]')) r.onchange = () => colourPoints(idx, arrays);
-  $('point-size').oninput = (e) => { m.size = Number(e.target.value); requestRender(); };
+  $('point-size').oninput = (e) => { m.uniforms.pointSize.value = Number(e.target.value); requestRender(); };
+  $('shading').disabled = !arrays.normal;
+  $('shading').checked = !!arrays.normal;
+  $('shading').onchange = (e) => { m.uniforms.shade.value = e.target.checked; requestRender(); };
   if (arrays.deviation && idx.deviation) { $('colour-deviation').disabled = false; drawColourBar(idx); }
 }
 

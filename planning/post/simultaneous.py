@@ -139,6 +139,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from planning.errors import ParameterError
 from planning.toolpath.moves import (
@@ -417,21 +418,24 @@ def rotary_path(axes, profile, *, start_deg=None, pole_deg: float = POLE_DEG) ->
             ref = chosen[0] if bool(ok[0]) else sols.angles_deg[f, 0].copy()
         else:
             ref = sols.angles_deg[0, 0].copy()
-    T = sols.angles_deg[:, :, 0].tolist()
-    Cw = sols.angles_deg[:, :, 1].tolist()
-    axes_l = a.tolist()
-    pole_l = pole.tolist()
-    u0, u90 = kin.u0.tolist(), kin.u90.tolist()
-    tmin, tmax, rmin, rmax = kin.tmin - _ANGLE_TOL, kin.tmax + _ANGLE_TOL, kin.rmin - _ANGLE_TOL, kin.rmax + _ANGLE_TOL
-    wraps = _WRAPS.tolist()
+    return _rotary_walk(sols.angles_deg[:, :, 0], sols.angles_deg[:, :, 1], a, pole, kin.u0, kin.u90,
+                        kin.tmin - _ANGLE_TOL, kin.tmax + _ANGLE_TOL, kin.rmin - _ANGLE_TOL, kin.rmax + _ANGLE_TOL,
+                        kin.cont, _WRAPS, kin.pole_deg, float(ref[0]), float(ref[1]))
+
+
+@njit(cache=True, nogil=True)
+def _rotary_walk(T, Cw, axes, pole, u0, u90, tmin, tmax, rmin, rmax, cont, wraps, pole_deg, pt, pc):
+    """The point-by-point choice of :func:`rotary_path` (compiled: each point depends on the last).
+    ``T``/``Cw`` (n,2): the solver's tilts and unwrapped rotary angles; ``pole`` (n,): in the pole
+    cone; ``tmin``..``rmax``: the travel with its tolerance; ``(pt, pc)``: the reference angles."""
+    n = axes.shape[0]
     out = np.empty((n, 2))
-    feas = np.empty(n, dtype=bool)
-    pt, pc = float(ref[0]), float(ref[1])
+    feas = np.empty(n, dtype=np.bool_)
     for i in range(n):
-        if pole_l[i]:
+        if pole[i]:
             cr = math.radians(pc)
             cc, sc = math.cos(cr), math.sin(cr)
-            x, y, z = axes_l[i]
+            x, y, z = axes[i, 0], axes[i, 1], axes[i, 2]
             ux = cc * u0[0] + sc * u90[0]
             uy = cc * u0[1] + sc * u90[1]
             uz = cc * u0[2] + sc * u90[2]
@@ -442,31 +446,46 @@ def rotary_path(axes, profile, *, start_deg=None, pole_deg: float = POLE_DEG) ->
             ok = tmin <= t <= tmax and rmin <= pc <= rmax
             pt = t + 0.0
         else:
-            best = best_any = None
-            for s in (0, 1):
-                t = T[i][s]
+            # the key of a candidate: (it flips the tilt's sign, the larger joint turn, their sum),
+            # compared in that order; the first of equal keys is kept
+            have, have_any = False, False
+            bf, bm, bs, bt, bc = False, 0.0, 0.0, 0.0, 0.0
+            af, am, as_, at, ac = False, 0.0, 0.0, 0.0, 0.0
+            nc = 1 if cont else wraps.shape[0]
+            for s in range(2):
+                t = T[i, s]
                 t_ok = tmin <= t <= tmax
-                cw = Cw[i][s]
-                if kin.cont:
-                    cands = (cw + 360.0 * round((pc - cw) / 360.0),)
-                else:
-                    cands = tuple(cw + w for w in wraps)
-                for c in cands:
+                cw = Cw[i, s]
+                for w in range(nc):
+                    c = cw + 360.0 * np.rint((pc - cw) / 360.0) if cont else cw + wraps[w]
                     dt, dc = abs(t - pt), abs(c - pc)
                     # the other solution has the tilt of the other sign: going there the tilt passes
                     # through 0, the pole, where the rotary axis swings; taken only when it must be
                     # (from a point in the pole cone the tilt does change sign: the path went through it)
-                    key = (t * pt < 0.0 and abs(pt) > kin.pole_deg, max(dt, dc), dt + dc)
-                    if best_any is None or key < best_any[0]:
-                        best_any = (key, t, c)
-                    if t_ok and rmin <= c <= rmax and (best is None or key < best[0]):
-                        best = (key, t, c)
-            ok = best is not None
-            _, pt, pc = best if ok else best_any
-            pt, pc = pt + 0.0, pc + 0.0
+                    f = t * pt < 0.0 and abs(pt) > pole_deg
+                    m, sm = max(dt, dc), dt + dc
+                    if not have_any or _key_less(f, m, sm, af, am, as_):
+                        have_any, af, am, as_, at, ac = True, f, m, sm, t, c
+                    if t_ok and rmin <= c <= rmax and (not have or _key_less(f, m, sm, bf, bm, bs)):
+                        have, bf, bm, bs, bt, bc = True, f, m, sm, t, c
+            ok = have
+            if ok:
+                pt, pc = bt + 0.0, bc + 0.0
+            else:
+                pt, pc = at + 0.0, ac + 0.0
         out[i, 0], out[i, 1] = pt, pc
         feas[i] = ok
     return out, feas
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _key_less(f, m, s, f0, m0, s0) -> bool:
+    """``(f, m, s) < (f0, m0, s0)`` as tuples compare."""
+    if f != f0:
+        return f0
+    if m != m0:
+        return m < m0
+    return s < s0
 
 
 # ------------------------------------------------------------------------------------------------

@@ -142,6 +142,7 @@ import numpy as np
 from numba import njit
 
 from planning.errors import ParameterError
+from planning.toolpath.fiveaxis.axes import slerp
 from planning.toolpath.moves import (
     FEED,
     RAPID,
@@ -492,19 +493,6 @@ def _key_less(f, m, s, f0, m0, s0) -> bool:
 # the posted points and the linearisation
 
 
-def _slerp(a0: np.ndarray, a1: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """(m,3) great-circle interpolation of unit vectors ``a0``/``a1`` (m,3) at ``u`` (m,)."""
-    dot = np.clip(np.einsum("ij,ij->i", a0, a1), -1.0, 1.0)
-    om = np.arccos(dot)
-    so = np.sin(om)
-    small = om < 1e-9
-    safe = np.where(small, 1.0, so)
-    w0 = np.where(small, 1.0 - u, np.sin((1.0 - u) * om) / safe)
-    w1 = np.where(small, u, np.sin(u * om) / safe)
-    v = w0[:, None] * a0 + w1[:, None] * a1
-    return v / np.linalg.norm(v, axis=1)[:, None]
-
-
 def _seg_dist(q: np.ndarray, p0: np.ndarray, p1: np.ndarray) -> np.ndarray:
     """(m,) distance of points ``q`` from the segments ``p0``-``p1`` (all (m,3))."""
     d = p1 - p0
@@ -582,7 +570,7 @@ class _Path:
         if inner.any():
             ji, ui = j[inner], u[inner]
             centre[inner] = c[ji - 1] + ui[:, None] * (c[ji] - c[ji - 1])
-            axis[inner] = _slerp(a[ji - 1], a[ji], ui)
+            axis[inner] = slerp(a[ji - 1], a[ji], ui)
             ref = ang[ji - 1] + ui[:, None] * (ang[ji] - ang[ji - 1])
             # on a move into or out of the pole cone C changes from the held to the solved value:
             # the inserted points take C linearly (pole rule) so that the angles stay continuous in u

@@ -272,3 +272,52 @@ def test_bad_parameters():
                         np.array([0, PLANE_ZX], np.int8), np.zeros(2, np.int8))
     with pytest.raises(ParameterError):
         move_clearance(nocentre, pts, 1.0)
+
+
+def _densify_reference(tp, step, start_index):
+    """moves.densify written plainly, one arc at a time with arc_sweep_rad: the reference of the
+    vectorised version."""
+    from planning.toolpath.moves import arc_sweep_rad
+
+    out, mv = [tp.xyz_mm[start_index - 1]], [start_index - 1]
+    for i in range(start_index, tp.n_moves):
+        if tp.kind[i] not in (ARC_CW, ARC_CCW):
+            out.append(tp.xyz_mm[i]), mv.append(i)
+            continue
+        s, e, c = tp.xyz_mm[i - 1], tp.xyz_mm[i], tp.centre_mm[i]
+        a, b, n = PLANE_AXES[int(tp.plane[i])]
+        t0, sw, r = arc_sweep_rad(s, e, c, tp.plane[i], tp.kind[i] == ARC_CCW)
+        m = max(2, math.ceil(abs(sw) * max(r, 1e-9) / step))
+        r1 = math.hypot(e[a] - c[a], e[b] - c[b])
+        for k in range(1, m + 1):
+            t = k / m
+            q = np.empty(3)
+            q[a] = c[a] + (r + (r1 - r) * t) * math.cos(t0 + sw * t)
+            q[b] = c[b] + (r + (r1 - r) * t) * math.sin(t0 + sw * t)
+            q[n] = s[n] + (e[n] - s[n]) * t
+            out.append(e if k == m else q), mv.append(i)
+    return np.array(out), np.array(mv)
+
+
+@pytest.mark.parametrize("step, start_index", [(0.05, 1), (0.7, 1), (0.7, 4)])
+def test_densify_matches_a_plain_per_arc_reference(step, start_index):
+    rng = np.random.default_rng(11)
+    n = 300
+    kind = rng.choice([RAPID, FEED, ARC_CW, ARC_CCW], size=n).astype(np.int8)
+    kind[0] = RAPID
+    plane = np.where(kind >= ARC_CW, rng.choice([PLANE_XY, PLANE_ZX, PLANE_YZ], size=n), 0).astype(np.int8)
+    xyz = np.cumsum(rng.normal(size=(n, 3)), axis=0)
+    centre = np.full((n, 3), np.nan)
+    for i in np.flatnonzero(kind >= ARC_CW):          # an end on the start's circle (a spiral's on some)
+        a, b, _ = PLANE_AXES[int(plane[i])]
+        c = xyz[i - 1] + rng.normal(size=3)
+        r = math.hypot(xyz[i - 1][a] - c[a], xyz[i - 1][b] - c[b]) * rng.choice([1.0, 1.01])
+        ang = rng.uniform(-math.pi, math.pi)
+        xyz[i, a], xyz[i, b] = c[a] + r * math.cos(ang), c[b] + r * math.sin(ang)
+        centre[i] = c
+    tp = Toolpath(xyz, kind, centre, plane, rng.integers(0, 4, n).astype(np.int8))
+    from planning.toolpath.moves import densify
+    got, got_mv = densify(tp, step, start_index=start_index)
+    ref, ref_mv = _densify_reference(tp, step, start_index)
+    assert np.array_equal(got_mv, ref_mv)
+    assert np.abs(got - ref).max() <= 1e-12

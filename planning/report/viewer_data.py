@@ -40,7 +40,7 @@ import numpy as np
 
 from planning.report.files import atomic_path
 from planning.report.preview import UNCOVERED_COLOR, area_colors
-from planning.toolpath.moves import ARC_CCW, ARC_CW, PLANE_AXES
+from planning.toolpath.moves import densify
 
 __all__ = [
     "VIEWER_FILES",
@@ -106,51 +106,14 @@ def dequantise(q: np.ndarray, box_min, box_max) -> np.ndarray:
 
 def chords(tp, frame, arc_step_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """Tool-tip vertices (m,3) in the part frame, mm, and the use of the move ending at each, with every
-    arc replaced by chords of at most ``arc_step_mm`` (at least 2, at most 64 per arc); vectorised."""
-    tip = tp.tip_mm()
-    n = tip.shape[0]
-    if n == 0:
+    arc replaced by chords of at most ``arc_step_mm`` (:func:`planning.toolpath.moves.densify`)."""
+    if tp.n_moves == 0:
         return np.zeros((0, 3)), np.zeros(0, np.uint8)
-    is_arc = (tp.kind == ARC_CW) | (tp.kind == ARC_CCW)
-    is_arc[0] = False
-    counts = np.ones(n, dtype=np.int64)
-    arcs = np.flatnonzero(is_arc)
-    if arcs.size:
-        start, end, centre = tp.xyz_mm[arcs - 1], tp.xyz_mm[arcs], tp.centre_mm[arcs]
-        ax = np.array([PLANE_AXES.get(int(p), (0, 1, 2)) for p in range(20)])[tp.plane[arcs].astype(int)]
-        rows = np.arange(arcs.size)
-        a, b = ax[:, 0], ax[:, 1]
-        u0, v0 = start[rows, a] - centre[rows, a], start[rows, b] - centre[rows, b]
-        u1, v1 = end[rows, a] - centre[rows, a], end[rows, b] - centre[rows, b]
-        t0, t1 = np.arctan2(v0, u0), np.arctan2(v1, u1)
-        ccw = tp.kind[arcs] == ARC_CCW
-        sweep = np.where(ccw, np.mod(t1 - t0, 2 * np.pi), -np.mod(t0 - t1, 2 * np.pi))
-        sweep = np.where(sweep == 0.0, np.where(ccw, 2 * np.pi, -2 * np.pi), sweep)
-        r0, r1 = np.hypot(u0, v0), np.hypot(u1, v1)
-        m = np.clip(np.ceil(np.abs(sweep) * np.maximum(r0, r1) / arc_step_mm), 2, 64).astype(np.int64)
-        counts[arcs] = m
-    total = int(counts.sum())
-    out = np.repeat(tip, counts, axis=0)             # straight moves: their end point; arcs: filled below
-    use = np.repeat(tp.use.astype(np.uint8), counts)
-    if arcs.size:
-        first = np.cumsum(counts) - counts           # first output row of each move
-        owner = np.repeat(rows, m)                   # arc row of each arc output point
-        k = np.arange(int(m.sum())) - np.repeat(np.cumsum(m) - m, m) + 1
-        t = k / np.repeat(m, m)
-        rr = np.repeat(r0, m) + (np.repeat(r1, m) - np.repeat(r0, m)) * t
-        ang = np.repeat(t0, m) + np.repeat(sweep, m) * t
-        s, e = start[owner], end[owner]
-        q = s + (e - s) * t[:, None]                 # the helix component along the normal: linear
-        aa, bb = a[owner], b[owner]
-        pts = np.arange(owner.size)
-        q[pts, aa] = centre[owner, aa] + rr * np.cos(ang)
-        q[pts, bb] = centre[owner, bb] + rr * np.sin(ang)
-        q[k == np.repeat(m, m)] = end[rows]          # exact end points
-        offset = tp.xyz_mm[arcs] - tip[arcs]         # reference point -> tip, constant along a 3+2 arc
-        dest = np.repeat(first[arcs], m) + k - 1
-        out[dest] = q - offset[owner]
-    assert out.shape[0] == total
-    return frame.to_part(out), use
+    points, move = densify(tp, arc_step_mm)
+    # a 3+2 path's tip is its reference point shifted along the area's -Z; a 5-axis path has no arcs, so
+    # its points are its end points, each with its own axis
+    tip = points - (0.0, 0.0, tp.tip_offset_mm) if tp.axis is None else tp.tip_mm()[move]
+    return frame.to_part(tip), tp.use[move].astype(np.uint8)
 
 
 def input_integrated(outcome) -> np.ndarray | None:

@@ -122,41 +122,58 @@ def arc_sweep_rad(start, end, centre, plane: int, ccw: bool) -> tuple[float, flo
     return t0, sweep, math.hypot(u0, v0)
 
 
+#: PLANE_AXES as a table by plane code (rows of unused codes are never read).
+_PLANE_TABLE = np.zeros((PLANE_YZ + 1, 3), dtype=np.int64)
+for _code, _axes in PLANE_AXES.items():
+    _PLANE_TABLE[_code] = _axes
+
+
 def densify(tp: Toolpath, max_step_mm: float = 0.05, *, start_index: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Points along the path from move ``start_index`` on, arcs sampled every ``max_step_mm`` of arc
-    length (the helix component along the normal interpolated linearly). Returns ``(points (Q,3),
-    move (Q,))``: each point with the index of the move it lies on (end points included, the
-    first point is ``xyz_mm[start_index - 1]`` with move ``start_index - 1``)."""
+    length (at least 2 points per arc; the helix component along the normal interpolated linearly).
+    Returns ``(points (Q,3), move (Q,))``: each point with the index of the move it lies on (end points
+    included, the first point is ``xyz_mm[start_index - 1]`` with move ``start_index - 1``).
+    Vectorised over the arcs (the sweep of :func:`arc_sweep_rad`, per arc at once)."""
     xyz = tp.xyz_mm
-    out = [xyz[start_index - 1:start_index]]
-    mv = [np.array([start_index - 1])]
-    i = start_index
-    P = tp.n_moves
-    while i < P:
-        if tp.kind[i] in (ARC_CW, ARC_CCW):
-            s, e, c = xyz[i - 1], xyz[i], tp.centre_mm[i]
-            a, b, n = PLANE_AXES[int(tp.plane[i])]
-            t0, sw, r = arc_sweep_rad(s, e, c, tp.plane[i], tp.kind[i] == ARC_CCW)
-            m = max(2, int(math.ceil(abs(sw) * max(r, 1e-9) / max_step_mm)))
-            t = np.linspace(0.0, 1.0, m + 1)[1:]
-            q = np.empty((m, 3))
-            r1 = math.hypot(e[a] - c[a], e[b] - c[b])
-            rr = r + (r1 - r) * t
-            q[:, a] = c[a] + rr * np.cos(t0 + sw * t)
-            q[:, b] = c[b] + rr * np.sin(t0 + sw * t)
-            q[:, n] = s[n] + (e[n] - s[n]) * t
-            q[-1] = e
-            out.append(q)
-            mv.append(np.full(m, i))
-            i += 1
-        else:
-            j = i
-            while j < P and tp.kind[j] not in (ARC_CW, ARC_CCW):
-                j += 1
-            out.append(xyz[i:j])
-            mv.append(np.arange(i, j))
-            i = j
-    return np.concatenate(out), np.concatenate(mv)
+    moves = np.arange(start_index, tp.n_moves)
+    kind = tp.kind[start_index:]
+    is_arc = (kind == ARC_CW) | (kind == ARC_CCW)
+    counts = np.ones(moves.size, dtype=np.int64)
+    arcs = moves[is_arc]
+    if arcs.size:
+        s, e, c = xyz[arcs - 1], xyz[arcs], tp.centre_mm[arcs]
+        a, b, n = _PLANE_TABLE[tp.plane[arcs].astype(np.int64)].T
+        rows = np.arange(arcs.size)
+        u0, v0 = s[rows, a] - c[rows, a], s[rows, b] - c[rows, b]
+        u1, v1 = e[rows, a] - c[rows, a], e[rows, b] - c[rows, b]
+        t0, t1 = np.arctan2(v0, u0), np.arctan2(v1, u1)
+        ccw = tp.kind[arcs] == ARC_CCW
+        sweep = np.where(ccw, np.mod(t1 - t0, 2 * math.pi), -np.mod(t0 - t1, 2 * math.pi))
+        sweep = np.where(sweep == 0.0, np.where(ccw, 2 * math.pi, -2 * math.pi), sweep)
+        r0, r1 = np.hypot(u0, v0), np.hypot(u1, v1)
+        m = np.maximum(2, np.ceil(np.abs(sweep) * np.maximum(r0, 1e-9) / max_step_mm)).astype(np.int64)
+        counts[is_arc] = m
+    out = np.repeat(xyz[start_index:], counts, axis=0)      # straight moves: their end point
+    mv = np.repeat(moves, counts)
+    if arcs.size:
+        owner = np.repeat(rows, m)                          # arc of each arc point
+        k = np.arange(int(m.sum())) - np.repeat(np.cumsum(m) - m, m) + 1
+        t = k * np.repeat(1.0 / m, m)                       # k / m as np.linspace gives it
+        last = k == np.repeat(m, m)
+        t[last] = 1.0
+        rr = r0[owner] + (r1 - r0)[owner] * t
+        ang = t0[owner] + sweep[owner] * t
+        pts = np.arange(owner.size)
+        aa, bb, nn = a[owner], b[owner], n[owner]
+        q = np.empty((owner.size, 3))
+        q[pts, aa] = c[owner, aa] + rr * np.cos(ang)
+        q[pts, bb] = c[owner, bb] + rr * np.sin(ang)
+        q[pts, nn] = s[owner, nn] + (e[owner, nn] - s[owner, nn]) * t
+        q[last] = e
+        first = (np.cumsum(counts) - counts)[is_arc]        # first output row of each arc
+        out[np.repeat(first, m) + k - 1] = q
+    return (np.concatenate([xyz[start_index - 1:start_index], out]),
+            np.concatenate([[start_index - 1], mv]).astype(np.int64))
 
 
 def move_lengths_mm(tp: Toolpath) -> np.ndarray:

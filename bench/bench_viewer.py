@@ -15,6 +15,7 @@ with SwiftShader (software WebGL, no GPU), as CI would: a desktop with a GPU dra
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import re
 import statistics
@@ -65,7 +66,10 @@ def _job(args) -> tuple[str, subprocess.Popen, dict]:
         if job["status"] != "succeeded":
             raise SystemExit(f"job {job_id} ended {job['status']}: {job.get('error')}")
         sizes = {a["name"]: a["size_bytes"] for a in c.get(f"/jobs/{job_id}/artifacts").json()["items"]}
-    return f"{srv.url}/jobs/{job_id}/viewer", srv, {"id": job_id, "sizes": sizes}
+        # what gzip (level 6, as a web server would) would make of the viewer's binaries
+        gz = {name: len(gzip.compress(c.get(f"/jobs/{job_id}/artifacts/{name}").content, 6))
+              for name in ("viewer.points.bin", "viewer.paths.bin")}
+    return f"{srv.url}/jobs/{job_id}/viewer", srv, {"id": job_id, "sizes": sizes, "gzip": gz}
 
 
 def _local(plan_dir: str) -> tuple[str, subprocess.Popen]:
@@ -133,6 +137,8 @@ def main(argv=None) -> int:
         print(f"bytes transferred: {loads[-1]['bytes']:,} ({loads[-1]['bytes'] / 1e6:.1f} MB)")
         for name, n in sorted(loads[-1]["by_file"].items(), key=lambda kv: -kv[1]):
             print(f"  {n:>12,}  {name}")
+        for name, n in (info.get("gzip") or {}).items():
+            print(f"  gzip -6 of {name}: {n:,} bytes ({n / info['sizes'][name]:.0%} of {info['sizes'][name]:,})")
         if info.get("sizes"):
             print("\nartifacts of the job (bytes):")
             for name, n in sorted(info["sizes"].items()):

@@ -300,7 +300,9 @@ def test_scanmill_view_serves_a_plan_directory(plan, browser, tmp_path):
                     break
             except httpx.TransportError:
                 time.sleep(0.1)
-        assert httpx.get(base + "/artifacts/viewer.json").status_code == 401
+        refused = httpx.get(base + "/artifacts/viewer.json")
+        assert refused.status_code == 401 and refused.json()["code"] == "unauthenticated"
+        assert refused.headers["content-type"].startswith("application/problem+json")
         r = httpx.get(base + "/artifacts/viewer.json", headers={"Authorization": f"Bearer {key}"})
         assert r.status_code == 200 and r.json()["format"] == "scanmill-viewer"
         assert httpx.get(base + "/artifacts/area_0.linuxcnc.nc",

@@ -15,10 +15,11 @@ import sys
 from pathlib import Path
 
 from fastapi import FastAPI, Request
-from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
+from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 
 from scanmill.viewer import STATIC_DIR, page_html
+from service.problems import problem_response
 
 #: Files of a plan directory the page may fetch (its data, the plan and the pictures).
 SERVED = ("viewer.json", "viewer.points.bin", "viewer.paths.bin", "plan.json", "preview.png", "deviation.png",
@@ -39,15 +40,11 @@ def create_local_app(plan_dir: Path, key: str) -> FastAPI:
     def artifact(name: str, request: Request):
         given = request.headers.get("authorization", "")
         if not given.lower().startswith("bearer ") or not hmac.compare_digest(given[7:].strip().encode(), key.encode()):
-            return JSONResponse({"title": "Unauthorized", "status": 401, "code": "unauthenticated",
-                                 "detail": "Open the address `scanmill view` printed: it carries the key."},
-                                status_code=401, media_type="application/problem+json",
-                                headers={"WWW-Authenticate": 'Bearer realm="scanmill view"'})
+            return problem_response(401, "unauthenticated", "Open the address `scanmill view` printed: it carries "
+                                    "the key.", headers={"WWW-Authenticate": 'Bearer realm="scanmill view"'})
         path = plan_dir / name
         if name not in SERVED or not path.is_file():
-            return JSONResponse({"title": "Not Found", "status": 404, "code": "artifact_not_found",
-                                 "detail": f"The plan has no {name[:100]!r}."}, status_code=404,
-                                media_type="application/problem+json")
+            return problem_response(404, "artifact_not_found", f"The plan has no {name[:100]!r}.")
         return FileResponse(path, headers={"Cache-Control": "no-store"})
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")

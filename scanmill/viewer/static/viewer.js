@@ -91,10 +91,8 @@ function view(buffers, entry) {
   switch (entry.dtype) {
     case '<u2': return new Uint16Array(buf, entry.offset, n);
     case '<i2': return new Int16Array(buf, entry.offset, n);
-    case '|u1': case '<u1': return new Uint8Array(buf, entry.offset, n);
-    case '|i1': case '<i1': return new Int8Array(buf, entry.offset, n);
-    case '<f4': return new Float32Array(buf, entry.offset, n);
-    case '<u4': return new Uint32Array(buf, entry.offset, n);
+    case '|u1': return new Uint8Array(buf, entry.offset, n);
+    case '|i1': return new Int8Array(buf, entry.offset, n);
     default: throw new Error('unknown array type ' + entry.dtype);
   }
 }

@@ -212,7 +212,7 @@ class _JsonLists:
 
     def floats(self, a, decimals: int, groups=None) -> str:
         v = np.round(np.asarray(a, dtype=np.float64), decimals) + 0.0
-        return self._put(_json_float_rows(v, decimals, groups, rounded=True), v.reshape(-1, 3))
+        return self._put(_json_float_rows(v, decimals, groups), v.reshape(-1, 3))
 
     def pick(self, table: Sequence, idx: np.ndarray) -> str:
         idx = np.asarray(idx, dtype=np.int64)
@@ -258,15 +258,14 @@ def _object_array(values: Sequence) -> np.ndarray:
     return out
 
 
-def _json_float_rows(a, decimals: int, groups: np.ndarray | None = None, rounded: bool = False) -> str:
-    """``json.dumps(_r(a, decimals), separators=(",", ":"))`` for ``a`` (k,3), the numbers written
-    from their rounded digits at once. A float ``v`` with ``v == K / 10^decimals`` (the nearest
+def _json_float_rows(v: np.ndarray, decimals: int, groups: np.ndarray | None = None) -> str:
+    """``json.dumps(v.tolist(), separators=(",", ":"))`` for ``v`` (k,3) float64 already rounded
+    (``np.round(a, decimals) + 0.0``, as ``_r(a, decimals)``), the numbers written from their
+    rounded digits at once. A float ``v`` with ``v == K / 10^decimals`` (the nearest
     float to the decimal ``K 10^-decimals``), ``|K| < 10^15`` and ``|v| >= 1e-4`` (or 0) has that
     decimal as its shortest repr (at most 15 significant digits name one float each), printed
     positionally; the rows with any other number go through ``repr``. ``groups`` (k,) int: rows
-    that are likely equal where their groups are (checked). ``rounded``: ``a`` is already
-    ``np.round(a, decimals) + 0.0`` (float64)."""
-    v = np.asarray(a, dtype=np.float64) if rounded else np.round(np.asarray(a, dtype=np.float64), decimals) + 0.0
+    that are likely equal where their groups are (checked)."""
     k = v.shape[0]
     if k == 0:
         return "[]"

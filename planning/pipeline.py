@@ -246,14 +246,9 @@ def selection_matrix(visible: np.ndarray, axes: np.ndarray, normals: np.ndarray,
     return five_axis_visibility(visible, axes, normals, fp.max_swing_deg)
 
 
-def _finishing_visibility(gv: GlobalVisibility, ori: _Orientations, nrm: _Normals, config: PlanConfig) -> np.ndarray:
-    """:func:`selection_matrix` of the plan's visibility."""
-    return selection_matrix(gv.visible, ori.axes, nrm.normals, config)
-
-
 def _setups(visible: np.ndarray, zmask: np.ndarray, config: PlanConfig, progress) -> SetupSelection:
     """Stage 5 (Makki §3.1): the fewest axes covering ``setups.coverage`` with the least overlap, exactly,
-    over ``visible`` (:func:`_finishing_visibility`)."""
+    over ``visible`` (:func:`selection_matrix`)."""
     s = config.setups
     return select_setups(
         visible, coverage=s.coverage, max_setups=s.max_setups, min_points=s.min_points,
@@ -454,7 +449,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     run.warnings += _visibility_warnings(vis)
     zmask, zone_warnings = zone_mask(placed.scanned_points, nrm.sample_index, config.setups.functional_zones)
     run.warnings += zone_warnings
-    finish_vis = _finishing_visibility(gv, ori, nrm, config)
+    finish_vis = selection_matrix(gv.visible, ori.axes, nrm.normals, config)
     sel = run.stage("setups", lambda p: _setups(finish_vis, zmask, config, p))
     run.warnings += _setups_warnings(sel, vis.summary, config)
     placed = placement_hint(run, placed, sel, ori, config, profile, tool, base_dir, zmask)

@@ -466,3 +466,18 @@ def test_reader_g43_4_is_iso_only_and_not_with_a_tilted_plane():
     assert turn.sum() == 45 and np.abs(m.end_mm[turn] - [10.0, 0.0, 20.0]).max() < 1e-9
     assert np.abs(m.rotary_deg[turn][-1] - [30.0, 45.0]).max() < 1e-12
     assert np.ptp(m.machine_mm[turn], axis=0).max() > 5.0
+
+
+def test_the_3_plus_2_iso_post_takes_a_simultaneous_operation_only_with_the_profile_and_placement():
+    from planning.post import iso_program
+    from planning.toolpath.frames import AreaFrame
+
+    frame = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
+    with pytest.raises(ParameterError, match="needs the machine profile and the placement"):
+        iso_program([], frame, tool_axis=[0, 0, 1], five_axis=[OP])
+    with pytest.raises(ParameterError, match="needs the machine profile and the placement"):
+        iso_program([], frame, tool_axis=[0, 0, 1], profile=PROFILES[0], five_axis=[OP])
+    text = iso_program([], frame, tool_axis=[0, 0, 1], profile=PROFILES[0], placement_mm=PLACE, five_axis=[OP])
+    assert text.count("G43.4") == 1
+    with pytest.raises(ParameterError, match="at least one operation"):
+        iso_program([], frame, tool_axis=[0, 0, 1], profile=PROFILES[0], placement_mm=PLACE)

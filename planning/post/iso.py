@@ -138,6 +138,12 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
     if placement_mm is not None:
         check_placement(placement_mm)
     check_gauge(gauge_length_mm)
+    if five:
+        from planning.post.simultaneous import iso_5axis_blocks
+
+        if profile is None or placement_mm is None:
+            raise ParameterError("a simultaneous 5-axis operation needs the machine profile and the placement",
+                                 parameter="profile")
     d = int(o.decimals)
     ad = d if o.angle_decimals is None else int(o.angle_decimals)
     axis_names, rot = _plan_angles(rotary_deg, profile, t)
@@ -149,11 +155,6 @@ def iso_program(operations: Sequence[Operation], frame: AreaFrame, *, tool_axis,
         _operation_blocks(w, o, k, op, g682, A, b)
     for k, op in enumerate(five):
         # simultaneous 5-axis operations (issue 19): G43.4 tool centre point control
-        from planning.post.simultaneous import iso_5axis_blocks
-
-        if profile is None or placement_mm is None:
-            raise ParameterError("a simultaneous 5-axis operation needs the machine profile and the placement",
-                                 parameter="profile")
         iso_5axis_blocks(w, o, op, profile, placement_mm, index=len(ops) + k)
     _program_end(w, axis_names)
     return w.text()

@@ -94,13 +94,15 @@ TYPE_CODES = ("rapid", "feed", "arc")
 USE_CODES = ("rapid", "cut", "plunge", "retract")
 DIRECTION_CODES = ("cw", "ccw")
 
-#: zlib level of the moves JSON's gzip. On the femur-like plan's largest area (10.55 MB of JSON,
-#: 106k moves; bench/bench_artifacts.py, best of 3): level 1 takes 0.08 s for 3.11 MB, level 6
-#: 0.48 s for 2.70 MB: six times the time for 13 % fewer bytes, on every plan, in the planning
-#: process. Level 1; a client wanting the fewest bytes reads the npz or recompresses.
+#: zlib level of the moves JSON's gzip. On the femur-like plan's largest area (7.71 MB of JSON,
+#: 73.5k moves; gzip_bytes alone, best of 3): level 1 takes 0.05 s for 2.22 MB, level 6 0.35 s for
+#: 1.90 MB: six times the time for 14 % fewer bytes, on every plan, in the planning process
+#: (the whole plan, bench/bench_artifacts.py: 0.22 s against 1.32 s, BENCHMARKS). Level 1; a
+#: client wanting the fewest bytes reads the npz or recompresses.
 JSON_GZ_LEVEL = 1
-#: zlib level of the moves npz members (as plan.npz, planning.report.plan_files.NPZ_LEVEL): on the
-#: same area level 1 writes 3.21 MB in 0.10 s, level 6 2.88 MB in 0.22 s.
+#: zlib level of the moves npz members (the value of planning.report.plan_files.NPZ_LEVEL, which
+#: cannot be imported here: plan_files imports the pipeline, which imports the posts): on the same
+#: area level 1 writes 2.27 MB in 0.07 s, level 6 2.01 MB in 0.15 s.
 NPZ_LEVEL = 1
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 

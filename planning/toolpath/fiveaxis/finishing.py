@@ -329,7 +329,8 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
         idx = np.flatnonzero(touch)
         c = tp.xyz_mm[idx]
         nrm = contact_normals(c, cloud_f, tree)
-        plan = plan_axes(c, _runs(touch)[idx], nrm, lead_deg=fp.lead_deg, tilt_deg=fp.tilt_deg, cone_deg=cone_deg,
+        runs = _runs(touch)
+        plan = plan_axes(c, runs[idx], nrm, lead_deg=fp.lead_deg, tilt_deg=fp.tilt_deg, cone_deg=cone_deg,
                          max_rate_deg_per_mm=fp.max_axis_rate_deg_per_mm, frame=fp.axis_frame, ok=admissible)
         if attempt == 0:
             figs.n_positions = int(idx.size)
@@ -356,7 +357,7 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
                              tip_offset_mm=tp.tip_offset_mm, axis=_fill_axes(tp, touch, plan.axes))
         # the rotary solutions along the whole path as the post picks them: a change between two
         # cutting positions breaks the pass there
-        flips = admissible.solution_flips(with_axes.axis, _runs(touch)) & ~drop
+        flips = admissible.solution_flips(with_axes.axis, runs) & ~drop
         drop |= flips
         blocked["flip"] += int(flips.sum())
         if not drop.any():

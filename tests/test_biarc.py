@@ -301,3 +301,21 @@ def test_random_smooth_curves_stay_within_tolerance(seed):
     assert _seg_distance(P, C).max() <= tol * 1.01
     assert not np.isnan(fit.biarcs.centre).any()
     _check_junctions(fit)
+
+
+def test_a_refit_with_more_corners_through_the_memo_is_the_fresh_fit():
+    rng = np.random.default_rng(11)
+    u = np.linspace(0.0, 1.0, 600)
+    P = np.stack([40 * u, 8 * np.sin(6 * u) + rng.normal(scale=0.002, size=u.size), 5 * np.cos(4 * u)], 1)
+    memo: dict = {}
+    fit_biarcs(P, 0.005, breaks=[300], memo=memo)
+    n_pieces = len(memo)
+    for corners in ([150], [150, 450], [75, 150, 450]):
+        got = fit_biarcs(P, 0.005, breaks=[300], corners=corners, memo=memo)
+        want = fit_biarcs(P, 0.005, breaks=[300], corners=corners)
+        assert np.array_equal(got.span_start, want.span_start) and np.array_equal(got.span_end, want.span_end)
+        assert np.array_equal(got.path_piece, want.path_piece) and got.max_error_mm == want.max_error_mm
+    assert len(memo) == n_pieces + 6         # each new corner split one piece in two: only those were fitted
+    # another tolerance is another fit, never one taken from the memo
+    other = fit_biarcs(P, 0.05, breaks=[300], memo=memo)
+    assert other.n_biarcs < got.n_biarcs - 2 and other.n_biarcs == fit_biarcs(P, 0.05, breaks=[300]).n_biarcs

@@ -497,7 +497,8 @@ def _fit_piece(P, T, tol_mm, method) -> list[tuple[int, int]]:
 
 
 def fit_biarcs(points: np.ndarray, tol_mm: float, tangents: np.ndarray | None = None,
-               breaks=(), corners=(), corner_rad: float = np.pi / 3, method: str = "equal") -> BiarcFit:
+               breaks=(), corners=(), corner_rad: float = np.pi / 3, method: str = "equal",
+               memo: dict | None = None) -> BiarcFit:
     """Replace a dense polyline of ball centres by few G1 biarcs within ``tol_mm``.
 
     The path is cut into pieces: at each index in ``breaks`` a new piece starts and the move from
@@ -511,6 +512,9 @@ def fit_biarcs(points: np.ndarray, tol_mm: float, tangents: np.ndarray | None = 
     :func:`path_tangents` per piece; at a piece end that is a corner the tangent is always the
     piece's own end-circle tangent (one vector cannot serve both sides of a corner).  A span of one
     segment is always accepted.  ``max_error_mm`` is recomputed afterwards for all input points.
+    ``memo``: a dict kept between calls (refits of the same path with more ``corners``): the spans
+    of a piece are taken from it where the same points were fitted with the same tolerance and
+    method before (without ``tangents`` only; the fit of a piece depends on nothing else).
     """
     P = np.asarray(points, dtype=float).reshape(-1, 3)
     n = len(P)
@@ -543,7 +547,13 @@ def fit_biarcs(points: np.ndarray, tol_mm: float, tangents: np.ndarray | None = 
             if i1 in cor:
                 Tp[-1] = own[-1]
         Ts.append(Tp)
-        for a, b in _fit_piece(Pp, Tp, tol_mm, method):
+        key = (Pp.tobytes(), float(tol_mm), method) if memo is not None and user_T is None else None
+        spans = None if key is None else memo.get(key)
+        if spans is None:
+            spans = _fit_piece(Pp, Tp, tol_mm, method)
+            if key is not None:
+                memo[key] = spans
+        for a, b in spans:
             s0.append(i0 + a)
             s1.append(i0 + b)
             owner_piece.append(pi)

@@ -405,8 +405,9 @@ def biarc_figures(tp: Toolpath, figs: FiveAxisFigures, *, binned, radius_mm: flo
     pts = tp.xyz_mm[idx]
     corners: set[int] = set()
     R = float(radius_mm)
+    memo: dict = {}                    # a refit fits again only the pieces the new corners split
     for _ in range(8):
-        fit = fit_biarcs(pts, float(tol_mm), breaks=breaks, corners=sorted(corners))
+        fit = fit_biarcs(pts, float(tol_mm), breaks=breaks, corners=sorted(corners), memo=memo)
         if fit.n_biarcs == 0:
             break
         owner, chords = biarc_chords(fit.biarcs, BIARC_CHORD_MM)

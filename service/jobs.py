@@ -229,8 +229,7 @@ class JobService:
         file: the caller tells by ``path.name != name`` and serves it decoded or with Content-Encoding."""
         job = self._finished(job_id, who)
         path = self.storage.artifact_path(job.id, name)
-        alias = gzip_alias(name) if path is None else None
-        if alias is not None:
+        if path is None and (alias := gzip_alias(name)) is not None:
             path = self.storage.artifact_path(job.id, alias)
         if path is None:
             raise ApiError(404, "artifact_not_found",

@@ -137,7 +137,7 @@ def get_artifact(job_id: str, name: str, who: Caller, jobs: Jobs, request: Reque
         return FileResponse(path, media_type=media_type(path.name), filename=path.name)
     vary = {"Vary": "Accept-Encoding"}
     if accepts_gzip(request.headers.get("accept-encoding")):
-        return FileResponse(path, media_type="application/json", filename=name,
+        return FileResponse(path, media_type=media_type(name), filename=name,
                             headers={**vary, "Content-Encoding": "gzip"})
-    return StreamingResponse(iter_gunzipped(path), media_type="application/json",
+    return StreamingResponse(iter_gunzipped(path), media_type=media_type(name),
                              headers={**vary, "Content-Disposition": f'attachment; filename="{name}"'})

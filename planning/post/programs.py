@@ -92,7 +92,7 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
     post = config.post
     fp = config.paths.finishing
     R = config.tool.diameter_mm / 2.0
-    files: dict[str, str] = {}
+    files: dict[str, str | bytes] = {}
     summaries: dict[int, AreaPathSummary] = {}
     for ap in area_paths:
         i = ap.area

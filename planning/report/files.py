@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
+import zipfile
 from pathlib import Path
 from typing import Iterator
 
@@ -22,7 +23,7 @@ import numpy as np
 
 from planning.errors import ParameterError
 
-__all__ = ["atomic_path", "write_ply"]
+__all__ = ["NPZ_LEVEL", "atomic_path", "savez_compressed", "write_ply"]
 
 
 def write_ply(path, points, *, colors=None, normals=None, labels=None, binary: bool = True,
@@ -47,6 +48,29 @@ def write_ply(path, points, *, colors=None, normals=None, labels=None, binary: b
                 vertex.tofile(fh)
             else:
                 _write_ascii_rows(fh, vertex)
+
+
+#: zlib level of the plan's npz files (plan.npz, the moves npz): 1 takes about a third of the time of
+#: np.savez_compressed's default (6) for ~13 % more bytes (femur plan.npz: 0.67 s / 8.96 MB against
+#: 1.83 s / 7.93 MB); the arrays are the same.
+NPZ_LEVEL = 1
+#: Every member's zip time: the same arrays give the same bytes (the zip format's earliest date).
+_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+
+
+def savez_compressed(file, arrays: dict[str, np.ndarray], level: int = NPZ_LEVEL, *,
+                     allow_pickle: bool = False) -> None:
+    """:func:`numpy.savez_compressed` (one ``<name>.npy`` member per array, deflated, zip64) at zlib
+    ``level``, each member streamed (no copy of a large array) and stamped with a fixed time, so the
+    same arrays give the same bytes; :func:`numpy.load` reads it back the same."""
+    with zipfile.ZipFile(file, mode="w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
+        for name, val in arrays.items():
+            info = zipfile.ZipInfo(name + ".npy", date_time=_ZIP_TIME)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info._compresslevel = level       # what ZipFile(compresslevel=) sets on the members it names
+            info.external_attr = 0o644 << 16
+            with zf.open(info, "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asanyarray(val), allow_pickle=allow_pickle)
 
 
 @contextlib.contextmanager

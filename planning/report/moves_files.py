@@ -66,11 +66,12 @@ from __future__ import annotations
 import gzip
 import io
 import json
-import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+
+from planning.report.files import NPZ_LEVEL, savez_compressed
 
 __all__ = [
     "DIRECTION_CODES",
@@ -100,12 +101,6 @@ DIRECTION_CODES = ("cw", "ccw")
 #: (the whole plan, bench/bench_artifacts.py: 0.22 s against 1.32 s, BENCHMARKS). Level 1; a
 #: client wanting the fewest bytes reads the npz or recompresses.
 JSON_GZ_LEVEL = 1
-#: zlib level of the moves npz members (the value of planning.report.plan_files.NPZ_LEVEL, which
-#: cannot be imported here: plan_files imports the pipeline, which imports the posts): on the same
-#: area level 1 writes 2.27 MB in 0.07 s, level 6 2.01 MB in 0.15 s.
-NPZ_LEVEL = 1
-_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
-
 _MOVE_FLOATS = ("tip_part_mm", "tip_machine_mm")
 _ARC_FLOATS = ("normal_part", "normal_machine", "centre_part_mm", "centre_machine_mm")
 _FIVE_FLOATS = ("centre_mm", "tip_mm", "axis")
@@ -243,15 +238,10 @@ def moves_npz_arrays(doc: dict | None, five: Sequence[dict] = ()) -> dict[str, n
 
 
 def moves_npz_bytes(doc: dict | None, five: Sequence[dict] = (), level: int = NPZ_LEVEL) -> bytes:
-    """The ``area_<i>.moves.npz`` file of :func:`moves_npz_arrays` (the same arguments), deterministic."""
+    """The ``area_<i>.moves.npz`` file of :func:`moves_npz_arrays` (the same arguments), deterministic
+    (:func:`planning.report.files.savez_compressed`: fixed member times, no pickles)."""
     buf = io.BytesIO()
-    with zipfile.ZipFile(buf, mode="w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
-        for name, val in moves_npz_arrays(doc, five).items():
-            member = io.BytesIO()
-            np.lib.format.write_array(member, np.asarray(val), allow_pickle=False)
-            info = zipfile.ZipInfo(name + ".npy", date_time=_ZIP_TIME)
-            info.external_attr = 0o644 << 16
-            zf.writestr(info, member.getvalue(), compress_type=zipfile.ZIP_DEFLATED, compresslevel=level)
+    savez_compressed(buf, moves_npz_arrays(doc, five), level)
     return buf.getvalue()
 
 

@@ -43,6 +43,18 @@ class ReliefParams(_Strict):
     blur: Literal[0, 3, 5] = Field(
         0, description="Gaussian blur before the mapping, kernel size in pixels: 0 (none), 3 (3x3) or 5 "
                        "(5x5); smooths abrupt jumps between bright and dark pixels (Sood §3.2.2).")
+    max_pixels: int = Field(
+        3_145_728, ge=4, le=50_000_000,
+        description="Most pixels an image is planned on (one point and two triangles each), checked from the "
+                    "image header before it is decoded. A larger image is scaled down to fit (area averaging, "
+                    "aspect kept; the plan's warnings name the decoded size) if it has at most 16 x max_pixels "
+                    "pixels, and refused beyond that. The default, 3,145,728 (3 Mi pixels, e.g. 1774 x 1774), keeps "
+                    "a relief job with the other defaults within about 2 GB (the admission estimate, "
+                    "planning/budget.py).")
+    fill_missing: bool = Field(
+        False, description="A float (TIFF) image whose pixels are NaN or infinite (no data) is refused by default, "
+                           "since it would flatten or shift the whole relief; true fills each such pixel from its "
+                           "nearest valid pixel and the plan's warnings say how many were filled.")
 
     @model_validator(mode="after")
     def _z_range(self) -> "ReliefParams":
@@ -65,6 +77,10 @@ class InputParams(_Strict):
         description="Largest accepted bounding-box side, in mm (catches files written in the wrong unit).")
     min_points: int = Field(
         10, ge=4, le=1_000_000, description="Smallest accepted cloud, in points.")
+    max_faces: int = Field(
+        10_000_000, ge=1, le=200_000_000,
+        description="Largest accepted mesh, in triangles after polygons are split (STL, OBJ, PLY faces, E57 grids; "
+                    "checked from the header or the file size before the faces are read).")
     relief: ReliefParams = Field(
         default_factory=ReliefParams,
         description="How an image (PNG, JPEG, BMP, TIFF) is read as a relief; ignored for point clouds and "

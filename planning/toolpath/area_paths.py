@@ -27,10 +27,12 @@ For area ``i`` with tool axis ``t_i``:
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -62,6 +64,7 @@ from planning.toolpath.safety import (
 from planning.toolpath.verify import BinnedCloud, move_clearance
 
 Progress = Callable[[float, str], None]
+_log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -165,15 +168,24 @@ class _PathsProgress:
     (levels, passes, chunks, repair rounds) mapped into its share. Reports never go back, and
     calls within ``min_interval_s`` of the last are dropped unless a step starts."""
 
-    #: share of an area's time each step starts at and ends at (rough, from the femur-like plan)
-    STEPS = {"frame": (0.0, 0.02), "roughing": (0.02, 0.2), "guard_roughing": (0.2, 0.3),
-             "finishing": (0.3, 0.55), "cut_blocked": (0.55, 0.75), "reduce_arcs": (0.75, 0.85),
-             "verify": (0.85, 0.87), "collisions": (0.87, 0.89), "guard_finishing": (0.89, 1.0)}
+    #: share of an area's time each step starts at and ends at (rough, from the femur-like plan), in
+    #: the order the steps run. ``cut_blocked`` (3+2: the blocked CL points cut out) and ``five_axis``
+    #: (simultaneous 5-axis: the axes set on the dense CL points, which does its own cutting out) are
+    #: the two kinds of the same step and share its place: an area runs one of them. Every
+    #: ``step("...")`` name of :mod:`planning.toolpath` must be here (tests/test_user_paths.py); a
+    #: name that is not is still reported, with no share of its own (:meth:`step`), never an error.
+    STEPS: ClassVar[dict[str, tuple[float, float]]] = {
+        "frame": (0.0, 0.02), "roughing": (0.02, 0.2), "guard_roughing": (0.2, 0.3),
+        "finishing": (0.3, 0.55), "cut_blocked": (0.55, 0.75), "five_axis": (0.55, 0.75),
+        "reduce_arcs": (0.75, 0.85), "verify": (0.85, 0.87), "collisions": (0.87, 0.89),
+        "guard_finishing": (0.89, 1.0)}
 
     def __init__(self, progress: Progress | None, k: int, min_interval_s: float = 0.1):
         self.progress, self.k = progress, max(int(k), 1)
         self.n_done, self.area = 0, -1
         self._emit = Throttled(progress, min_interval_s)
+        self._reached = 0.0                    # the share of the current area its latest step started at
+        self._unknown: set[str] = set()
 
     @property
     def min_interval_s(self) -> float:
@@ -185,13 +197,31 @@ class _PathsProgress:
 
     def start_area(self, n_done: int, area: int) -> None:
         self.n_done, self.area = int(n_done), int(area)
+        self._reached = 0.0
+
+    def _share(self, name: str) -> tuple[float, float]:
+        """The (start, end) share of the area of step ``name``, never before where the area's steps
+        so far reached (so its fractions never go back within the area, whatever the order). A name
+        not in :data:`STEPS` gets no span of its own (start = end = where the area is), logged once."""
+        span = self.STEPS.get(name)
+        if span is None:
+            if name not in self._unknown:
+                self._unknown.add(name)
+                _log.warning("paths progress: step %r has no share in _PathsProgress.STEPS; "
+                             "reported without one", name)
+            span = (self._reached, self._reached)
+        lo = max(span[0], self._reached)
+        hi = max(span[1], lo)
+        self._reached = lo
+        return lo, hi
 
     def step(self, name: str) -> Callable[[float, str], None] | None:
         """Announce step ``name`` of the current area; return the callback of its own progress
-        (fraction of the step in [0, 1], message), or None when nobody listens."""
+        (fraction of the step in [0, 1], message), or None when nobody listens. A step name missing
+        from :data:`STEPS` never stops a plan (:meth:`_share`)."""
         if self.progress is None:
             return None
-        lo, hi = self.STEPS[name]
+        lo, hi = self._share(name)
         head = f"area {self.area} ({self.n_done + 1}/{self.k}): {name.replace('_', ' ')}"
         self._emit((self.n_done + lo) / self.k, head, force=True)
 
@@ -538,19 +568,20 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
         if fin is None:                        # nothing of the area can be finished from this set-up
             return
     tp = fin.toolpath
+    if five_axis is not None:
+        # 5-axis: the axes on the dense CL points (a position cut out costs one forward step), then the
+        # reduction only where the axis stands still (moves are straight: no arcs)
+        t0 = time.perf_counter()
+        step("five_axis")
+        tp = five_axis.run(ap, tp, fin.pass_index, cloud_f)
+        sec["five_axis"] = time.perf_counter() - t0
+        if tp.n_moves == 0:
+            return
     t0 = time.perf_counter()
     step("reduce_arcs")
     # arc fitting also reduces the straight stretches it leaves, against the ORIGINAL CL
     # points (reducing first would let the arcs drift 2 tol from them)
     if five_axis is not None:
-        # 5-axis: the axes on the dense CL points (a position cut out costs one forward step), then the
-        # reduction only where the axis stands still (moves are straight: no arcs)
-        step("five_axis")
-        tp = five_axis.run(ap, tp, fin.pass_index, cloud_f)
-        sec["five_axis"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        if tp.n_moves == 0:
-            return
         from planning.toolpath.fiveaxis.finishing import axis_runs, biarc_figures
 
         if fp.reduce:

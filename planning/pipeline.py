@@ -426,6 +426,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     ``base_dir``: where relative fixture mesh paths are looked up (the configuration's folder).
     """
     run = _Run(progress)
+    run.warnings += list(getattr(cloud, "warnings", ()))     # what reading changed (an image scaled down, ...)
     points = cloud.points
     check_part_size(points, units=config.input.units, tool_diameter_mm=config.tool.diameter_mm,
                     min_tool_diameters=config.input.min_part_tool_diameters,

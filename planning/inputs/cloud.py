@@ -17,14 +17,30 @@ machinist has to fix:
 
 ``unreadable_file``, ``truncated_file``, ``unsupported_format``, ``empty_cloud``, ``non_finite``,
 ``too_few_points``, ``degenerate_cloud``, ``extent_too_large``, ``missing_normals``,
-``too_many_points`` (413) and ``file_too_large`` (413).
+``too_many_points`` (413), ``too_many_faces`` (413, ``input.max_faces``), ``too_many_pixels``
+(413, ``input.relief.max_pixels``), ``file_too_large`` (413) and ``too_large_for_memory`` (413).
 
 Size limits are checked against the header (PLY element counts, PCD ``POINTS``, text row counts,
-STL triangle counts, OBJ ``v`` lines, LAS and E57 point counts) before the body is decoded, so a
-header that claims billions of points fails at once; an image larger than ``max_points`` pixels is
-scaled down instead. Decoding is vectorised (``numpy.frombuffer`` for binary bodies,
-``numpy.fromstring`` for ascii rows, numpy's C ``loadtxt`` for XYZ/CSV); no Python loop per point
-or per face.
+STL triangle counts, OBJ ``v`` and ``f`` lines, LAS and E57 point counts) before the body is decoded,
+so a header that claims billions of points or faces fails at once; an image larger than
+``max_points`` pixels is scaled down instead. Declared counts are also checked against the size of
+the file before anything is allocated for them (PLY elements and list counts, binary STL, PCD, LAS,
+E57 scans), and LAZ and E57 points are decoded in chunks, so a small file whose header lies costs
+little memory: a count the file cannot hold is ``truncated_file``. Whatever still fails inside a
+reader is turned into a typed error here: a ``MemoryError`` into ``too_large_for_memory``, any other
+exception (a reader bug or a damage no check foresaw) into ``unreadable_file`` naming the exception
+type; typed planning errors pass through as they are. Python warnings and numpy floating-point
+warnings raised while reading are silenced (what matters is in the error or in
+:attr:`Cloud.warnings`).
+
+Faces are checked by :func:`validate_faces` (indices in range, degenerate triangles dropped), then
+triangles that repeat an earlier one's three vertices (any order or winding) are dropped; both drops
+are said in :attr:`Cloud.warnings`. ``min_points`` counts the points of a plain cloud; a mesh needs
+3 vertices, unless every one of its faces is dropped: it is then a plain cloud (``faces`` None) and
+``min_points`` applies, the message naming what was dropped.
+
+Decoding is vectorised (``numpy.frombuffer`` for binary bodies, ``numpy.fromstring`` for ascii rows,
+numpy's C ``loadtxt`` for XYZ/CSV); no Python loop per point or per face.
 
 This module checks the parameters, detects the format (magic bytes, then the file name extension,
 then the content: STL ``solid``/binary size, OBJ statements, else text) and dispatches to the
@@ -38,14 +54,18 @@ Writing a PLY file is :func:`planning.report.files.write_ply`.
 
 from __future__ import annotations
 
+import functools
+import inspect
 import os
 import re
+import warnings as _warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from planning.errors import InputError, ParameterError
+from planning.errors import InputError, InputTooLarge, ParameterError, PlanningError
+from planning.inputs.mesh import _duplicate_faces
 from planning.inputs.obj import _looks_like_obj, _read_obj
 from planning.inputs.pcd import _read_pcd
 from planning.inputs.ply import _read_ply
@@ -53,7 +73,12 @@ from planning.inputs.relief import IMAGE_FORMATS, _looks_like_image
 from planning.inputs.source import _check_count, _Source
 from planning.inputs.stl import _looks_like_stl, _read_stl
 from planning.inputs.text import _read_text
-from planning.inputs.validate import _unit_normals, validate_faces, validate_points
+from planning.inputs.validate import (
+    _unit_normals,
+    _valid_faces,
+    validate_faces,
+    validate_points,
+)
 
 if TYPE_CHECKING:
     from schemas.params import InputParams, ReliefParams
@@ -123,6 +148,9 @@ class Cloud:
     normals: np.ndarray | None
     source_format: str
     faces: np.ndarray | None = None
+    #: what reading changed in the file's content (an image scaled down, pixels filled, faces dropped),
+    #: in words for the plan's warnings
+    warnings: tuple[str, ...] = ()
 
     @property
     def n_points(self) -> int:
@@ -146,6 +174,50 @@ class Cloud:
 # public entry point
 # --------------------------------------------------------------------------------------------
 
+def _typed_failures(read):
+    """Run ``read`` with Python and numpy floating-point warnings silenced, and turn whatever a reader
+    raises other than a :class:`~planning.errors.PlanningError` into one: a ``MemoryError`` (numpy's
+    ``_ArrayMemoryError`` too) into :class:`InputTooLarge` ``too_large_for_memory``, any other exception (a
+    reader bug, a damage no check foresaw: ``ValueError``, ``OverflowError``, ``struct.error``, ...)
+    into :class:`InputError` ``unreadable_file`` naming its type. Typed errors pass through as they
+    are; so do ``KeyboardInterrupt`` and ``SystemExit``. (``warnings.catch_warnings`` changes the
+    process's filters while it reads: not thread-safe, and the service reads uploads in processes.)"""
+
+    signature = inspect.signature(read)
+
+    @functools.wraps(read)
+    def guarded(source, **kwargs):
+        signature.bind(source, **kwargs)           # a wrong argument is the caller's TypeError, not the file's
+        try:
+            with _warnings.catch_warnings(), np.errstate(all="ignore"):
+                _warnings.simplefilter("ignore")
+                return read(source, **kwargs)
+        except PlanningError:
+            raise
+        except MemoryError as exc:
+            raise InputTooLarge(
+                f"The cloud file{_quoted(source)} needs more memory to read than is free ({type(exc).__name__}: "
+                f"{_first_line(exc)}). Decimate the scan and submit it again; if the file is small, its header "
+                "is probably damaged: export it again.", code="too_large_for_memory") from None
+        except Exception as exc:  # noqa: BLE001 - never a traceback for a damaged file
+            raise InputError(
+                f"The cloud file{_quoted(source)} cannot be read: its reader failed with {type(exc).__name__} "
+                f"({_first_line(exc)}). The file is probably damaged: export it again.",
+                code="unreadable_file", exception=type(exc).__name__) from None
+
+    return guarded
+
+
+def _quoted(source) -> str:
+    return f" {os.path.basename(os.fspath(source))!r}" if isinstance(source, (str, os.PathLike)) else ""
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    return (lines[0][:200] if lines else "no message").rstrip(".")
+
+
+@_typed_failures
 def read_cloud(
     source: str | os.PathLike | bytes,
     *,
@@ -157,6 +229,7 @@ def read_cloud(
     max_bytes: int | None = None,
     xyz_normals: bool = False,
     relief: ReliefParams | None = None,
+    max_faces: int = 10_000_000,
 ) -> Cloud:
     """Read a point cloud, mesh or relief image (path or bytes) and return it validated, in mm.
 
@@ -169,34 +242,41 @@ def read_cloud(
     more pixels than ``max_points`` is scaled down instead. ``max_extent_mm`` bounds the largest side
     of the bounding box in mm; ``min_points`` is the fewest points accepted. ``xyz_normals`` reads
     columns 4-6 of a text file as normals. ``relief`` (:class:`~schemas.params.ReliefParams` or a
-    dict of its fields; None: its defaults) maps an image to heights. Faces are checked by
-    :func:`validate_faces`.
-    Raises :class:`InputError` / :class:`ParameterError`.
+    dict of its fields; None: its defaults) maps an image to heights. ``max_faces`` is the most
+    triangles a mesh may have (``input.max_faces``; PLY, STL, OBJ, E57 grids), checked from the header
+    or the line count before the faces are read. Faces are checked by :func:`validate_faces`, then
+    duplicates dropped (module docstring).
+    Raises :class:`InputError` (:class:`InputTooLarge`) / :class:`ParameterError`, never another
+    exception for a damaged file.
     """
     scale = _unit_scale(units)
     fmt = _check_read_parameters(fmt, max_points, max_extent_mm, min_points, max_bytes)
+    if not (isinstance(max_faces, (int, np.integer)) and max_faces >= 1):
+        raise ParameterError(f"max_faces must be a positive integer, got {max_faces!r}.",
+                             parameter="max_faces", value=max_faces)
     src = _Source.open(source, max_bytes)
     if src.size == 0:
         raise InputError("The cloud file is empty (0 bytes).", code="empty_cloud")
     kind = _detect_format(src, fmt)
+    notes: list[str] = []                       # what reading changed, for Cloud.warnings
     if kind == "ply":
-        points, normals, faces, label = _read_ply(src, max_points)
+        points, normals, faces, label = _read_ply(src, max_points, max_faces)
     elif kind == "pcd":
         points, normals, label = _read_pcd(src, max_points)
         faces = None
     elif kind == "stl":
-        points, normals, faces, label = _read_stl(src, max_points)
+        points, normals, faces, label = _read_stl(src, max_points, max_faces)
     elif kind == "obj":
-        points, normals, faces, label = _read_obj(src, max_points)
+        points, normals, faces, label = _read_obj(src, max_points, max_faces)
     elif kind == "las":
         from planning.inputs.las import _read_las
         points, normals, faces, label = _read_las(src, max_points)
     elif kind == "e57":
         from planning.inputs.e57 import _read_e57
-        points, normals, faces, label = _read_e57(src, max_points)
+        points, normals, faces, label = _read_e57(src, max_points, max_faces)
     elif kind == "image":
         from planning.inputs.relief import _read_image
-        points, normals, faces, label = _read_image(src, max_points, _relief(relief))
+        points, normals, faces, label = _read_image(src, max_points, _relief(relief), notes)
         scale = 1.0                                 # the relief parameters are millimetres
     else:
         points, normals, label = _read_text(src, max_points, xyz_normals)
@@ -209,8 +289,46 @@ def read_cloud(
     has_faces = faces is not None and len(faces) > 0
     points = validate_points(points, max_extent_mm=max_extent_mm, min_points=min(min_points, 3) if has_faces
                              else min_points, units=units)
+    faces = _checked_faces(faces, points, kind, notes, min_points)
     return Cloud(points=points, normals=_unit_normals(normals), source_format=label,
-                 faces=validate_faces(faces, points))
+                 faces=faces, warnings=tuple(notes))
+
+
+def _checked_faces(faces, points: np.ndarray, kind: str, notes: list[str], min_points: int):
+    """The faces validated (:func:`validate_faces`), duplicates dropped; what was dropped said in
+    ``notes``. A mesh left without faces is a plain cloud (None), held to ``min_points``."""
+    if faces is None:
+        return None
+    n_given = len(faces)
+    tri, n_degenerate = _valid_faces(faces, points)
+    n_duplicate = 0
+    if kind != "image" and tri.shape[0] > 1:     # image grids hold each cell once
+        repeated = _duplicate_faces(tri, points.shape[0])
+        n_duplicate = int(repeated.sum())
+        if n_duplicate:
+            tri = np.ascontiguousarray(tri[~repeated])
+    dropped = []
+    if n_degenerate:
+        dropped.append(f"{n_degenerate:,} degenerate triangle{'s' if n_degenerate != 1 else ''} dropped (a "
+                       "repeated vertex or zero area)")
+    if n_duplicate:
+        dropped.append(f"{n_duplicate:,} duplicate triangle{'s' if n_duplicate != 1 else ''} dropped (the same "
+                       "three vertices as an earlier triangle)")
+    if n_given and tri.shape[0] == 0:            # nothing of the mesh is left but its vertices
+        n = points.shape[0]
+        what = " and ".join(dropped)
+        if n < min_points:
+            raise InputError(
+                f"Every one of the mesh's {n_given:,} triangles was dropped ({what}), which leaves a point "
+                f"cloud of {n} point(s); at least {min_points} are needed to plan machining. Export the "
+                "mesh again (check its units and that it holds the part's surface).",
+                code="too_few_points", n_points=int(n), min_points=int(min_points),
+                n_faces_dropped=int(n_given))
+        notes.append(f"Every one of the mesh's {n_given:,} triangles was dropped ({what}); its {n:,} "
+                     "vertices are planned as a point cloud.")
+        return None
+    notes.extend(dropped)
+    return tri
 
 
 def read_input(
@@ -230,7 +348,7 @@ def read_input(
                                                                    int(max_points))
     return read_cloud(source, fmt=fmt, units=params.units, max_points=limit,
                       max_extent_mm=params.max_extent_mm, min_points=params.min_points,
-                      relief=params.relief)
+                      relief=params.relief, max_faces=params.max_faces)
 
 
 def _relief(relief):

@@ -10,10 +10,15 @@ unless one of its sides is longer than :data:`JUMP_FACTOR` times the median grid
 (a depth jump between two surfaces). The coordinates are taken in ``input.units``: the E57 standard
 stores metres, so a standard file is read with ``input.units = "m"``.
 
-The file header (``ASTM-E57`` signature, physical length) is checked first and the point counts of
-all scans against ``max_points`` before any point is decoded. Errors: ``truncated_file`` (the file
-is shorter than its header says), ``unreadable_file`` (libE57Format's own message, first line, with
-the file name), ``empty_cloud`` (no scan or no valid point), ``too_many_points``.
+The file header (``ASTM-E57`` signature, physical length) is checked first, then the point counts of
+all scans against ``max_points`` and each scan's count against the file size (its record prototype
+gives the fewest bits a point takes: 32 or 64 per float field, the bits of the range of an integer
+field) before any point is decoded. The points are then decoded in chunks of at most
+:data:`CHUNK_POINTS`, so a count that the data does not hold allocates only one chunk before the scan
+ends early; the grid faces are checked against ``max_faces``. Errors: ``truncated_file`` (the file is
+shorter than its header says, a scan's declared points cannot fit in it or end early),
+``unreadable_file`` (libE57Format's own message, first line, with the file name), ``empty_cloud`` (no
+scan or no valid point), ``too_many_points``, ``too_many_faces``.
 """
 
 from __future__ import annotations
@@ -24,10 +29,12 @@ import numpy as np
 
 from planning.errors import InputError, PlanningError
 from planning.inputs.mesh import _grid_triangles
-from planning.inputs.source import _check_count, _Source
+from planning.inputs.source import _check_count, _check_faces, _Source
 
 #: A grid cell with a side longer than this x the median grid edge spans a depth jump: no faces.
 JUMP_FACTOR = 4.0
+#: Most points decoded at once (the buffers of one chunk: about 35 bytes a point).
+CHUNK_POINTS = 1 << 20
 
 _CARTESIAN = ("cartesianX", "cartesianY", "cartesianZ")
 _SPHERICAL = ("sphericalRange", "sphericalAzimuth", "sphericalElevation")
@@ -70,7 +77,7 @@ def _rotation(q) -> np.ndarray:
                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
-def _read_e57(src: _Source, max_points: int):
+def _read_e57(src: _Source, max_points: int, max_faces: int = 10_000_000):
     _check_file_header(src)
     import pye57
 
@@ -80,7 +87,7 @@ def _read_e57(src: _Source, max_points: int):
         except Exception as exc:  # noqa: BLE001 - libE57Format's E57Exception and others
             raise _e57_error(src, f"{_first_line(exc)}; the file is damaged. Export it again.") from None
         try:
-            return _read_scans(src, e57, max_points)
+            return _read_scans(src, e57, max_points, max_faces)
         except PlanningError:
             raise
         except Exception as exc:  # noqa: BLE001 - a damaged file must not become a crash
@@ -89,13 +96,20 @@ def _read_e57(src: _Source, max_points: int):
             e57.close()
 
 
-def _read_scans(src: _Source, e57, max_points: int):
+def _read_scans(src: _Source, e57, max_points: int, max_faces: int):
     headers = [e57.get_header(i) for i in range(e57.scan_count)]         # a few scans, not points
     total = sum(int(h.point_count) for h in headers)
     _check_count(total, max_points)
     if total == 0:
         raise InputError(f"The E57 file{src.quoted} holds no scanned points; the cloud is empty.",
                          code="empty_cloud")
+    for index, header in enumerate(headers):
+        n, bits = int(header.point_count), _min_record_bits(header)
+        if n * bits > 8 * src.size:
+            raise _e57_error(src, f"scan {index} declares {n:,} points of at least {bits} bits each "
+                                  f"({n * bits // 8:,} bytes), more than the {src.size:,} bytes of the file; "
+                                  "the file was cut off or its header is damaged. Send the complete file.",
+                             code="truncated_file")
     parts, faces, offset = [], [], 0
     for index, header in enumerate(headers):
         if int(header.point_count) == 0:
@@ -111,8 +125,29 @@ def _read_scans(src: _Source, e57, max_points: int):
         raise InputError(f"The E57 file{src.quoted} holds no valid point (every point is flagged "
                          "invalid); the cloud is empty.", code="empty_cloud")
     points = np.concatenate(parts) if len(parts) > 1 else parts[0]
+    _check_faces(sum(len(f) for f in faces), max_faces, "The scan grids of the E57 file make")
     tri = (np.concatenate(faces) if len(faces) > 1 else faces[0]) if faces else None
     return points, None, tri, "e57"
+
+
+def _min_record_bits(header) -> int:
+    """The fewest bits one point of the scan takes in the file, from its record prototype (0 if unknown):
+    32 or 64 per float field, the bit length of ``maximum - minimum`` per (scaled) integer field."""
+    from pye57 import libe57
+    from pye57.utils import get_node
+
+    try:
+        proto = libe57.StructureNode(header.points.prototype())
+        bits = 0
+        for i in range(proto.childCount()):
+            node = get_node(proto, proto.get(i).elementName())
+            if isinstance(node, libe57.FloatNode):
+                bits += 32 if "SINGLE" in str(node.precision()).upper() else 64
+            elif isinstance(node, (libe57.IntegerNode, libe57.ScaledIntegerNode)):
+                bits += max(int(node.maximum()) - int(node.minimum()), 0).bit_length()
+        return bits
+    except Exception:  # noqa: BLE001 - an odd prototype: no bound from it (the chunks bound the memory)
+        return 0
 
 
 def _read_scan(src: _Source, e57, header, index: int):
@@ -128,11 +163,7 @@ def _read_scan(src: _Source, e57, header, index: int):
     wanted = list(coords) + [state] * (state in fields) + \
         (list(_GRID) if all(f in fields for f in _GRID) else [])
     n = int(header.point_count)
-    data, buffers = e57.make_buffers(wanted, n)
-    got = header.points.reader(buffers).read()
-    if got < n:
-        raise _e57_error(src, f"scan {index} declares {n:,} points but only {got:,} could be read; the "
-                              "file was cut off or is damaged.", code="truncated_file")
+    data = _read_chunks(src, e57, header, wanted, n, index)
     valid = np.ones(n, dtype=bool) if state not in data else data[state] == 0
     if coords is _CARTESIAN:
         pts = np.column_stack([np.asarray(data[f], dtype=np.float64)[valid] for f in coords])
@@ -144,3 +175,27 @@ def _read_scan(src: _Source, e57, header, index: int):
     if "rowIndex" in data:
         grid = (data["rowIndex"][valid].astype(np.int64), data["columnIndex"][valid].astype(np.int64))
     return pts, grid
+
+
+def _read_chunks(src: _Source, e57, header, wanted, n: int, index: int) -> dict:
+    """The ``wanted`` fields of the scan's ``n`` points, decoded :data:`CHUNK_POINTS` at a time."""
+    chunk = max(min(n, CHUNK_POINTS), 1)
+    buffer, buffers = e57.make_buffers(wanted, chunk)
+    parts: dict[str, list] = {f: [] for f in wanted}
+    got = 0
+    reader = header.points.reader(buffers)
+    try:
+        while got < n:
+            k = int(reader.read())
+            if k <= 0:
+                break
+            k = min(k, n - got)
+            for f in wanted:
+                parts[f].append(buffer[f][:k].copy())
+            got += k
+    finally:
+        reader.close()
+    if got < n:
+        raise _e57_error(src, f"scan {index} declares {n:,} points but only {got:,} could be read; the "
+                              "file was cut off or is damaged.", code="truncated_file")
+    return {f: (np.concatenate(v) if len(v) > 1 else v[0]) for f, v in parts.items()}

@@ -1,12 +1,20 @@
 """Stage 1, the cloud: the LAS / LAZ reader (ASPRS lidar point files) via laspy.
 
 The header (``LASF`` signature, version 1.0 to 1.4, sizes and record counts checked first: laspy
-trusts them) gives the point count, checked against ``max_points`` before any
-point is decoded; ``x y z`` are the scaled coordinates (raw integers x scale + offset) as float64, in
-the unit of the file (``input.units``). LAZ (compressed) is decompressed by laspy's sequential ``lazrs``
-backend (the parallel one sizes its buffers from the chunk table unchecked: a damaged table made it
-abort the whole process); the LAZ chunk count is checked first for the same reason. The label says
-which (``las`` or ``laz``). No normals are read (``normals`` None), no faces.
+trusts them) gives the point count, checked against ``max_points`` before any point is decoded, and
+for an uncompressed file ``count x record length`` against the file size. laspy allocates ``count x
+record length`` bytes for every read, so the points are read in chunks of at most
+:data:`CHUNK_BYTES` of records (:meth:`laspy.LasReader.read_points` called per chunk): a LAZ whose
+header claims millions of points its compressed data does not hold fails at the first chunk that
+runs dry, having allocated one chunk. ``x y z`` are the scaled coordinates (raw integers x scale +
+offset) as float64, in the unit of the file (``input.units``). LAZ (compressed) is decompressed by
+laspy's sequential ``lazrs`` backend (the parallel one sizes its buffers from the chunk table
+unchecked: a damaged table made it abort the whole process); the LAZ chunk count is checked first
+for the same reason. The label says which (``las`` or ``laz``). No normals are read (``normals``
+None), no faces. What laspy logs while reading (e.g. "Could only read ... points") and what lazrs
+prints to stderr when it panics are kept off the console: the error says it. The LASzip record's
+items are checked first (their types' sizes, adding up to the point record length): lazrs panics
+when they disagree with the data.
 Errors: ``truncated_file`` (an uncompressed body shorter than the header's count needs, or a LAZ
 stream that ends early), ``unreadable_file`` (laspy cannot parse the header or the points; its
 message is passed on), ``unsupported_format`` (LAZ without a decompression backend),
@@ -15,14 +23,21 @@ message is passed on), ``unsupported_format`` (LAZ without a decompression backe
 
 from __future__ import annotations
 
+import contextlib
+import logging
+import os
 import re
 import struct
+import sys
+import tempfile
 
 import numpy as np
 
 from planning.errors import InputError, PlanningError
 from planning.inputs.source import _check_count, _Source
 
+#: Most bytes of point records decoded at once.
+CHUNK_BYTES = 64 << 20
 _VLR_HEADER = 54                # bytes of a variable length record's header
 _EVLR_HEADER = 60               # ... and of an extended one's
 _TRUNCATED = re.compile(r"fill whole buffer|end of file|eof|unexpected end|truncat|not enough|"
@@ -81,7 +96,40 @@ def _check_header(src: _Source) -> None:
                                   f"{evlr_start:,}, beyond the {src.size:,} bytes of the file; it is cut "
                                   "off or damaged.", code="truncated_file")
     if head[104] & 0x80:
+        _check_laszip_items(src, header_size, n_vlrs, struct.unpack_from("<H", head, 105)[0])
         _check_chunk_table(src, point_offset, n_points)
+
+
+#: bytes of the LASzip item types of a fixed size (0 and 14, extra bytes, take any size)
+_LAZ_ITEM_SIZES = {6: 20, 7: 8, 8: 6, 9: 29, 10: 30, 11: 6, 12: 8, 13: 29}
+
+
+def _check_laszip_items(src: _Source, header_size: int, n_vlrs: int, record_length: int) -> None:
+    """LAZ: the LASzip VLR's items must have their types' sizes and add up to the point record length
+    (lazrs splits every record by the declared sizes and panics when they disagree with the data)."""
+    head, pos = src.head, header_size
+    for _ in range(n_vlrs):
+        if pos + _VLR_HEADER > len(head):
+            return                                       # beyond the first MiB: laspy reads and checks it
+        user_id, record_id, length = struct.unpack_from("<16sHH", head, pos + 2)
+        body = pos + _VLR_HEADER
+        if user_id.rstrip(b"\0") == b"laszip encoded" and record_id == 22204:
+            if length < 34 or body + length > len(head):
+                raise _las_error(src, "its LASzip record is cut short; the header is damaged.")
+            n_items = struct.unpack_from("<H", head, body + 32)[0]
+            if 34 + 6 * n_items > length:
+                raise _las_error(src, f"its LASzip record declares {n_items:,} items in {length} bytes; the "
+                                      "header is damaged.")
+            items = [struct.unpack_from("<HHH", head, body + 34 + 6 * i) for i in range(n_items)]
+            wrong = [(t, n) for t, n, _ in items if t in _LAZ_ITEM_SIZES and n != _LAZ_ITEM_SIZES[t]]
+            total = sum(n for _, n, _ in items)
+            if wrong or total != record_length or any(t not in _LAZ_ITEM_SIZES and t not in (0, 14)
+                                                       for t, _, _ in items):
+                raise _las_error(src, f"its LASzip items (type, bytes: {', '.join(f'{t}, {n}' for t, n, _ in items)}) "
+                                      f"do not make its {record_length}-byte point records; the header is "
+                                      "damaged.")
+            return
+        pos = body + length
 
 
 def _check_chunk_table(src: _Source, point_offset: int, n_points: int) -> None:
@@ -108,10 +156,54 @@ def _check_chunk_table(src: _Source, point_offset: int, n_points: int) -> None:
                               f"in {src.size:,} bytes; the file is damaged.")
 
 
+@contextlib.contextmanager
+def _quiet_laspy():
+    """Keep laspy's log records off the console while reading (they would reach stderr through the
+    logging module's last-resort handler when nothing else handles them)."""
+    log = logging.getLogger("laspy")
+    sink = logging.NullHandler()
+    propagate = log.propagate
+    log.addHandler(sink)
+    log.propagate = False
+    try:
+        yield
+    finally:
+        log.removeHandler(sink)
+        log.propagate = propagate
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """Send what native code writes to stderr (file descriptor 2) while reading to a scratch file: a
+    Rust panic in lazrs prints its message and a backtrace there before it is raised (and answered as
+    a typed error). The descriptor is the process's: the CLI reads in its one thread, the service in
+    child processes."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):        # no usable stderr: nothing to keep quiet
+        yield
+        return
+    try:
+        with tempfile.TemporaryFile() as scratch:
+            os.dup2(scratch.fileno(), 2)
+            try:
+                yield
+            finally:
+                os.dup2(saved, 2)
+    finally:
+        os.close(saved)
+
+
 def _read_las(src: _Source, max_points: int):
+    _check_header(src)
+    with _quiet_laspy(), _quiet_stderr():
+        return _read_points(src, max_points)
+
+
+def _read_points(src: _Source, max_points: int):
     import laspy
 
-    _check_header(src)
     with src.file() as fh:
         try:
             reader = laspy.open(fh, closefd=False, laz_backend=laspy.LazBackend.Lazrs)
@@ -136,11 +228,7 @@ def _read_las(src: _Source, max_points: int):
                                           "transfer or export. Send the complete file.",
                                      code="truncated_file")
             try:
-                record = reader.read_points(n)
-                with np.errstate(over="ignore", invalid="ignore"):   # damaged scales: non_finite later
-                    points = np.column_stack((np.asarray(record.x, dtype=np.float64),
-                                              np.asarray(record.y, dtype=np.float64),
-                                              np.asarray(record.z, dtype=np.float64)))
+                points = _read_chunks(reader, n, int(header.point_format.size))
             except (PlanningError, KeyboardInterrupt, SystemExit):
                 raise
             except BaseException as exc:  # noqa: BLE001 - lazrs errors and Rust panics (BaseException)
@@ -158,3 +246,26 @@ def _read_las(src: _Source, max_points: int):
                               "decoded; the file was cut off. Send the complete file.",
                          code="truncated_file")
     return points, None, None, "laz" if compressed else "las"
+
+
+def _read_chunks(reader, n: int, record_size: int) -> np.ndarray:
+    """``(m, 3)`` float64 coordinates of the first ``m <= n`` points, read :data:`CHUNK_BYTES` of
+    records at a time; ``m < n`` when the data runs out first."""
+    out = np.empty((0, 3))
+    parts, got = [], 0
+    step = max(1, CHUNK_BYTES // max(record_size, 1))
+    while got < n:
+        want = min(step, n - got)
+        record = reader.read_points(want)
+        k = len(record)
+        if k:
+            with np.errstate(over="ignore", invalid="ignore"):   # damaged scales: non_finite later
+                parts.append(np.column_stack((np.asarray(record.x, dtype=np.float64),
+                                              np.asarray(record.y, dtype=np.float64),
+                                              np.asarray(record.z, dtype=np.float64))))
+        got += k
+        if k < want:
+            break
+    if parts:
+        out = np.concatenate(parts) if len(parts) > 1 else parts[0]
+    return out

@@ -3,8 +3,10 @@
 :func:`_merge_vertices` merges exactly equal vertex rows (``-0.0`` equals ``0.0``) by a lexicographic
 sort of their bit patterns, so an STL's facets index shared vertices; :func:`_fan_triangles` turns
 polygons given as one concatenated index array and a size per polygon into triangles
-``(first, j, j + 1)``; :func:`_grid_triangles` triangulates a grid of points (two triangles per cell
-whose four corners exist). All vectorised: no Python loop per vertex or per face.
+``(first, j, j + 1)`` (the triangle count checked against ``max_faces`` before they are built);
+:func:`_grid_triangles` triangulates a grid of points (two triangles per cell whose four corners
+exist); :func:`_duplicate_faces` finds the triangles that repeat an earlier one's three vertices. All
+vectorised: no Python loop per vertex or per face.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from planning.errors import InputError
+from planning.inputs.source import _check_faces
 
 
 def _merge_vertices(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -44,18 +47,25 @@ def _merge_vertices(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return clean[order[first]].astype(np.float64), inverse
 
 
-def _fan_triangles(indices: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+def _fan_triangles(indices: np.ndarray, sizes: np.ndarray, max_faces: int | None = None,
+                   what: str = "The mesh has", owned: bool = False) -> np.ndarray:
     """Fan-triangulate polygons: ``indices`` concatenated, ``sizes`` (P,) each >= 3 -> ``(T, 3)`` int64.
 
     Polygon ``v0 v1 ... vn-1`` gives ``(v0, vj, vj+1)`` for ``j = 1 .. n-2`` (exact for convex
-    polygons, which is what scanners and exporters write).
+    polygons, which is what scanners and exporters write). With ``max_faces``, more triangles than that
+    raise :class:`~planning.errors.InputTooLarge` ``too_many_faces`` before any is built (``what``
+    starts its message). ``owned``: the caller gives ``indices`` away (triangles may be a view of it).
     """
+    given = None if owned else indices
     indices = np.asarray(indices, dtype=np.int64).reshape(-1)
     sizes = np.asarray(sizes, dtype=np.int64).reshape(-1)
     if sizes.size == 0:
         return np.zeros((0, 3), dtype=np.int64)
+    if max_faces is not None:
+        _check_faces(int(sizes.sum()) - 2 * sizes.size, max_faces, what)
     if np.all(sizes == 3):
-        return indices.reshape(-1, 3).copy()
+        tri = indices.reshape(-1, 3)
+        return tri.copy() if given is not None and np.shares_memory(tri, given) else tri
     starts = np.cumsum(sizes) - sizes
     n_tri = sizes - 2
     poly = np.repeat(np.arange(sizes.size), n_tri)
@@ -88,6 +98,8 @@ def _grid_triangles(row: np.ndarray, col: np.ndarray, points: np.ndarray,
         return np.zeros((0, 3), dtype=np.int64)
     r0, c0 = row.min(), col.min()
     width = int(col.max() - c0) + 2
+    if width * (int(row.max() - r0) + 2) >= 2 ** 62:    # damaged indices: the keys would overflow
+        return np.zeros((0, 3), dtype=np.int64)
     key = (row - r0) * width + (col - c0)
     keys, first = np.unique(key, return_index=True)       # sorted keys, first point at each
 
@@ -119,3 +131,43 @@ def _grid_triangles(row: np.ndarray, col: np.ndarray, points: np.ndarray,
     tri[0::2] = np.column_stack((a, b, d))
     tri[1::2] = np.column_stack((a, d, c))
     return tri
+
+
+def _duplicate_faces(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """``(T,)`` bool: the triangles of ``faces`` ``(T, 3)`` (indices in ``[0, n_vertices)``) whose three
+    vertices, in any order or winding, are those of an earlier triangle.
+
+    Each triangle's indices sorted give a key (one int64 ``(a V + b) V + c`` while ``V^3`` fits, else
+    the pair ``a V + b``, ``c``); a stable sort of the keys puts every triangle after the earlier ones
+    equal to it. About 50 bytes per triangle at the peak.
+    """
+    tri = np.asarray(faces, dtype=np.int64)
+    out = np.zeros(tri.shape[0], dtype=bool)
+    if tri.shape[0] < 2:
+        return out
+    v = max(int(n_vertices), 1)
+    a = np.minimum(np.minimum(tri[:, 0], tri[:, 1]), tri[:, 2])
+    c = np.maximum(np.maximum(tri[:, 0], tri[:, 1]), tri[:, 2])
+    b = tri.sum(axis=1)
+    b -= a
+    b -= c
+    if v <= 2_000_000:                                   # V^3 < 2^63
+        key = a
+        key *= v
+        key += b
+        key *= v
+        key += c
+        del b, c
+        order = np.argsort(key, kind="stable")
+        k = key[order]
+        same = k[1:] == k[:-1]
+    else:
+        high = a
+        high *= v
+        high += b
+        del b
+        order = np.lexsort((np.arange(tri.shape[0]), c, high))
+        h, low = high[order], c[order]
+        same = (h[1:] == h[:-1]) & (low[1:] == low[:-1])
+    out[order[1:][same]] = True
+    return out

@@ -1,17 +1,23 @@
 """Stage 1, the cloud: the PCD reader (Point Cloud Library format: ascii, binary, binary_compressed).
 
 The header (``FIELDS``, ``SIZE``, ``TYPE``, ``COUNT``, ``POINTS`` or ``WIDTH`` x ``HEIGHT``,
-``DATA``) gives a structured dtype per point; ``x y z`` are required, ``normal_x normal_y
-normal_z`` are read as file normals. Binary bodies are a ``numpy.frombuffer`` view; ascii bodies
-are parsed in one ``numpy.fromstring`` call (:mod:`planning.inputs.rows`); ``binary_compressed``
-(LZF) is decoded by Open3D. Errors: ``unreadable_file``, ``truncated_file``, ``empty_cloud``,
-``unsupported_format`` (unknown ``DATA`` kind) and ``too_many_points`` (declared count, checked
-before the body is read).
+``DATA``) gives a structured dtype per point; ``x y z`` are required, ``normal_x normal_y normal_z``
+are read as file normals. Binary bodies are a ``numpy.frombuffer`` view; ascii bodies are parsed in
+one ``numpy.fromstring`` call (:mod:`planning.inputs.rows`); ``binary_compressed`` (LZF) is decoded
+by Open3D. The declared sizes are checked before anything is allocated for them: ``POINTS`` (or
+``WIDTH x HEIGHT``, both non-negative) against ``max_points``, the point size (the sum of ``SIZE x
+COUNT``; ascii: two characters a value) against the body, ``POINTS x`` point size against the body
+of a binary file, and the compressed and uncompressed sizes at the start of a ``binary_compressed``
+body (the compressed data must fit in the file, the uncompressed size must be ``POINTS x`` point
+size) before Open3D reads it, its console warnings silenced. Errors: ``unreadable_file``,
+``truncated_file`` (also a declared size the file cannot hold), ``empty_cloud``, ``unsupported_format``
+(unknown ``DATA`` kind) and ``too_many_points`` (declared count, checked before the body is read).
 """
 
 from __future__ import annotations
 
 import os
+import struct
 import tempfile
 
 import numpy as np
@@ -31,7 +37,7 @@ def _pcd_error(msg: str, code: str = "unreadable_file") -> InputError:
 
 def _read_pcd(src: _Source, max_points: int):
     header, body_start = _parse_pcd_header(src.head)
-    dtype, n_points, data_kind = _pcd_layout(header)
+    dtype, n_points, data_kind = _pcd_layout(header, max(src.size - body_start, 0))
     _check_count(n_points, max_points)
     if n_points == 0:
         raise InputError("The PCD file declares 0 points; the cloud is empty.", code="empty_cloud")
@@ -41,6 +47,7 @@ def _read_pcd(src: _Source, max_points: int):
     elif data_kind == "ascii":
         table = _pcd_ascii(data, body_start, dtype, n_points)
     else:
+        _check_compressed_sizes(data, body_start, dtype.itemsize, n_points)
         return (*_pcd_compressed_open3d(data, n_points), "pcd-binary_compressed")
     return _xyz(table), _normals_from(table, _PCD_NORMALS), f"pcd-{data_kind}"
 
@@ -65,8 +72,9 @@ def _parse_pcd_header(head: bytes):
             return header, pos
 
 
-def _pcd_layout(header):
-    """Structured dtype of one point, the point count and the DATA kind."""
+def _pcd_layout(header, body_bytes: int):
+    """Structured dtype of one point, the point count and the DATA kind (``body_bytes``: the bytes after
+    the header, which one point must fit in)."""
     fields = header.get("FIELDS")
     sizes, types = header.get("SIZE"), header.get("TYPE")
     if not fields or not sizes or not types:
@@ -87,11 +95,23 @@ def _pcd_layout(header):
     except (KeyError, ValueError):
         raise _pcd_error(f"unknown SIZE/TYPE combination {sizes} {types} (SIZE 1, 2, 4 or 8 bytes; TYPE F, I "
                          "or U; F needs SIZE 4 or 8).") from None
+    point_bytes = sum(int(np.dtype(t).itemsize) * c for _, t, c in spec)
+    n_values = sum(c for _, _, c in spec)
+    kind = (header.get("DATA") or [""])[0].lower()
+    # one point must fit in the body (ascii: a value takes a character and a separator), checked before
+    # numpy sizes a record from COUNT
+    if (point_bytes > body_bytes if kind == "binary" else
+            2 * n_values - 1 > body_bytes if kind == "ascii" else point_bytes >= 2 ** 31):
+        what = (f"each point takes {point_bytes:,} bytes" if kind != "ascii" else
+                f"each point holds {n_values:,} values")
+        raise _pcd_error(f"by its FIELDS, SIZE and COUNT lines {what} (COUNT {' '.join(counts)}), more than the "
+                         f"whole body of the file ({body_bytes:,} bytes) can hold: the COUNT or SIZE line is "
+                         "wrong (COUNT gives how many values each field holds per point, usually 1), or the file "
+                         "was cut off. Fix the header or send the complete file.", code="truncated_file")
     names = [s[0] for s in spec]
     if not {"x", "y", "z"} <= set(names) or len(set(names)) != len(names):
         raise _pcd_error("FIELDS must contain x, y and z exactly once.")
     dtype = np.dtype([(n, "<" + t, (c,)) if c != 1 else (n, "<" + t) for n, t, c in spec])
-    kind = (header.get("DATA") or [""])[0].lower()
     if kind not in ("ascii", "binary", "binary_compressed"):
         raise _pcd_error(f"unknown DATA kind {kind!r} (expected ascii, binary or "
                          "binary_compressed).", code="unsupported_format")
@@ -107,12 +127,32 @@ def _pcd_point_count(header) -> int:
         if "POINTS" in header:
             n = int(header["POINTS"][0])
         else:
-            n = int(header["WIDTH"][0]) * int(header.get("HEIGHT", ["1"])[0])
+            width, height = int(header["WIDTH"][0]), int(header.get("HEIGHT", ["1"])[0])
+            if width < 0 or height < 0:
+                raise _pcd_error(f"negative WIDTH or HEIGHT ({width} x {height}).")
+            n = width * height
     except (KeyError, IndexError, ValueError):
         raise _pcd_error("the header needs a valid POINTS (or WIDTH and HEIGHT) line.") from None
     if n < 0:
         raise _pcd_error(f"negative point count {n}.")
     return n
+
+
+def _check_compressed_sizes(data: bytes, offset: int, point_bytes: int, n: int) -> None:
+    """A binary_compressed body starts with its compressed and uncompressed sizes (uint32): the
+    compressed data must fit in the file and decompress to ``n`` points, before Open3D sizes its
+    buffers from them."""
+    if len(data) < offset + 8:
+        raise _pcd_error("the binary_compressed body is missing its sizes; the file was cut off.",
+                         code="truncated_file")
+    compressed, uncompressed = struct.unpack_from("<II", data, offset)
+    if uncompressed != n * point_bytes:
+        raise _pcd_error(f"the compressed body says it holds {uncompressed:,} bytes, but {n:,} points of "
+                         f"{point_bytes:,} bytes take {n * point_bytes:,}; the file is damaged.")
+    if compressed > len(data) - offset - 8:
+        raise _pcd_error(f"the compressed body declares {compressed:,} bytes but the file holds "
+                         f"{len(data) - offset - 8:,} after the header; the file was cut off. Send the "
+                         "complete file.", code="truncated_file")
 
 
 def _pcd_binary(data: bytes, offset: int, dtype: np.dtype, n: int) -> np.ndarray:
@@ -164,8 +204,9 @@ def _pcd_compressed_open3d(data: bytes, n_points: int):
         tmp = os.path.join(folder, "cloud.pcd")
         with open(tmp, "wb") as fh:
             fh.write(data)
-        pcd = o3d.io.read_point_cloud(tmp, format="pcd", remove_nan_points=False,
-                                      remove_infinite_points=False)
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):   # no console warnings
+            pcd = o3d.io.read_point_cloud(tmp, format="pcd", remove_nan_points=False,
+                                          remove_infinite_points=False)
     pts = np.asarray(pcd.points, dtype=np.float64)
     if pts.shape[0] != n_points:
         raise _pcd_error(f"the header declares {n_points:,} points but only {pts.shape[0]:,} "

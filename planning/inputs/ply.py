@@ -10,9 +10,18 @@ record), else its records are walked by a compiled loop (:mod:`planning.inputs.p
 vertices are parsed in one ``numpy.fromstring`` call (:mod:`planning.inputs.rows`), ascii faces
 likewise with a cursor moved over the properties of every row at once. ``plyfile`` is used only
 when the vertex element itself holds a list property.
-Errors: ``unreadable_file`` (header or body damaged), ``truncated_file`` (body cut off),
-``empty_cloud`` (0 vertices), ``too_many_points`` (declared count over ``max_points``, checked
-before the body is read).
+
+Every count is checked before anything is allocated for it: the vertex count against ``max_points``
+and the face count against ``max_faces`` (every face record is at least one triangle), then every
+element the reader reaches against the bytes left (binary: the smallest possible record, its scalars
+and list counts with empty lists, times the count; ascii: one line per record); a list whose count
+makes its record longer than the rest of the file ends the file early. Float face indices (ascii,
+or a float list type) that are not whole numbers, or too large to be an index, are refused before
+they are converted to integers.
+Errors: ``unreadable_file`` (header or body damaged), ``truncated_file`` (body cut off, or
+declared counts the file cannot hold), ``empty_cloud`` (0 vertices), ``too_many_points`` (declared
+count over ``max_points``) and ``too_many_faces`` (declared faces, or the triangles of the polygons,
+over ``max_faces``), both checked before the body is read.
 """
 
 from __future__ import annotations
@@ -33,7 +42,7 @@ from planning.inputs.rows import (
     _tokens_per_line,
     _xyz,
 )
-from planning.inputs.source import _check_count, _Source
+from planning.inputs.source import _check_count, _check_faces, _Source
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -63,7 +72,7 @@ def _ply_error(msg: str, code: str = "unreadable_file") -> InputError:
     return InputError(f"Invalid PLY file: {msg}", code=code)
 
 
-def _read_ply(src: _Source, max_points: int):
+def _read_ply(src: _Source, max_points: int, max_faces: int = 10_000_000):
     fmt, elements, body_start = _parse_ply_header(src.head)
     vertex = _find_vertex(elements)
     _check_count(vertex.count, max_points)
@@ -72,17 +81,62 @@ def _read_ply(src: _Source, max_points: int):
                          code="empty_cloud")
     label = f"ply-{fmt}"
     face, face_list = _find_faces(elements)
+    if face is not None:
+        _check_faces(face.count, max_faces, f"The PLY header declares {face.count:,} faces, at least")
     data = src.data()
+    # what is read: every element with plyfile, else those up to the vertices and the faces
+    last = len(elements) - 1 if vertex.has_lists else \
+        max(elements.index(vertex), elements.index(face) if face is not None else -1)
+    _check_declared_sizes(data, body_start, elements[: last + 1], fmt)
     if vertex.has_lists:
-        table, faces = _ply_plyfile(data, face_list)
+        table, faces = _ply_plyfile(data, face_list, max_faces)
     elif fmt == "ascii":
         table = _ply_ascii_vertices(data, body_start, vertex, _lines_before(elements, vertex))
         faces = None if face is None else _ply_ascii_faces(data, body_start, face, face_list,
-                                                           _lines_before(elements, face))
+                                                           _lines_before(elements, face), max_faces,
+                                                           vertex.count)
     else:
         table, faces = _ply_binary(data, body_start, elements, vertex, face, face_list,
-                                   _PLY_FORMATS[fmt])
+                                   _PLY_FORMATS[fmt], max_faces)
     return _xyz(table), _normals_from(table, ("nx", "ny", "nz")), faces, label
+
+
+def _min_record_bytes(e: _PlyElement) -> int:
+    """The fewest bytes a binary record of ``e`` takes: its scalars and list counts, every list empty."""
+    return sum(np.dtype(p[1]).itemsize for p in e.props)
+
+
+def _check_declared_sizes(data: bytes, body_start: int, elements, fmt: str) -> None:
+    """Refuse, before anything is allocated for them, element counts the file cannot hold.
+
+    Binary: the elements' smallest possible records (:func:`_min_record_bytes`) times their counts must
+    fit, one after the other, in the bytes after the header. Ascii: one line per record.
+    """
+    if fmt == "ascii":
+        lines = data.count(b"\n", body_start) + (0 if data.endswith(b"\n") or len(data) <= body_start
+                                                  else 1)
+        needed = 0
+        for e in elements:
+            needed += e.count
+            if needed > lines:
+                raise _ply_error(f"the header declares {e.count:,} {e.name!r} records (one line each) but the "
+                                 f"file has only {lines:,} lines after the header, fewer than the "
+                                 f"{needed:,} records declared up to there need; the file was cut off during "
+                                 "transfer or export, or its header is damaged. Send the complete file.",
+                                 code="truncated_file")
+        return
+    offset = body_start
+    for e in elements:
+        size = _min_record_bytes(e)
+        left = max(len(data) - offset, 0)
+        if size * e.count > left:
+            least = "" if not e.has_lists else " at least"
+            raise _ply_error(f"the header declares {e.count:,} {e.name!r} records of{least} {size:,} "
+                             f"byte{'s' if size != 1 else ''} "
+                             f"each ({size * e.count:,} bytes) but only {left:,} bytes are left in the file "
+                             f"for them; the file was cut off during transfer or export, or its header is "
+                             "damaged. Send the complete file.", code="truncated_file")
+        offset += size * e.count
 
 
 def _lines_before(elements, element) -> int:
@@ -200,7 +254,7 @@ def _ply_ascii_vertices(data: bytes, body_start: int, vertex: _PlyElement,
 
 
 def _ply_binary(data: bytes, body_start: int, elements, vertex: _PlyElement, face, face_list,
-                endian: str):
+                endian: str, max_faces: int = 10_000_000):
     """Vertex table and faces of a binary PLY: each element located after the ones before it."""
     last = max(elements.index(vertex), elements.index(face) if face is not None else -1)
     offset, table, faces = body_start, None, None
@@ -213,7 +267,8 @@ def _ply_binary(data: bytes, body_start: int, elements, vertex: _PlyElement, fac
         if dtype is not None:
             if e is face:
                 faces = _uniform_polygons(np.frombuffer(data, dtype=dtype, count=e.count,
-                                                        offset=offset)[face_list])
+                                                        offset=offset)[face_list], max_faces,
+                                          vertex.count)
             offset += e.count * dtype.itemsize
             continue
         from planning.inputs.ply_lists import walk_list_element
@@ -225,7 +280,7 @@ def _ply_binary(data: bytes, body_start: int, elements, vertex: _PlyElement, fac
                              f"inside record {done + 1:,}; the file was cut off during transfer or "
                              "export. Send the complete file.", code="truncated_file")
         if e is face:
-            faces = _polygons(items, sizes)
+            faces = _polygons(items, sizes, max_faces, vertex.count)
         offset = end
     return table, faces
 
@@ -234,7 +289,8 @@ def _uniform_list_dtype(data: bytes, offset: int, e: _PlyElement, endian: str) -
     """The record dtype of an element whose lists have, on every record, the first record's length.
 
     None when some record differs (or the element does not fit in the file): the records must then
-    be walked one by one.
+    be walked one by one. A first record whose list count makes it longer than the rest of the file
+    is a file cut off (``truncated_file``).
     """
     fields, pos, lists = [], offset, []
     for p in e.props:
@@ -248,9 +304,15 @@ def _uniform_list_dtype(data: bytes, offset: int, e: _PlyElement, endian: str) -
         n = int(np.frombuffer(data, dtype=count_type, count=1, offset=pos)[0])
         if n < 0:
             return None
+        pos += count_type.itemsize + n * np.dtype(p[2]).itemsize
+        if pos > len(data):
+            raise _ply_error(f"the first {e.name!r} record's list {p[0]!r} declares {n:,} items, which "
+                             f"reach byte {pos:,} of a file of {len(data):,} bytes; the file was cut off "
+                             "or the record is damaged. Send the complete file.", code="truncated_file")
         fields += [("__count " + p[0], count_type), (p[0], endian + p[2], (n,))]
         lists.append((p[0], n))
-        pos += count_type.itemsize + n * np.dtype(p[2]).itemsize
+    if pos - offset >= 2 ** 31:                      # numpy's record size limit: walk such records
+        return None
     dtype = np.dtype(fields)
     if offset + e.count * dtype.itemsize > len(data):
         return None
@@ -260,23 +322,45 @@ def _uniform_list_dtype(data: bytes, offset: int, e: _PlyElement, endian: str) -
     return None
 
 
-def _polygons(indices: np.ndarray, sizes: np.ndarray) -> np.ndarray:
-    """Faces from concatenated vertex indices and sizes: triangles, polygons fan triangulated."""
+def _polygons(indices: np.ndarray, sizes: np.ndarray, max_faces: int = 10_000_000,
+              n_vertices: int | None = None) -> np.ndarray:
+    """Faces from concatenated vertex indices and sizes: triangles, polygons fan triangulated.
+
+    Float indices (an ascii file, or a float list type) must be whole numbers, and those too large to
+    convert to integers are refused as out of range before they are converted; the others are checked by
+    :func:`planning.inputs.validate.validate_faces`. More than ``max_faces`` triangles are refused before
+    they are built."""
     sizes = np.asarray(sizes, dtype=np.int64)
     _check_polygon_sizes(sizes, "PLY faces")
     values = np.asarray(indices)
-    if values.dtype.kind == "f" and not np.array_equal(values, np.round(values)):
-        raise _ply_error("a face refers to a vertex index that is not a whole number.")
-    return _fan_triangles(values.astype(np.int64), sizes)
+    if values.dtype.kind == "f":
+        with np.errstate(invalid="ignore"):
+            whole = np.isfinite(values) & (values == np.round(values))
+        if not whole.all():
+            k = int(np.argmax(~whole))
+            raise _ply_error(f"a face refers to vertex index {float(values[k])!r}, which is not a whole "
+                             "number.")
+        huge = np.abs(values) >= 2.0 ** 62
+        if huge.any():
+            k = int(np.argmax(huge))
+            face = int(np.searchsorted(np.cumsum(sizes), k, side="right"))
+            vertices = "" if n_vertices is None else f", but the file has {n_vertices:,} vertices"
+            raise _ply_error(f"face {face + 1:,} (counting from 1) refers to vertex {float(values[k]):.15g} "
+                             f"(counting from 0){vertices}. The file is damaged; export the mesh again.")
+    return _fan_triangles(values.astype(np.int64), sizes, max_faces,
+                          "The PLY faces split into")
 
 
-def _uniform_polygons(lists: np.ndarray) -> np.ndarray:
+def _uniform_polygons(lists: np.ndarray, max_faces: int = 10_000_000,
+                      n_vertices: int | None = None) -> np.ndarray:
     """Faces from an ``(F, n)`` array of vertex index lists all of one length ``n``."""
-    return _polygons(lists.reshape(-1), np.full(lists.shape[0], lists.shape[1] if lists.ndim == 2 else 0))
+    return _polygons(lists.reshape(-1), np.full(lists.shape[0], lists.shape[1] if lists.ndim == 2 else 0),
+                     max_faces, n_vertices)
 
 
 def _ply_ascii_faces(data: bytes, body_start: int, face: _PlyElement, face_list: str,
-                     skip_lines: int) -> np.ndarray:
+                     skip_lines: int, max_faces: int = 10_000_000,
+                     n_vertices: int | None = None) -> np.ndarray:
     """Faces of an ascii PLY: one record per line, the properties walked for every line at once."""
     if face.count == 0:
         return np.zeros((0, 3), dtype=np.int64)
@@ -305,6 +389,13 @@ def _ply_ascii_faces(data: bytes, body_start: int, face: _PlyElement, face_list:
             raise _ply_error(f"face line {row + 1} holds {int(counts[row])} values, fewer than its "
                              "properties need.")
         n = values[cursor]
+        room = line_end - cursor - 1                       # values left on the line after the count
+        with np.errstate(invalid="ignore"):
+            bad = ~((n >= 0) & (n == np.floor(n)) & (n <= room))
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise _ply_error(f"face line {row + 1} has the list count {float(n[row])!r}, which is not a "
+                             f"whole number from 0 to the {int(room[row])} values left on its line.")
         if p[0] == face_list:
             item_start, sizes = cursor + 1, n.astype(np.int64)
         cursor = cursor + 1 + n.astype(np.int64)
@@ -314,12 +405,13 @@ def _ply_ascii_faces(data: bytes, body_start: int, face: _PlyElement, face_list:
         raise _ply_error(f"face line {row + 1} holds {int(counts[row])} values, but its list counts "
                          f"call for {int(cursor[row] - line_end[row] + counts[row])}.")
     _check_polygon_sizes(sizes, "PLY faces")
+    _check_faces(int(sizes.sum()) - 2 * sizes.size, max_faces, "The PLY faces split into")
     first = np.cumsum(sizes) - sizes
     at = np.repeat(item_start, sizes) + (np.arange(int(sizes.sum())) - np.repeat(first, sizes))
-    return _polygons(values[at], sizes)
+    return _polygons(values[at], sizes, max_faces, n_vertices)
 
 
-def _ply_plyfile(data: bytes, face_list: str | None):
+def _ply_plyfile(data: bytes, face_list: str | None, max_faces: int = 10_000_000):
     """Vertex table (and faces) via plyfile: for a vertex element that holds list properties."""
     import plyfile
 
@@ -339,7 +431,7 @@ def _ply_plyfile(data: bytes, face_list: str | None):
         if lists.dtype == object:
             sizes = np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
             items = np.concatenate(lists) if len(lists) else np.zeros(0, dtype=np.int64)
-            faces = _polygons(items, sizes)
+            faces = _polygons(items, sizes, max_faces, len(table))
         else:
-            faces = _uniform_polygons(lists)
+            faces = _uniform_polygons(lists, max_faces, len(table))
     return np.asarray(table[scalar]), faces

@@ -5,6 +5,11 @@ record before it; when the lists are not all of one length (mixed triangles and 
 records are walked by one compiled loop (:func:`_walk_records`, numba) and the list items then
 gathered with numpy. Imported only for such files; the common case, lists all of one length, is a
 ``numpy.frombuffer`` view in :mod:`planning.inputs.ply`.
+
+The walk allocates 16 bytes per record, and only for the element whose list is gathered (the faces);
+:mod:`planning.inputs.ply` has checked before that the declared records can fit in the file (and the
+faces under ``max_faces``), so a header that claims billions of records allocates nothing. The items
+are gathered a byte column at a time: about 8 bytes of indices per item besides the items themselves.
 """
 
 from __future__ import annotations
@@ -20,10 +25,11 @@ def _walk_records(buf, start, count, kinds, sizes, count_sizes, big_endian, want
     ``kinds[j]`` is 0 for a scalar of ``sizes[j]`` bytes, 1 for a list with a ``count_sizes[j]``-byte
     unsigned count and items of ``sizes[j]`` bytes. Returns (end offset or -1 if a record runs past
     the end of ``buf``, records complete, byte offset of the first item of list ``want`` per record,
-    item count of list ``want`` per record).
+    item count of list ``want`` per record; both empty when ``want`` is -1).
     """
-    item_at = np.zeros(count, dtype=np.int64)
-    n_items = np.zeros(count, dtype=np.int64)
+    kept = count if want >= 0 else 0
+    item_at = np.zeros(kept, dtype=np.int64)
+    n_items = np.zeros(kept, dtype=np.int64)
     pos = start
     n = buf.size
     for i in range(count):
@@ -54,7 +60,8 @@ def walk_list_element(data: bytes, offset: int, count: int, props, endian: str, 
     ``props`` are the element's properties as in :mod:`planning.inputs.ply` (``(name, type)`` for
     scalars, ``(name, count type, item type)`` for lists); ``want`` names the list to gather (None:
     only the end offset). Returns (end offset or -1 if the file ends inside a record, complete
-    records, items of ``want`` concatenated as its item type, items per record).
+    records, items of ``want`` concatenated as its item type, items per record). The caller has checked
+    that ``count`` records of the smallest possible size fit in ``data`` after ``offset``.
     """
     buf = np.frombuffer(data, dtype=np.uint8)
     kinds = np.array([0 if len(p) == 2 else 1 for p in props], dtype=np.int64)
@@ -69,7 +76,11 @@ def walk_list_element(data: bytes, offset: int, count: int, props, endian: str, 
         return int(end), int(done), None, None
     item = np.dtype(endian + props[w][2])
     first = np.cumsum(n_items) - n_items
-    rank = np.arange(int(n_items.sum())) - np.repeat(first, n_items)
-    at = np.repeat(item_at, n_items) + rank * item.itemsize
-    raw = buf[at[:, None] + np.arange(item.itemsize)]
-    return int(end), int(done), np.ascontiguousarray(raw).view(item).reshape(-1), n_items
+    at = np.arange(int(n_items.sum()), dtype=np.int64)
+    at -= np.repeat(first, n_items)                       # rank of each item in its list
+    at *= item.itemsize
+    at += np.repeat(item_at, n_items)                     # byte offset of each item
+    raw = np.empty((at.size, item.itemsize), dtype=np.uint8)
+    for k in range(item.itemsize):
+        raw[:, k] = buf[at + k]
+    return int(end), int(done), raw.view(item).reshape(-1), n_items

@@ -3,8 +3,9 @@
 :class:`_Source` holds a cloud given as bytes or as a path: the first MiB (``head``, where every
 header must end) is read at once, the whole body only when a reader asks for it, so a header that
 claims billions of points fails before the body is read. :func:`_check_bytes` (``max_bytes``,
-``file_too_large``) and :func:`_check_count` (``max_points``, ``too_many_points``) raise
-:class:`~planning.errors.InputTooLarge` (HTTP 413) with the limit and what to do about it.
+``file_too_large``), :func:`_check_count` (``max_points``, ``too_many_points``) and
+:func:`_check_faces` (``max_faces``, ``too_many_faces``) raise :class:`~planning.errors.InputTooLarge`
+(HTTP 413) with the limit and what to do about it.
 """
 
 from __future__ import annotations
@@ -109,3 +110,13 @@ def _check_count(n: int, max_points: int) -> None:
             f"The cloud has {n:,} points; the limit is {max_points:,}. Decimate the scan "
             "(e.g. a voxel grid of 0.2-0.5 mm) and submit it again.",
             code="too_many_points", n_points=int(n), max_points=int(max_points))
+
+
+def _check_faces(n: int, max_faces: int, what: str = "The mesh has") -> None:
+    """Refuse a mesh of more than ``max_faces`` triangles (``what`` starts the message, e.g. "The PLY
+    header declares at least")."""
+    if n > max_faces:
+        raise InputTooLarge(
+            f"{what} {n:,} triangles; the limit input.max_faces is {max_faces:,}. Decimate the mesh "
+            "(or raise input.max_faces) and submit it again.",
+            code="too_many_faces", n_faces=int(n), max_faces=int(max_faces), parameter="input.max_faces")

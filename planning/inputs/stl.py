@@ -9,12 +9,14 @@ the keywords and parsing the numbers left in one ``numpy.fromstring`` call (12 p
 
 The three corners of each facet are merged with every exactly equal vertex
 (:func:`planning.inputs.mesh._merge_vertices`), so the faces index shared vertices; the facet normals
-are not kept (``normals`` is None). The triangle count is checked before the body is decoded: more
-than ``2 x max_points`` triangles is refused (a closed mesh has about half as many vertices as
-triangles); the merged vertex count is then checked against ``max_points`` exactly.
+are not kept (``normals`` is None). The triangle count (the binary header's, or the ascii ``endfacet``
+count) is checked before the body is decoded: more than ``2 x max_points`` triangles is refused (a
+closed mesh has about half as many vertices as triangles), and more than ``max_faces``; a binary
+count must also match the file size exactly. The merged vertex count is then checked against
+``max_points`` exactly.
 Errors: ``truncated_file`` (fewer bytes than the count needs, a last facet or ``endsolid``
 missing), ``unreadable_file`` (trailing bytes, words among the numbers, a facet without three
-vertices), ``empty_cloud`` (0 triangles), ``too_many_points``.
+vertices), ``empty_cloud`` (0 triangles), ``too_many_points``, ``too_many_faces``.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import numpy as np
 
 from planning.errors import InputError
 from planning.inputs.mesh import _merge_vertices
-from planning.inputs.source import _check_count, _Source
+from planning.inputs.source import _check_count, _check_faces, _Source
 
 _HEADER = 84
 _RECORD = np.dtype([("normal", "<f4", (3,)), ("v", "<f4", (3, 3)), ("attr", "<u2")])
@@ -64,30 +66,31 @@ def _looks_like_stl(src: _Source) -> bool:
     return _looks_like_ascii_stl(src.head) or (src.size > _HEADER and _is_binary_stl(src))
 
 
-def _read_stl(src: _Source, max_points: int):
+def _read_stl(src: _Source, max_points: int, max_faces: int = 10_000_000):
     if _is_binary_stl(src) or not _looks_like_ascii_stl(src.head):
-        raw, label = _binary_vertices(src, max_points), "stl-binary"
+        raw, label = _binary_vertices(src, max_points, max_faces), "stl-binary"
     else:
-        raw, label = _ascii_vertices(src, max_points), "stl-ascii"
+        raw, label = _ascii_vertices(src, max_points, max_faces), "stl-ascii"
     points, inverse = _merge_vertices(raw)
     _check_count(points.shape[0], max_points)
     return points, None, inverse.reshape(-1, 3), label
 
 
-def _check_triangles(src: _Source, count: int, max_points: int) -> None:
+def _check_triangles(src: _Source, count: int, max_points: int, max_faces: int, what: str) -> None:
     if count == 0:
         raise InputError("The STL file holds 0 triangles; the mesh is empty.", code="empty_cloud")
     if count > 2 * max_points:
         _check_count(count // 2, max_points)
+    _check_faces(count, max_faces, what)
 
 
-def _binary_vertices(src: _Source, max_points: int) -> np.ndarray:
+def _binary_vertices(src: _Source, max_points: int, max_faces: int) -> np.ndarray:
     count = _binary_count(src)
     if count is None:
         raise _stl_error(src, f"the file is {src.size} bytes, shorter than the 84-byte binary header "
                               "(80 bytes of text and the triangle count); it was cut off or is not "
                               "an STL file.", code="truncated_file")
-    _check_triangles(src, count, max_points)
+    _check_triangles(src, count, max_points, max_faces, "The binary STL header declares")
     needed = _HEADER + _RECORD.itemsize * count
     if src.size < needed:
         raise _stl_error(src, f"the header declares {count:,} triangles ({needed:,} bytes) but the file "
@@ -102,7 +105,7 @@ def _binary_vertices(src: _Source, max_points: int) -> np.ndarray:
     return table["v"].reshape(-1, 3)
 
 
-def _ascii_vertices(src: _Source, max_points: int) -> np.ndarray:
+def _ascii_vertices(src: _Source, max_points: int, max_faces: int) -> np.ndarray:
     text = _SOLID_LINE.sub(b" ", src.data().lower())
     n_facets = text.count(b"endfacet")
     n_open = text.count(b"facet") - n_facets
@@ -112,7 +115,7 @@ def _ascii_vertices(src: _Source, max_points: int) -> np.ndarray:
         raise _stl_error(src, f"the last facet or the closing 'endsolid' line is missing after "
                               f"{n_facets:,} complete facets; the file was cut off. Send the complete "
                               "file.", code="truncated_file")
-    _check_triangles(src, n_facets, max_points)
+    _check_triangles(src, n_facets, max_points, max_faces, "The STL file holds")
     if n_vertices != 3 * n_facets:
         raise _stl_error(src, f"{n_facets:,} facets hold {n_vertices:,} 'vertex' lines; every facet "
                               "needs exactly three.")

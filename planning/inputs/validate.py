@@ -63,9 +63,14 @@ def validate_faces(faces, points: np.ndarray) -> np.ndarray | None:
     """
     if faces is None:
         return None
+    return _valid_faces(faces, points)[0]
+
+
+def _valid_faces(faces, points: np.ndarray) -> tuple[np.ndarray, int]:
+    """:func:`validate_faces` of faces that are not None, and how many degenerate triangles it dropped."""
     tri = np.asarray(faces)
     if tri.size == 0:
-        return np.zeros((0, 3), dtype=np.int64)
+        return np.zeros((0, 3), dtype=np.int64), 0
     if tri.ndim != 2 or tri.shape[1] != 3:
         raise InputError(f"Faces must be an (T, 3) array of vertex indices; got shape {tri.shape}.",
                          code="unreadable_file")
@@ -88,7 +93,10 @@ def validate_faces(faces, points: np.ndarray) -> np.ndarray | None:
         p0 = points[t[:, 0]]
         cross = np.cross(points[t[:, 1]] - p0, points[t[:, 2]] - p0)
         keep[i:i + _COV_CHUNK] &= np.einsum("ij,ij->i", cross, cross) > (_AREA_RTOL * extent * extent) ** 2
-    return tri if keep.all() else np.ascontiguousarray(tri[keep])
+    n_kept = int(np.count_nonzero(keep))
+    if n_kept == tri.shape[0]:
+        return tri, 0
+    return np.ascontiguousarray(tri[keep]), tri.shape[0] - n_kept
 
 
 def _as_point_array(points) -> np.ndarray:

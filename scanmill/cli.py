@@ -11,6 +11,7 @@ import argparse
 import json
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import scanmill
@@ -125,7 +126,11 @@ def cmd_plan(args) -> int:
     config = parse_config(_load_config(args))
     progress = _Progress(quiet=args.quiet)
     progress("read", 0.0, str(args.input))
-    cloud = read_input(args.input, config.input, fmt=args.format)
+    with warnings.catch_warnings():
+        # what a reader changed is in cloud.warnings (printed with the plan's); a library's own warning
+        # lines (numpy, Pillow, laspy) would only stand before an `error [code]` line or the summary
+        warnings.simplefilter("ignore")
+        cloud = read_input(args.input, config.input, fmt=args.format)
     progress("read", 1.0, f"{cloud.points.shape[0]} points ({cloud.source_format})")
     base_dir = Path(args.config).resolve().parent if getattr(args, "config", None) else Path.cwd()
     outcome = run_plan(cloud, config, name=Path(args.input).name, progress=progress, base_dir=base_dir)
@@ -305,6 +310,13 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except PlanningError as exc:
         print(f"error [{exc.code}]: {exc.message}", file=sys.stderr)
+        return EXIT_ERROR
+    except MemoryError:
+        # the readers bound their work by the header and the limits; this is the net under them and under the
+        # stages: no traceback, one line that says what to change
+        print("error [too_large_for_memory]: this machine has not enough memory for this input with these "
+              "parameters; decimate the scan, lower input.max_points / input.max_faces / input.relief.max_pixels, "
+              "or coarsen orientations.phi_step_deg / theta_step_deg", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -11,6 +11,7 @@ caller are injected as dependencies (``service.deps``).
 from __future__ import annotations
 
 import logging
+import threading
 from contextlib import asynccontextmanager
 
 import anyio
@@ -32,6 +33,7 @@ from service.backends import make_backend
 from service.db import database_url
 from service.storage import open_storage
 from service.store import JobStore
+from service.validation import SubmissionChecker
 
 log = logging.getLogger("scanmill.service")
 
@@ -74,7 +76,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         backend.start()
         retention = RetentionSweeper(settings, store, storage).start()
         app.state.storage, app.state.store, app.state.backend = storage, store, backend
-        app.state.jobs = JobService(settings, store, storage, backend, anyio.CapacityLimiter(1))
+        checker = SubmissionChecker(settings)
+        threading.Thread(target=checker.warm, name="check-warm", daemon=True).start()
+        app.state.jobs = JobService(settings, store, storage, backend, anyio.CapacityLimiter(1), checker)
         log.info("scanmill %s serving; backend %s; jobs in %s; files in %s (%s)", scanmill.__version__,
                  backend.name, store.display_url, storage.root, storage.kind)
         try:

@@ -10,9 +10,11 @@ Two request forms:
 
 Uploads are copied into a fresh staging folder under ``DATA_DIR/tmp`` (with their SHA-256), the
 parameters are validated by ``schemas.params.parse_config`` and the cloud is read once by
-``planning.inputs.cloud.read_input`` in a worker thread, so a truncated file, garbage, NaN, an empty
-cloud or a header claiming billions of points is answered at once with a 4xx problem naming what
-is wrong. On any error the staging folder is removed: nothing half-written stays behind.
+``planning.inputs.cloud.read_input`` in a child process under the job's memory limit
+(:mod:`service.validation`), never in the API process, so a truncated file, garbage, NaN, an empty
+cloud, an image bomb or a header claiming billions of points is answered with a 4xx problem naming
+what is wrong while the service goes on answering everyone else. On any error the staging folder is
+removed: nothing half-written stays behind.
 
 Before anything is written the free space of the data directory is checked
 (:func:`service.diskspace.check_free_space`, with the declared ``Content-Length``, then each part's
@@ -29,6 +31,7 @@ import json
 import logging
 import os
 import re
+from collections.abc import Awaitable, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,16 +45,13 @@ from starlette.requests import Request
 
 from planning.errors import ParameterError
 from planning.inputs.cloud import FORMATS, SUPPORTED
-from planning.inputs.facet_points import planned_point_count
-from planning.inputs.scale import check_part_size
 from schemas.api import InlineCloud
 from schemas.params import PlanConfig, parse_config
-from service.admission import check_job_budget
 from service.diskspace import InsufficientStorage, check_free_space
 from service.problems import ApiError, disk_full_error, is_disk_full
 from service.settings import Settings
 from service.storage import Storage, UploadTooLarge, cloud_suffix, copy_stream
-from service.workers import read_job_cloud
+from service.validation import SubmissionChecker, fixture_paths
 
 MULTIPART_FIELDS = {"cloud", "parameters", "name", "format", "time_limit_s", "fixtures"}
 # image parts are scans too: an image is read as a relief (input.relief)
@@ -179,35 +179,6 @@ def check_idempotency_key(key: str | None) -> str | None:
                        "The Idempotency-Key header must be 1 to 255 visible ASCII characters (e.g. a UUID).",
                        errors=["header Idempotency-Key: 1-255 visible ASCII characters"])
     return key
-
-
-def _validate_cloud(path: Path, fmt: str | None, config: PlanConfig, settings: Settings) -> dict[str, Any]:
-    """Read the stored cloud once (in a worker thread), as the worker will, and describe it; raises planning errors."""
-    cloud = read_job_cloud(path, fmt, config, settings.max_points)
-    if config.normals.method == "input" and cloud.normals is None:
-        raise ParameterError("normals.method is 'input' but the file carries no normals (PLY nx ny nz, PCD "
-                             "normal_x normal_y normal_z); use normals.method = sphere_throwing",
-                             code="missing_normals")
-    check_part_size(cloud.points, units=config.input.units, tool_diameter_mm=config.tool.diameter_mm,
-                    min_tool_diameters=config.input.min_part_tool_diameters,
-                    max_extent_mm=config.input.max_extent_mm, accept_small_part=config.input.accept_small_part)
-    extent = [float(v) for v in cloud.points.max(axis=0) - cloud.points.min(axis=0)]
-    # a mesh is planned on points laid on its facets too (planning/inputs/facet_points.py)
-    n_planned = planned_point_count(cloud.points, cloud.faces, config.input.mesh_sample_mm,
-                                    config.input.mesh_max_points)
-    check_job_budget(config, n_planned, settings, extent_mm=extent)
-    return {"format": cloud.source_format, "n_points": int(cloud.points.shape[0]),
-            "has_normals": cloud.normals is not None, "extent_mm": extent}
-
-
-def _validate_fixture(path: Path, settings: Settings, index: int) -> None:
-    from planning.inputs.cloud import read_cloud
-    from planning.errors import PlanningError
-    try:
-        read_cloud(path, max_points=settings.max_points, min_points=1)
-    except PlanningError as exc:
-        exc.message = f"fixture {index}: {exc.message}"
-        raise
 
 
 def _request_hash(config: PlanConfig, input_: dict[str, Any], time_limit_s: float | None) -> str:
@@ -501,32 +472,20 @@ def _name_the_upload(exc, stored: str, name: str | None) -> None:
         exc.args = (exc.message,)
 
 
-async def validate_submission(sub: Submission, settings: Settings, limiter: anyio.CapacityLimiter) -> None:
-    """Read the cloud and the fixtures once, off the event loop, and fill in what was read (4xx on errors)."""
+async def validate_submission(sub: Submission, checker: SubmissionChecker,
+                              disconnected: Callable[[], Awaitable[bool]] | None = None) -> None:
+    """Read the cloud and the fixtures once, in a child process (:mod:`service.validation`), and fill in what
+    was read; 4xx problems on errors, :class:`service.validation.ClientGone` if the client left meanwhile."""
+    from planning.errors import PlanningError
+
     path = sub.staging / Path(sub.input["path"]).name
-
-    def work() -> dict[str, Any]:
-        from planning.errors import PlanningError
-        what = "cloud"
-        try:
-            info = _validate_cloud(path, sub.input.get("fmt"), sub.config, settings)
-            for i, fp in enumerate(sub.input["fixture_paths"]):
-                what = f"fixture {i}"
-                _validate_fixture(sub.staging / Path(fp).name, settings, i)
-            return info
-        except PlanningError as exc:
-            if what == "cloud":
-                _name_the_upload(exc, path.name, sub.input.get("name"))
-            raise
-        except ApiError:
-            raise
-        except MemoryError:
-            raise ApiError(413, "too_large_for_memory",
-                           f"The {what} needs more memory to read than the service has; decimate it.") from None
-        except Exception as exc:  # noqa: BLE001 - a reader bug must not become a 500 for the client
-            log.exception("reading the submitted %s failed unexpectedly", what)
-            raise ApiError(422, "unreadable_file",
-                           f"The {what} file could not be read ({type(exc).__name__}); export it again as "
-                           f"{SUPPORTED}.") from None
-
-    sub.input.update(await anyio.to_thread.run_sync(work, limiter=limiter))
+    spec = {"path": str(path), "fmt": sub.input.get("fmt"), "parameters": sub.config.to_json_dict(),
+            "fixtures": fixture_paths(sub.staging, sub.input)}
+    try:
+        info = await checker.check(spec, disconnected=disconnected)
+    except PlanningError as exc:
+        if not exc.message.startswith("fixture "):
+            _name_the_upload(exc, path.name, sub.input.get("name"))
+        raise
+    sub.warnings.extend(info.pop("warnings", []))
+    sub.input.update(info)

@@ -39,6 +39,7 @@ from service.intake import (
 )
 from service.problems import ApiError
 from service.settings import Settings
+from service.validation import ClientGone, SubmissionChecker
 from service.storage import (
     Storage,
     gzip_alias,
@@ -103,9 +104,10 @@ class JobService:
     """What the routes do, independent of HTTP details."""
 
     def __init__(self, settings: Settings, store: JobStore, storage: Storage, backend: ExecutionBackend,
-                 limiter: anyio.CapacityLimiter):
+                 limiter: anyio.CapacityLimiter, checker: SubmissionChecker):
         self.settings, self.store, self.storage, self.backend, self.limiter = (settings, store, storage, backend,
                                                                               limiter)
+        self.checker = checker           # reads the submitted files in child processes
 
     # -- submit ----------------------------------------------------------------------------------
     async def submit(self, request: Request, who: Principal, idempotency_key: str | None) -> tuple[Job, bool]:
@@ -120,7 +122,13 @@ class JobService:
             # the quotas, before the cloud is read (cheap); the insert checks them again atomically
             size = await anyio.to_thread.run_sync(tree_bytes, sub.staging)
             await anyio.to_thread.run_sync(quotas.check, self.settings, self.store, who.owner, size)
-            await validate_submission(sub, self.settings, self.limiter)
+            try:
+                await validate_submission(sub, self.checker, disconnected=request.is_disconnected)
+            except ClientGone:
+                log.info("submission dropped: the client closed the connection while its file was checked; "
+                         "no job was created")
+                raise ApiError(400, "client_disconnected", "The client closed the connection before the "
+                                                          "submission was accepted; no job was created.") from None
             try:
                 job = await anyio.to_thread.run_sync(self._store_job, sub, who, key, size)
             except IdempotencyConflict as exc:     # the same key raced in from a parallel request
@@ -129,9 +137,24 @@ class JobService:
                 raise quotas.refusal(exc) from None
         finally:
             self.storage.discard(sub.staging)      # a no-op once it was moved into the job's folder
+        if await request.is_disconnected():
+            # the client gave up between the check and now: it would never learn the job's id
+            await anyio.to_thread.run_sync(self._drop_unanswered, job)
+            raise ApiError(400, "client_disconnected", "The client closed the connection before the submission "
+                                                      "was accepted; the job was cancelled.")
         await anyio.to_thread.run_sync(self.backend.submitted, job)
         log.info("job %s: accepted (%s, %s points)", job.id, job.input.get("name"), job.input.get("n_points"))
         return job_view(job), False
+
+    def _drop_unanswered(self, job: JobRecord) -> None:
+        """Remove a job stored for a client that closed its connection before the 202: cancelled (its worker
+        stopped, should one have claimed it already), its files and its row removed, its id logged."""
+        self.store.cancel(job.id, job.owner)
+        self.backend.cancel(job.id)
+        self.storage.remove_job(job.id)
+        self.store.delete(job.id, job.owner)
+        log.warning("job %s: removed before it started: its client closed the connection before the answer",
+                    job.id)
 
     def _replay(self, existing: JobRecord, sub: Submission) -> Job:
         if existing.request_hash != sub.request_hash:

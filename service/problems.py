@@ -117,7 +117,9 @@ def problem_response(status: int, code: str, detail: str | None, *, instance: st
 
 # limits named in planning error details -> the setting that bounds them on this service
 _LIMIT_NAMES = {"max_points": "input.max_points / SCANMILL_MAX_POINTS", "max_bytes": "SCANMILL_MAX_UPLOAD_BYTES",
-                "min_points": "input.min_points"}
+                "min_points": "input.min_points", "max_faces": "input.max_faces",
+                "max_pixels": "input.relief.max_pixels"}
+_LIMITED_CODES = ("too_many_points", "file_too_large", "too_few_points", "too_many_faces", "too_many_pixels")
 
 
 def api_error_response(exc: ApiError, instance: str | None = None) -> JSONResponse:
@@ -134,7 +136,7 @@ def planning_problem(exc: PlanningError, instance: str | None = None) -> JSONRes
     if details.get("problems"):
         extra["errors"] = [str(p) for p in details["problems"]]
     for key, name in _LIMIT_NAMES.items():
-        if key in details and exc.code in ("too_many_points", "file_too_large", "too_few_points"):
+        if key in details and exc.code in _LIMITED_CODES:
             extra["limit"], extra["limit_value"] = name, details[key]
             break
     return problem_response(status, exc.code, exc.message, instance=instance, **extra)

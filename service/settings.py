@@ -114,6 +114,14 @@ class Settings(BaseModel):
     max_points: int = Field(20_000_000, ge=10, description="Most points accepted in a cloud (caps input.max_points).")
     max_inline_points: int = Field(100_000, ge=10, description="Most points in an inline (JSON) cloud.")
     max_fixtures: int = Field(8, ge=0, le=64, description="Most fixture files per job.")
+    validation_workers: int = Field(
+        2, ge=1, le=64,
+        description="Submissions whose files are read and checked at once, each in a child process under the job "
+                    "memory limit (SCANMILL_JOB_MEMORY_MB), never in the API process; more wait their turn.")
+    validation_time_limit_s: float = Field(
+        300.0, gt=0, le=86400,
+        description="Longest the reading and checking of one submission may take; past it the submission is "
+                    "refused with 422 validation_timeout.")
     log_level: str = Field("info", pattern="^(critical|error|warning|info|debug)$")
     # --- budgets, quotas, retention and the edge of the service ---------------------------------
     job_memory_mb: int | None = Field(
@@ -151,6 +159,11 @@ class Settings(BaseModel):
         0.0, ge=0, le=3600,
         description="Testing aid only: a worker waits this long before reading the cloud, so that cancellation, "
                     "time limits and restarts can be exercised on small clouds. Keep 0 in production.")
+    validation_start_delay_s: float = Field(
+        0.0, ge=0, le=3600,
+        description="Testing aid only: the check of a submission waits this long in its child process before "
+                    "reading the files, so that a client leaving mid-check and checks side by side can be "
+                    "exercised on small files. Keep 0 in production.")
 
     @field_validator("worker_threads", "database_url", "broker_url", "storage", "broker_visibility_timeout_s",
                      mode="before")

@@ -1,7 +1,8 @@
 """``scanmill view PLAN_DIR``: the viewer page for a plan on disk, served on 127.0.0.1.
 
-The same page as the service's ``GET /jobs/{id}/viewer``. The plan's files are served only with a
-random key made at start (``Authorization: Bearer``), which the printed address hands to the page in
+The same page as the service's ``GET /jobs/{id}/viewer``. Only the plan's viewer files, ``plan.json``
+and its pictures are served, and only as regular files of the plan folder itself (no symbolic link,
+nothing that resolves outside it: :func:`plan_file`). They are served only with a random key made at start (``Authorization: Bearer``), which the printed address hands to the page in
 its fragment (``#key=...``, never sent to a server, so never in a log); other users of the machine
 who find the port get 401.
 """
@@ -42,13 +43,30 @@ def create_local_app(plan_dir: Path, key: str) -> FastAPI:
         if not given.lower().startswith("bearer ") or not hmac.compare_digest(given[7:].strip().encode(), key.encode()):
             return problem_response(401, "unauthenticated", "Open the address `scanmill view` printed: it carries "
                                     "the key.", headers={"WWW-Authenticate": 'Bearer realm="scanmill view"'})
-        path = plan_dir / name
-        if name not in SERVED or not path.is_file():
+        path = plan_file(plan_dir, name) if name in SERVED else None
+        if path is None:
             return problem_response(404, "artifact_not_found", f"The plan has no {name[:100]!r}.")
         return FileResponse(path, headers={"Cache-Control": "no-store"})
 
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     return app
+
+
+def plan_file(plan_dir: Path, name: str) -> Path | None:
+    """``plan_dir / name`` if it is a regular file of the plan folder itself: not a symbolic link (whatever it
+    points to), and resolving inside the folder (the rule the service's artifact storage follows); else None.
+    A plan folder holding ``plan.json -> /etc/passwd`` serves nothing of the machine's other files."""
+    root = plan_dir.resolve()
+    path = root / name
+    try:
+        if path.is_symlink():
+            return None
+        resolved = path.resolve(strict=True)
+    except (OSError, RuntimeError):
+        return None
+    if resolved.parent != root or not resolved.is_file():
+        return None
+    return resolved
 
 
 def free_port(host: str) -> int:

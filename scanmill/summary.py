@@ -55,7 +55,8 @@ def summary_lines(plan: dict) -> list[str]:
     not computed), their total, and the points left unfinished by the area's finishing when the plan
     reports them (``unmachined.per_area``, else ``path.finishing.unmachined_points``). Then
     ``total machining time H:MM`` (the sum of the rows; the simulated time too when the programs
-    were simulated), ``verification: STATUS - message`` (a failed verdict lists its offences one
+    were simulated), per area and tool what the simulated machine does (feed length, its share in air,
+    plunges, volume removed, minutes; when the plan has ``verification.areas[].operations``), ``verification: STATUS - message`` (a failed verdict lists its offences one
     per line), and the unmachined share: ``unmachined.share`` when the plan has it, else
     1 - ``verification.deviation.finished_share`` (not finished within tolerance, simulation).
     """
@@ -96,6 +97,7 @@ def summary_lines(plan: dict) -> list[str]:
     if status in ("passed", "failed") and sim_s:
         total += f"; simulated {_hmm(sim_s)}"
     lines.append(total)
+    lines += _operation_lines(v)
 
     if v is None:
         lines.append("verification: not run")
@@ -119,6 +121,24 @@ def summary_lines(plan: dict) -> list[str]:
     else:
         lines.append("unmachined: unknown (no finishing coverage in the plan and no simulation)")
     return lines
+
+
+def _operation_lines(v: dict | None) -> list[str]:
+    """Per area (machining order) and tool, what the simulated machine does: feed length and its share in
+    air, straight plunges into material, volume removed, time (``verification.areas[].operations``)."""
+    areas = [a for a in (v or {}).get("areas") or [] if isinstance(a, dict) and a.get("operations")]
+    if not areas:
+        return []
+    out = ["simulated per operation (feed in air: moves that removed no material):"]
+    for a in areas:
+        for op in a["operations"]:
+            plunges = op.get("plunges_into_material") or 0
+            out.append(f"  area {a.get('area')} {op.get('operation', '?'):9s} T{op.get('tool')}: feed "
+                       f"{(op.get('feed_mm') or 0) / 1000:.1f} m, {op.get('air_share') or 0:.0%} in air"
+                       + (f", {plunges} straight plunges into material" if plunges else "")
+                       + f", removed {(op.get('removed_mm3') or 0) / 1000:.1f} cm3, "
+                       f"{_minutes(op.get('machining_time_s'))} min")
+    return out
 
 
 def format_summary(plan: dict) -> str:

@@ -337,6 +337,27 @@ class DeviationFigures(_Out):
                                             "confirm are resolution artefacts (cusps and seams finer than the rays).")
 
 
+class OperationFigures(_Out):
+    """What one tool's moves in an area's program do on the simulated stock: how far they feed, how much of
+    that cuts nothing (air), what they remove and how long they take. Air is measured on the stock model at
+    ``simulate.resolution_mm``: a feed move whose swept tool removes less than 1e-6 mm^3 there counts as air
+    (a finishing pass that takes off less than a ray's reach may read as air; the roughing figures are the
+    ones to judge air cutting by)."""
+
+    tool: int = Field(..., description="The tool's T number.")
+    operation: Literal["roughing", "finishing"] = Field(
+        ..., description="'roughing' for post.roughing_tool_number, else 'finishing'.")
+    feed_mm: float = Field(..., description="Length of the feed moves (G1, G2, G3), mm.")
+    air_feed_mm: float = Field(..., description="Length of the feed moves that removed no material, mm.")
+    air_share: float = Field(..., description="air_feed_mm / feed_mm (0 without feed moves).")
+    rapid_mm: float = Field(..., description="Length of the rapids (G0), mm.")
+    removed_mm3: float = Field(..., description="Material these moves removed from the carried stock, mm^3.")
+    machining_time_s: float = Field(..., description="Feed moves at the tool's programmed feed, rapids at "
+                                                     "post.rapid_mm_min, s.")
+    plunges_into_material: int = Field(0, description="Feed moves within 10 degrees of straight down the tool "
+                                                      "axis that removed material (roughing end mill only).")
+
+
 class AreaVerification(_Out):
     """What the simulation found for one area's program."""
 
@@ -352,6 +373,8 @@ class AreaVerification(_Out):
     plunges_into_material: int = Field(
         0, description="Feed moves of the roughing end mill straight down (within 10 degrees of the tool axis) that "
                        "removed material: plunges into solid stock (reported; not part of the verdict).")
+    operations: list[OperationFigures] = Field(
+        default_factory=list, description="The program's moves per tool (roughing first), as the simulation ran them.")
     deviation: DeviationFigures | None = None
 
 

@@ -39,6 +39,7 @@ from planning.simulate.tools import finishing_shape, roughing_shape
 from schemas.plan import (
     AreaVerification,
     DeviationFigures,
+    OperationFigures,
     Verification,
     VerificationOffence,
 )
@@ -128,6 +129,39 @@ def _plunges(motion: ProgramMotion, removed_mm3: np.ndarray, roughing_tool: int)
     down = -np.einsum("ij,ij->i", d, motion.axis)
     steep = down > length * math.cos(math.radians(PLUNGE_DEG))
     return int((steep & (motion.kind == FEED) & (motion.tool == roughing_tool) & (removed_mm3 > 1e-6)).sum())
+
+
+#: A feed move that removed less than this from the stock model cut nothing: it fed through air (mm^3).
+AIR_MM3 = 1e-6
+
+
+def operation_figures(motion: ProgramMotion, removed_mm3: np.ndarray, config) -> list[OperationFigures]:
+    """Per tool of ``motion`` (roughing first, then by T number): feed length, the part of it that removed no
+    material (``removed_mm3`` per move below :data:`AIR_MM3`), rapid length, removed volume, machining time
+    (as :func:`_machining_time_s`) and straight plunges into material. Lengths mm, volumes mm^3, times s."""
+    out = []
+    if motion.n_moves == 0:
+        return out
+    length = np.linalg.norm(motion.end_mm - motion.start_mm, axis=1)
+    feed = motion.kind != RAPID
+    rough = int(config.post.roughing_tool_number)
+    tools = sorted({int(t) for t in np.unique(motion.tool)}, key=lambda t: (t != rough, t))
+    for t in tools:
+        mine = motion.tool == t
+        f = mine & feed
+        feed_mm = float(length[f].sum())
+        air_mm = float(length[f & (removed_mm3 < AIR_MM3)].sum())
+        rapid_mm = float(length[mine & ~feed].sum())
+        if feed_mm == 0.0 and rapid_mm == 0.0:     # T0 before the first tool change: nothing moves
+            continue
+        time_s = 60.0 * (rapid_mm / config.post.rapid_mm_min + feed_mm / max(_feed_for(config, t), 1e-9))
+        out.append(OperationFigures(
+            tool=t, operation="roughing" if t == rough else "finishing", feed_mm=round(feed_mm, 1),
+            air_feed_mm=round(air_mm, 1), air_share=round(air_mm / feed_mm, 4) if feed_mm > 0 else 0.0,
+            rapid_mm=round(rapid_mm, 1), removed_mm3=round(float(removed_mm3[mine].sum()), 1),
+            machining_time_s=round(time_s, 1),
+            plunges_into_material=_plunges(motion, removed_mm3, rough) if t == rough else 0))
+    return out
 
 
 def _offences(kind: str, motion: ProgramMotion, amount: np.ndarray, detail: str) -> list[VerificationOffence]:
@@ -262,7 +296,8 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
                               fixture_collisions=int((run.fixture_depth_mm > 0).sum()),
                               travel_excursions=len(travel),
                               plunges_into_material=_plunges(motion, run.removed_mm3,
-                                                             config.post.roughing_tool_number))
+                                                             config.post.roughing_tool_number),
+                              operations=operation_figures(motion, run.removed_mm3, config))
         v.areas.append(av)
         worst += _offences("rapid_into_material", motion, run.rapid_depth_mm, "tool in stock at rapid")
         worst += _offences("holder_collision", motion, run.holder_depth_mm, "shank or holder in stock")

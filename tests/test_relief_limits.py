@@ -213,6 +213,28 @@ def test_the_cli_refuses_the_jpeg_bomb_with_one_error_line_and_writes_nothing(tm
     assert not out.exists()
 
 
+def test_a_damaged_compressed_tiff_is_one_error_line_without_libtiffs_own_stderr(tmp_path):
+    """libtiff writes its complaint about a bad strip ("TIFFFillStrip: ...") straight to file descriptor 2;
+    the CLI's promise is one `error [code]` line, so native stderr is kept off the console while reading."""
+    from PIL import Image
+    img = (np.random.default_rng(0).random((64, 64)) * 255).astype(np.uint8)
+    buf = io.BytesIO()
+    Image.fromarray(img).save(buf, format="TIFF", compression="tiff_adobe_deflate")
+    data = bytearray(buf.getvalue())
+    for i in range(20, 200):                                   # the deflated strip, damaged
+        data[i] ^= 0x5A
+    path = tmp_path / "bad.tif"
+    path.write_bytes(bytes(data))
+    out = tmp_path / "plan"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run([sys.executable, "-m", "scanmill.cli", "plan", str(path), "--out", str(out), "--quiet"],
+                          capture_output=True, text=True, env=env, cwd=str(ROOT), check=False)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert len(proc.stderr.splitlines()) == 1, proc.stderr
+    assert proc.stderr.startswith(("error [unreadable_file]: ", "error [truncated_file]: ")) and "bad.tif" in proc.stderr
+    assert not out.exists()
+
+
 def test_a_jpeg_over_pillows_own_limit_is_judged_by_max_pixels_and_pillow_is_left_as_it_was():
     from PIL import Image, ImageFile
 

@@ -25,16 +25,13 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import os
 import re
 import struct
-import sys
-import tempfile
 
 import numpy as np
 
 from planning.errors import InputError, PlanningError
-from planning.inputs.source import _check_count, _Source
+from planning.inputs.source import _check_count, _Source, quiet_native_stderr
 
 #: Most bytes of point records decoded at once.
 CHUNK_BYTES = 64 << 20
@@ -172,32 +169,9 @@ def _quiet_laspy():
         log.propagate = propagate
 
 
-@contextlib.contextmanager
-def _quiet_stderr():
-    """Send what native code writes to stderr (file descriptor 2) while reading to a scratch file: a
-    Rust panic in lazrs prints its message and a backtrace there before it is raised (and answered as
-    a typed error). The descriptor is the process's: the CLI reads in its one thread, the service in
-    child processes."""
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError, AttributeError):        # no usable stderr: nothing to keep quiet
-        yield
-        return
-    try:
-        with tempfile.TemporaryFile() as scratch:
-            os.dup2(scratch.fileno(), 2)
-            try:
-                yield
-            finally:
-                os.dup2(saved, 2)
-    finally:
-        os.close(saved)
-
-
 def _read_las(src: _Source, max_points: int):
     _check_header(src)
-    with _quiet_laspy(), _quiet_stderr():
+    with _quiet_laspy(), quiet_native_stderr():
         return _read_points(src, max_points)
 
 

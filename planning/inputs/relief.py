@@ -54,7 +54,7 @@ import zlib
 import numpy as np
 
 from planning.errors import InputError, InputTooLarge, ParameterError
-from planning.inputs.source import _Source
+from planning.inputs.source import _Source, quiet_native_stderr
 
 __all__ = ["IMAGE_FORMATS", "gaussian_blur", "luminance", "relief_from_intensity"]
 
@@ -171,7 +171,7 @@ def _read_image(src: _Source, max_points: int, relief, notes: list[str] | None =
     from PIL import Image, UnidentifiedImageError
 
     notes = [] if notes is None else notes
-    with src.file() as fh, warnings.catch_warnings():
+    with src.file() as fh, warnings.catch_warnings(), quiet_native_stderr():
         # Pillow warns about what it tolerates (a header past its global pixel limit, a corrupt
         # EXIF block); every limit and every damage that matters here is checked below and raised
         warnings.simplefilter("ignore")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -120,3 +121,26 @@ def _check_faces(n: int, max_faces: int, what: str = "The mesh has") -> None:
             f"{what} {n:,} triangles; the limit input.max_faces is {max_faces:,}. Decimate the mesh "
             "(or raise input.max_faces) and submit it again.",
             code="too_many_faces", n_faces=int(n), max_faces=int(max_faces), parameter="input.max_faces")
+
+
+@contextlib.contextmanager
+def quiet_native_stderr():
+    """Send what native code writes to stderr (file descriptor 2) while reading to a scratch file: a
+    Rust panic in lazrs prints its message and a backtrace there, libtiff its complaints about a damaged
+    strip, before the reader raises (and the failure is answered as a typed error, one line). The
+    descriptor is the process's: the CLI reads in its one thread, the service in child processes."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):        # no usable stderr: nothing to keep quiet
+        yield
+        return
+    try:
+        with tempfile.TemporaryFile() as scratch:
+            os.dup2(scratch.fileno(), 2)
+            try:
+                yield
+            finally:
+                os.dup2(saved, 2)
+    finally:
+        os.close(saved)

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mesh_files import las_bytes  # one LAS writer for every test (tests/ is on sys.path)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 #: the address space a child may grow by over its size once the readers are imported
@@ -90,24 +92,6 @@ def ply_mesh_binary(vertices, polygons) -> bytes:
 
 # --------------------------------------------------------------------------------------------- LAS
 
-def las_bytes(points, *, compress: bool = False, extra_bytes: int = 0, scale: float = 0.001) -> bytes:
-    """A LAS 1.2 point format 3 file (34-byte records, plus ``extra_bytes`` zero extra bytes each)."""
-    import laspy
-
-    pts = np.asarray(points, dtype=np.float64)
-    header = laspy.LasHeader(point_format=3, version="1.2")
-    if extra_bytes:
-        n8, rest = divmod(extra_bytes, 8)
-        dims = [laspy.ExtraBytesParams(name=f"pad{i}", type="f8") for i in range(n8)]
-        dims += [laspy.ExtraBytesParams(name=f"rest{i}", type="u1") for i in range(rest)]
-        header.add_extra_dims(dims)
-    header.scales = np.array([scale] * 3)
-    header.offsets = np.floor(pts.min(axis=0))
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
-    buf = io.BytesIO()
-    las.write(buf, do_compress=compress)
-    return buf.getvalue()
 
 
 def las_with_count(data: bytes, count: int) -> bytes:

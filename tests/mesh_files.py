@@ -113,11 +113,17 @@ def ply_mesh(vertices, polygons, *, binary: bool = True, byte_order: str = "<", 
     return buf.getvalue()
 
 
-def las_bytes(points, *, compress: bool = False, scale: float = 0.001) -> bytes:
+def las_bytes(points, *, compress: bool = False, extra_bytes: int = 0, scale: float = 0.001) -> bytes:
+    """A LAS 1.2 point format 3 file (34-byte records, plus ``extra_bytes`` zero extra bytes each)."""
     import laspy
 
     pts = np.asarray(points, dtype=np.float64)
     header = laspy.LasHeader(point_format=3, version="1.2")
+    if extra_bytes:
+        n8, rest = divmod(extra_bytes, 8)
+        dims = [laspy.ExtraBytesParams(name=f"pad{i}", type="f8") for i in range(n8)]
+        dims += [laspy.ExtraBytesParams(name=f"rest{i}", type="u1") for i in range(rest)]
+        header.add_extra_dims(dims)
     header.scales = np.array([scale] * 3)
     header.offsets = np.floor(pts.min(axis=0))
     las = laspy.LasData(header)

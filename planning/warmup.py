@@ -6,7 +6,10 @@ in milliseconds. :func:`warm` plans a small reference scan in-process, through t
 ``scanmill plan`` and the service (a binary PLY read by :func:`~planning.inputs.cloud.read_input`, the
 default configuration: sphere-throwing normals, global visibility and travel, roughing, finishing,
 both posts and the simulation), so the kernels are compiled for the argument types of a real plan;
-the plan itself is discarded. :class:`CompileCounter` counts the compilations (numba's
+the plan itself is discarded. The exact gouge confirmation runs in a plan only where the deviation
+suspects a gouge, which the warm-up plan may not: its kernels are compiled apart, on a tiny input
+(:func:`planning.simulate.gouge.warm_kernels`; the kernels see arrays of fixed types whatever the
+input). :class:`CompileCounter` counts the compilations (numba's
 ``numba:compile`` events fire only when a kernel is not found in the cache), which is how a second
 warm-up or a test sees that nothing compiled again.
 
@@ -152,6 +155,8 @@ def warm(progress=None) -> WarmupReport:
     t0 = time.perf_counter()
     with CompileCounter() as counter:
         outcome = warm_plan(progress)
+        from planning.simulate.gouge import warm_kernels
+        warm_kernels()                       # the gouge confirmation: the warm-up plan may suspect none
     seconds = time.perf_counter() - t0
     try:
         import numba

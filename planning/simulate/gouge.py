@@ -19,103 +19,208 @@ Tools (:class:`planning.simulate.motion.ToolShape`, tip ``q``, unit axis ``a``, 
   that contains it (its depth can only read deeper). The ball-end cutter's fluted cylinder above
   the ball (up to the flute length) counts with the depth to its side.
 
-Only the moves that pass within reach of a point are measured (a k-d tree over the moves'
-bounding spheres).
+Which moves count for a point (as the k-d tree of issue 16 chose them): every move is cut into
+:data:`PIECE_MM` pieces (``ceil(length / PIECE_MM)`` equal parts, at least one), and a move counts
+when the mid point of one of its pieces lies within ``rq = PIECE_MM / 2 + reach`` of the point
+(``reach``: the farthest cutting point of the tool from its tip, ``max(hypot(R, L), 2 R)``), which
+every move that can cut the point passes. The result is the deepest depth over those moves
+(negative: not cut; a ball's depth is finite for every move that counts), ``-inf`` where no move
+counts, in mm.
+
+The work runs in numba kernels (:mod:`planning.simulate.gouge_kernels`; the pieces built and binned
+there too): per tool one or two *layers* of pieces in a uniform grid (the ball: the mid points, with
+the radius ``rq``; the cylinders: a bounding sphere per piece), the points in parallel (``prange``
+over chunks of points, ``numba.get_num_threads()`` threads), each visiting the grid cells around it
+and measuring each move once. Bounds that cannot be beaten by more than rounding skip what cannot
+raise a point's deepest depth (the kernels' docstring says which), so the result is the maximum over
+the same (point, move) pairs with the same formulas (to the last few ulps: ~1e-14 mm against the
+numpy code in the tests), whatever the thread count.
 """
 
 from __future__ import annotations
 
-import numpy as np
-from scipy.spatial import cKDTree
+from typing import NamedTuple
 
+import numpy as np
+
+from planning.simulate import gouge_kernels as _k
 from planning.simulate.motion import FEED, ProgramMotion, ToolShape
 
 #: Moves are cut into pieces of at most this length (mm) to find the moves near a point.
 PIECE_MM = 4.0
+#: Samples along the part of a move where a point is within the cylinder's radius of the axis.
+SAMPLES = 65
+#: The side of a grid cell, as a fraction of the layer's search radius: the balls' layers (whose
+#: bound searches much less than their radius) and the cylinders' layers.
+CELL_FRACTION_BALL = 0.25
+CELL_FRACTION_CYLINDER = 0.5
+#: A layer's grid has at most this many cells per piece (plus :data:`MIN_CELLS`); larger cells beyond.
+CELLS_PER_PIECE = 8
+MIN_CELLS = 1 << 16
+#: Points are sorted along cells of this side (mm) before they are dealt in blocks.
+POINT_CELL_MM = 8.0
+#: Chunks of points per thread (each chunk keeps two int32 stamps per move while it runs).
+CHUNKS_PER_THREAD = 4
+#: Points per kernel call (the stamps number the points twice in an int32).
+MAX_POINTS = 1 << 29
 
 
-def _ball_depth(p: np.ndarray, s: np.ndarray, e: np.ndarray, R: float) -> np.ndarray:
-    v = e - s
-    L2 = np.einsum("ij,ij->i", v, v)
-    t = np.clip(np.einsum("ij,ij->i", p - s, v) / np.maximum(L2, 1e-300), 0.0, 1.0)
-    q = s + t[:, None] * v
-    return R - np.linalg.norm(p - q, axis=1)
+class _Layer(NamedTuple):
+    """A layer of the kernels (:mod:`planning.simulate.gouge_kernels`): ``mode``; the cylinder's or ball's
+    ``radius`` and the cylinder's ``length``; each piece's point and second point (the ball's centre)
+    ``shift`` / ``shift2`` along the axis from its mid point; the grid's search radius ``search``; a
+    piece's radius ``rho`` (the ball: the candidates' radius rq; a cylinder: its bounding sphere less
+    the piece's half length); the ``floor``; its moves ``base .. base + count`` of the tools' array."""
+
+    mode: int
+    radius: float
+    length: float
+    shift: float
+    shift2: float
+    search: float
+    rho: float
+    floor: float
+    base: int
+    count: int
+
+    @property
+    def moves(self) -> slice:
+        return slice(self.base, self.base + self.count)
 
 
-def _flat_depth(p: np.ndarray, s: np.ndarray, e: np.ndarray, a: np.ndarray, Rt: float, L: float,
-                samples: int = 65, side_only: bool = False) -> np.ndarray:
-    """Depth of each point ``p`` (k,3) inside the cylinder (radius ``Rt``, from the tip ``q`` up to
-    ``L`` along the unit axis ``a``) swept from tip ``s`` to ``e``: on the part of the move where the
-    point is within ``Rt`` of the axis (the roots of a quadratic in the move's parameter), at
-    ``samples`` equal steps; ``-inf`` where the point is never inside."""
-    v = e - s
-    w0 = p - s
-    vv = v - np.einsum("ij,ij->i", v, a)[:, None] * a          # the move across the axis
-    ww = w0 - np.einsum("ij,ij->i", w0, a)[:, None] * a
-    A = np.einsum("ij,ij->i", vv, vv)
-    B = -2.0 * np.einsum("ij,ij->i", ww, vv)
-    C = np.einsum("ij,ij->i", ww, ww) - Rt * Rt
-    disc = B * B - 4.0 * A * C
-    moving = A > 1e-18
-    root = np.sqrt(np.maximum(disc, 0.0))
-    t0 = np.where(moving, (-B - root) / (2.0 * np.maximum(A, 1e-300)), 0.0)
-    t1 = np.where(moving, (-B + root) / (2.0 * np.maximum(A, 1e-300)), 1.0)
-    t0, t1 = np.clip(t0, 0.0, 1.0), np.clip(t1, 0.0, 1.0)
-    hit = np.where(moving, disc >= 0.0, C <= 0.0) & (t1 >= t0)
-    out = np.full(p.shape[0], -np.inf)
-    f = np.linspace(0.0, 1.0, samples)
-    hits = np.flatnonzero(hit)
-    for c0 in range(0, hits.size, 20_000):                 # bounded memory: (20k, samples, 3)
-        idx = hits[c0:c0 + 20_000]
-        t = t0[idx, None] + (t1 - t0)[idx, None] * f[None, :]                       # (m, S)
-        w = w0[idx, None, :] - t[:, :, None] * v[idx, None, :]                      # p - q(t)
-        h = np.einsum("msk,mk->ms", w, a[idx])
-        r = np.linalg.norm(w - h[:, :, None] * a[idx, None, :], axis=2)
-        inside = (h >= 0.0) & (h <= L) & (r <= Rt + 1e-12)
-        d = np.where(inside, (Rt - r) if side_only else np.minimum(h, Rt - r), -np.inf)
-        out[idx] = d.max(axis=1)
-    return out
+def _reach(shape: ToolShape) -> float:
+    """Every cutting point of the tool lies within this of its tip (mm; the ball: 2 R)."""
+    return max(float(np.hypot(shape.radius_mm, shape.flute_length_mm)), 2.0 * shape.radius_mm) + 1e-6
+
+
+def _grid(lo: np.ndarray, hi: np.ndarray, cell: float, n_pieces: int) -> tuple[np.ndarray, float, np.ndarray]:
+    """(lo, cell, dims) of a uniform grid over the box ``lo..hi`` with cells of side ``cell``, doubled
+    while there would be more than ``CELLS_PER_PIECE * n_pieces + MIN_CELLS`` cells."""
+    ext = np.maximum(hi - lo, 0.0)
+    limit = CELLS_PER_PIECE * n_pieces + MIN_CELLS
+    while True:
+        dims = np.floor(ext / cell).astype(np.int64) + 1
+        if float(dims[0]) * float(dims[1]) * float(dims[2]) <= limit:
+            return lo, cell, dims
+        cell *= 2.0
 
 
 def penetration_mm(points: np.ndarray, motions: list[ProgramMotion], tools: dict[int, ToolShape]) -> np.ndarray:
     """(n,) how deep each of ``points`` (n,3, part frame, mm) lies inside the cutting part of a tool
     on any FEED move of ``motions`` (module docstring; ``tools`` by T number); ``-inf`` where no
-    move's tool reaches it (<= 0: not cut)."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    move's tool reaches it (<= 0: not cut) and at points with a non-finite coordinate."""
+    import numba
+
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    if pts.shape[0] > MAX_POINTS:                        # the kernels' stamps are int32, 2 per point
+        return np.concatenate([penetration_mm(pts[a:a + MAX_POINTS], motions, tools)
+                               for a in range(0, pts.shape[0], MAX_POINTS)])
     out = np.full(pts.shape[0], -np.inf)
-    if pts.shape[0] == 0:
+    finite = np.flatnonzero(np.isfinite(pts).all(axis=1))
+    if finite.size == 0:
         return out
-    for m in motions:
-        for number, shape in tools.items():
-            sel = np.flatnonzero((m.kind == FEED) & (m.tool == number))
-            if sel.size == 0:
-                continue
-            s, e, a = m.start_mm[sel], m.end_mm[sel], m.axis[sel]
-            # every cutting point of the tool lies within this of its tip (the ball: 2 R)
-            reach = max(float(np.hypot(shape.radius_mm, shape.flute_length_mm)), 2.0 * shape.radius_mm) + 1e-6
-            # candidate (point, move) pairs: the moves cut into pieces of at most PIECE_MM, a k-d
-            # tree over the pieces' mid points, every point's pieces within PIECE_MM / 2 + reach
-            length = np.linalg.norm(e - s, axis=1)
-            n = np.maximum(1, np.ceil(length / PIECE_MM).astype(np.int64))
-            owner = np.repeat(np.arange(sel.size), n)
-            k = np.arange(owner.size) - np.repeat(np.cumsum(n) - n, n)
-            f = ((k + 0.5) / n[owner])[:, None]
-            mids = s[owner] + f * (e - s)[owner]
-            near = cKDTree(mids).query_ball_point(pts, 0.5 * PIECE_MM + reach)
-            cnt = np.fromiter((len(x) for x in near), dtype=np.int64, count=len(near))
-            if cnt.sum() == 0:
-                continue
-            pair = np.unique(np.c_[np.repeat(np.arange(pts.shape[0]), cnt),
-                                   owner[np.concatenate([np.asarray(x, dtype=np.int64) for x in near if x])]], axis=0)
-            pi, mv = pair[:, 0], pair[:, 1]
-            if shape.kind == "ball":
-                R = shape.radius_mm
-                d = _ball_depth(pts[pi], s[mv] + R * a[mv], e[mv] + R * a[mv], R)
-                if shape.flute_length_mm > R:        # the fluted cylinder above the ball: its side
-                    side = _flat_depth(pts[pi], s[mv] + R * a[mv], e[mv] + R * a[mv], a[mv], R,
-                                       shape.flute_length_mm - R, side_only=True)
-                    d = np.maximum(d, side)
-            else:
-                d = _flat_depth(pts[pi], s[mv], e[mv], a[mv], shape.radius_mm, shape.flute_length_mm)
-            np.maximum.at(out, pi, d)
+    # the feed moves of each tool (T number), all tools in one array
+    S, E, A, groups = [], [], [], []
+    n_moves = 0
+    for number, shape in tools.items():
+        sel = [(m.start_mm[k], m.end_mm[k], m.axis[k]) for m in motions
+               for k in [np.flatnonzero((m.kind == FEED) & (m.tool == number))] if k.size]
+        if not sel:
+            continue
+        s, e, a = (np.concatenate([x[i] for x in sel]).astype(np.float64) for i in range(3))
+        if not (np.isfinite(s).all() and np.isfinite(e).all() and np.isfinite(a).all()):
+            ok = np.isfinite(s).all(axis=1) & np.isfinite(e).all(axis=1) & np.isfinite(a).all(axis=1)
+            s, e, a = s[ok], e[ok], a[ok]
+        if s.shape[0] == 0:
+            continue
+        S.append(s), E.append(e), A.append(a)
+        groups.append((shape, n_moves, s.shape[0]))
+        n_moves += s.shape[0]
+    if not groups:
+        return out
+    S, E, A = (np.ascontiguousarray(np.concatenate(x)) for x in (S, E, A))
+    # the layers (module docstring): per tool the ball and the side of its flutes, or the cylinder
+    layers = []
+    for shape, base, count in groups:
+        R, L = float(shape.radius_mm), float(shape.flute_length_mm)
+        rq = 0.5 * PIECE_MM + _reach(shape)
+        if shape.kind == "ball":
+            # a piece beyond the search radius holds no ball depth above 2 R + PIECE_MM / 2 - rq
+            layers.append(_Layer(_k.NEAR, R, R, 0.0, R, rq, rq, 2.0 * R + 0.5 * PIECE_MM - rq, base, count))
+            if L > R:                                     # the fluted cylinder above the ball: its side
+                rho = float(np.hypot(R, 0.5 * (L - R))) + _k.SPHERE_SLACK_MM
+                layers.append(_Layer(_k.SIDE, R, L - R, R + 0.5 * (L - R), 0.0, rho + 0.5 * PIECE_MM, rho, -np.inf,
+                                     base, count))
+        else:
+            rho = float(np.hypot(R, 0.5 * L)) + _k.SPHERE_SLACK_MM
+            layers.append(_Layer(_k.FLAT, R, L, 0.5 * L, 0.0, rho + 0.5 * PIECE_MM, rho, -np.inf, base, count))
+    layers.sort(key=lambda ly: ly.mode != _k.NEAR)       # the balls first: their depths bound the cylinders
+    # every move's pieces, as the search over them has always cut them (PIECE_MM, equal parts)
+    length = np.linalg.norm(E - S, axis=1)
+    n = np.maximum(1, np.ceil(length / PIECE_MM).astype(np.int64))
+    off = np.cumsum(n) - n
+    half = 0.5 * length / n
+    sizes = [int(n[ly.base:ly.base + ly.count].sum()) for ly in layers]
+    total = sum(sizes)
+    pcen, phalf, powner = np.empty((total, 3)), np.empty(total), np.empty(total, np.int64)
+    pball = np.empty((sum(sz for ly, sz in zip(layers, sizes) if ly.mode == _k.NEAR), 3))
+    grids = []
+    for ly, size in zip(layers, sizes):
+        lo, hi = _k.box(S[ly.moves], E[ly.moves], A[ly.moves], ly.shift)
+        grids.append(_grid(lo - 1e-9, hi + 1e-9, (CELL_FRACTION_BALL if ly.mode == _k.NEAR else CELL_FRACTION_CYLINDER)
+                           * ly.search, size))
+    ncells = [int(np.prod(dims)) for _, _, dims in grids]
+    cstart = np.empty(sum(nc + 1 for nc in ncells), np.int64)
+    at = cat = 0
+    lcoff = []
+    for ly, size, (lo, cell, dims), nc in zip(layers, sizes, grids, ncells):
+        key, cen, cen2 = np.empty(size, np.int64), np.empty((size, 3)), np.empty((size if ly.mode == _k.NEAR else 0, 3))
+        hs, owner = np.empty(size), np.empty(size, np.int64)
+        mv = ly.moves
+        _k.fill_pieces(S[mv], E[mv], A[mv], length[mv], n[mv], off[mv] - off[ly.base], ly.base, ly.shift, ly.shift2,
+                       lo, float(cell), dims, key, cen, cen2, hs, owner)
+        _k.sort_pieces(key, nc, cen, cen2, hs, owner, at, cstart, cat, pcen, pball, phalf, powner)
+        lcoff.append(cat)
+        at += size
+        cat += nc + 1
+    # the points sorted along a grid (neighbours share candidates), dealt in blocks to the chunks; the
+    # grid spans the moves (a point farther out reads -inf whatever its place in the order)
+    plo = np.minimum(S.min(axis=0), E.min(axis=0))
+    ext = np.maximum(S.max(axis=0), E.max(axis=0)) - plo
+    pcell = max(POINT_CELL_MM, float(ext.max()) / (1 << 20))
+    pdims = np.floor(ext / pcell).astype(np.int64) + 1
+    ijk = np.clip(np.floor((np.clip(pts[finite], plo, plo + ext) - plo) / pcell), 0, pdims - 1).astype(np.int64)
+    order = finite[np.argsort((ijk[:, 0] * pdims[1] + ijk[:, 1]) * pdims[2] + ijk[:, 2], kind="stable")]
+    nblock = -(-order.size // _k.BLOCK)
+    nchunk = max(1, min(nblock, CHUNKS_PER_THREAD * numba.get_num_threads()))
+
+    def per_layer(values, dtype=np.float64):
+        return np.ascontiguousarray(values, dtype=dtype)
+
+    _k.penetration(pts, order.astype(np.int64), int(nchunk), S, E, A,
+                   per_layer([ly.mode for ly in layers], np.int64), per_layer([ly.radius for ly in layers]),
+                   per_layer([ly.length for ly in layers]), per_layer([ly.search for ly in layers]),
+                   per_layer([ly.rho for ly in layers]),
+                   per_layer([n_moves if ly.mode == _k.SIDE else 0 for ly in layers], np.int64),     # stamp offsets
+                   per_layer([half[ly.moves].max() for ly in layers]), per_layer([ly.floor for ly in layers]),
+                   per_layer([g[0] for g in grids]), per_layer([g[1] for g in grids]),
+                   per_layer([g[2] for g in grids], np.int64), per_layer(lcoff, np.int64), cstart, pcen, pball, phalf,
+                   powner, np.linspace(0.0, 1.0, SAMPLES), out)
     return out
+
+
+def warm_kernels() -> None:
+    """Compile (or load from numba's cache) the kernels of :func:`penetration_mm`: a plan calls it only
+    when the deviation suspects a gouge, which the warm-up plan may not (:mod:`planning.warmup`). Every
+    array the kernels see is built here with fixed dtypes and layouts, so this tiny call compiles the
+    signatures of any real one."""
+    from planning.simulate.motion import RAPID
+
+    s = np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    e = np.array([[5.0, 0.0, 0.0], [5.0, 5.0, -1.0], [0.0, 0.0, 0.0]])
+    motion = ProgramMotion(program="warmup", area=0, line=np.arange(1, 4), kind=np.array([FEED, FEED, RAPID], np.int8),
+                           tool=np.array([1, 2, 1]), start_mm=s, end_mm=e, axis=np.tile([0.0, 0.0, 1.0], (3, 1)),
+                           machine_mm=np.zeros((3, 3)), rotary_deg=np.zeros((3, 2)))
+    tools = {1: ToolShape(number=1, kind="ball", radius_mm=3.0, corner_radius_mm=3.0, flute_length_mm=12.0),
+             2: ToolShape(number=2, kind="flat", radius_mm=4.0, corner_radius_mm=0.0, flute_length_mm=20.0)}
+    penetration_mm(np.array([[1.0, 0.5, 1.0], [5.0, 2.0, 0.0]]), [motion], tools)

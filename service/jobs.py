@@ -104,10 +104,10 @@ class JobService:
     """What the routes do, independent of HTTP details."""
 
     def __init__(self, settings: Settings, store: JobStore, storage: Storage, backend: ExecutionBackend,
-                 limiter: anyio.CapacityLimiter, checker: SubmissionChecker):
+                 limiter: anyio.CapacityLimiter, checker: SubmissionChecker | None = None):
         self.settings, self.store, self.storage, self.backend, self.limiter = (settings, store, storage, backend,
                                                                               limiter)
-        self.checker = checker           # reads the submitted files in child processes
+        self.checker = checker or SubmissionChecker(settings)   # reads the submitted files in child processes
 
     # -- submit ----------------------------------------------------------------------------------
     async def submit(self, request: Request, who: Principal, idempotency_key: str | None) -> tuple[Job, bool]:

@@ -44,13 +44,13 @@ class ReliefParams(_Strict):
         0, description="Gaussian blur before the mapping, kernel size in pixels: 0 (none), 3 (3x3) or 5 "
                        "(5x5); smooths abrupt jumps between bright and dark pixels (Sood §3.2.2).")
     max_pixels: int = Field(
-        3_145_728, ge=4, le=50_000_000,
+        524_288, ge=4, le=50_000_000,
         description="Most pixels an image is planned on (one point and two triangles each), checked from the "
                     "image header before it is decoded. A larger image is scaled down to fit (area averaging, "
                     "aspect kept; the plan's warnings name the decoded size) if it has at most 16 x max_pixels "
-                    "pixels, and refused beyond that. The default, 3,145,728 (3 Mi pixels, e.g. 1774 x 1774), keeps "
-                    "a relief job with the other defaults within about 2 GB (the admission estimate, "
-                    "planning/budget.py).")
+                    "pixels, and refused beyond that. The default, 524,288 (e.g. 724 x 724, a 0.14 mm pitch on a "
+                    "100 mm relief), keeps a relief job with the other defaults within 1.5 GB of memory (measured: "
+                    "a 1024 x 1024 height map planned at 724 x 724 peaked at 1.42 GB; planned whole, 2.68 GB).")
     fill_missing: bool = Field(
         False, description="A float (TIFF) image whose pixels are NaN or infinite (no data) is refused by default, "
                            "since it would flatten or shift the whole relief; true fills each such pixel from its "

@@ -168,13 +168,19 @@ def read_in_child(path: Path, config: dict | None = None) -> dict:
 
 # ------------------------------------------------------------------------------------- the bombs
 
-def test_a_png_bomb_is_scaled_down_to_max_pixels_within_bounded_memory(tmp_path):
+def test_a_png_bomb_is_refused_by_default_and_scaled_down_under_a_higher_limit_within_bounded_memory(tmp_path):
     path = tmp_path / "grey.png"
     path.write_bytes(png_grey(4472, 4472))
     assert path.stat().st_size < 40_000                          # 20 million pixels in about 29 KB
-    result = read_in_child(path)
+    default = parse_config({}).input.relief.max_pixels
+    assert 4472 * 4472 > 16 * default                            # so the defaults refuse it outright
+    refused = read_in_child(path)
+    assert not refused["ok"] and refused["code"] == "too_many_pixels", refused
+    assert "4,472 x 4,472" in refused["message"] and "input.relief.max_pixels" in refused["message"]
+    assert refused["max_rss"] < RSS_LIMIT, refused["max_rss"] / 2**20
+    max_pixels = 3_145_728                                       # 20 M pixels are within 16 x this
+    result = read_in_child(path, {"input": {"relief": {"max_pixels": max_pixels}}})
     assert result["ok"], result
-    max_pixels = parse_config({}).input.relief.max_pixels
     side = math.isqrt(max_pixels)                                # a square image stays square
     assert result["n_points"] == side * side <= max_pixels
     assert result["n_faces"] == 2 * (side - 1) ** 2
@@ -389,7 +395,7 @@ def test_the_parameters_come_through_the_configuration():
     params = parse_config({"input": {"relief": {"max_pixels": 768, "fill_missing": True}}}).input
     assert (params.relief.max_pixels, params.relief.fill_missing) == (768, True)
     defaults = parse_config({}).input.relief
-    assert defaults.fill_missing is False and defaults.max_pixels >= 1_000_000
+    assert defaults.fill_missing is False and 500 * 500 <= defaults.max_pixels <= 4_194_304
     img = np.round(smooth(96, 128) * 65535).astype(np.uint16)
     cloud = read_input(image_bytes(img), params)
     assert cloud.n_points == 768 and "input.relief.max_pixels = 768" in cloud.warnings[0]

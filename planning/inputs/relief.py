@@ -181,7 +181,8 @@ def _read_image(src: _Source, max_points: int, relief, notes: list[str] | None =
             raise
         except Image.DecompressionBombError as exc:      # our limit comes first; kept as a safety net
             raise InputTooLarge(f"The image{src.quoted} is too large to decode safely ({exc}). Scale it "
-                                "down (a few million pixels are plenty) and submit it again.",
+                                f"down to about {int(relief.max_pixels):,} pixels (input.relief.max_pixels) and "
+                                "submit it again.",
                                 code="too_many_pixels", max_pixels=int(relief.max_pixels)) from None
         except UnidentifiedImageError:
             raise _image_error(src, "it is not a PNG, JPEG, BMP or TIFF image Pillow can identify; the "
@@ -296,7 +297,7 @@ def _too_many_pixels(src: _Source, width: int, height: int, fmt: str, max_pixels
         f"The image{src.quoted} is {width:,} x {height:,} pixels ({n:,} pixels, by its header); "
         f"input.relief.max_pixels = {max_pixels:,} plans at most that many and scales down "
         f"{'JPEG images' if jpeg else 'images'} of up to {factor} times that ({factor * max_pixels:,} "
-        "pixels). Scale the image down (a few million pixels are plenty) or raise "
+        "pixels). Scale the image down (to input.relief.max_pixels; a relief needs no more) or raise "
         "input.relief.max_pixels, and submit it again.",
         code="too_many_pixels", n_pixels=int(n), width=int(width), height=int(height),
         max_pixels=int(max_pixels))

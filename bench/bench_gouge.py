@@ -34,7 +34,6 @@ normals as a raw scan).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import importlib.util
 import json
 import os
@@ -60,39 +59,19 @@ def _module(path: Path, name: str):
 
 def plan_case(name: str, n_points: int | None) -> tuple[dict, list, dict, np.ndarray]:
     """Plan the sample; return (figures, motions, tools, points) as verify_plan would see them."""
-    from planning.inputs.cloud import read_cloud
     from planning.inputs.samples import make_sample
-    from planning.pipeline import run_plan
     from planning.report.files import write_ply
     from planning.simulate import verify
     from planning.simulate.program import read_program
-    from schemas.params import parse_config
 
     bench_simulate = _module(ROOT / "bench" / "bench_simulate.py", "bench_simulate")
-    config = parse_config(bench_simulate.case_config(name))
     sample = make_sample(name, **({"n_points": n_points} if n_points else {}))
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp:          # the plan with verify_plan captured, as bench_simulate does
         ply = Path(tmp) / f"{name}.ply"
         write_ply(ply, sample.points, normals=sample.normals, binary=True)
-        cloud = read_cloud(ply)
-    if name == "femur_like":
-        cloud = dataclasses.replace(cloud, normals=None)        # the demo sends a raw scan
-    captured: dict = {}
-    real = verify.verify_plan
-
-    def stub(**kwargs):
-        captured.update(kwargs)
-        return verify.skipped("captured by bench_gouge")
-
-    verify.verify_plan = stub
-    try:
-        t0 = time.perf_counter()
-        out = run_plan(cloud, config, name=name)
-        plan_s = time.perf_counter() - t0
-    finally:
-        verify.verify_plan = real
+        plan, captured = bench_simulate.plan_once(name, ply)
     if not captured:
-        raise SystemExit(f"{name}: the plan posted no programs ({out.result.status})")
+        raise SystemExit(f"{name}: the plan posted no programs ({plan['status']})")
     cfg = captured["config"]
     dialect = verify.choose_dialect(captured["programs"], cfg.simulate.dialect)
     tools = verify.tool_shapes(cfg, captured["tool"])
@@ -107,8 +86,8 @@ def plan_case(name: str, n_points: int | None) -> tuple[dict, list, dict, np.nda
                                         tools=tools))
     from planning.simulate.motion import FEED
     feed = {int(t): int(sum(((m.kind == FEED) & (m.tool == t)).sum() for m in motions)) for t in tools}
-    figures = {"case": name, "n_points": int(captured["points"].shape[0]), "status": out.result.status,
-               "plan_s": round(plan_s, 1), "n_programs": len(motions),
+    figures = {"case": name, "n_points": int(captured["points"].shape[0]), "status": plan["status"],
+               "plan_s": plan["plan_s"], "n_programs": len(motions),
                "n_moves": int(sum(m.n_moves for m in motions)), "feed_moves_by_tool": feed,
                "tools": {int(t): f"{s.kind} R{s.radius_mm:g} L{s.flute_length_mm:g}" for t, s in tools.items()}}
     return figures, motions, tools, np.asarray(captured["points"], dtype=np.float64)

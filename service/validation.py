@@ -229,7 +229,8 @@ class SubmissionChecker:
             finally:
                 self.running -= 1
                 parent.close()
-                _reap(proc)
+                with anyio.CancelScope(shield=True):     # off the event loop, and even if the request is cancelled
+                    await anyio.to_thread.run_sync(_reap, proc)
         kind, data = answer
         if kind == "ok":
             return data

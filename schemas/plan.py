@@ -196,6 +196,11 @@ class RoughingSummary(_Out):
     n_helix: int = Field(0, description="Entries into material by a helix.")
     n_ramps: int = Field(0, description="Entries into material by a ramp.")
     n_plunges_into_material: int = Field(0, description="Straight plunges into material (no helix or ramp fitted).")
+    n_pieces_left: int = Field(0, description="Pieces of a level left uncut because no side entry, helix or ramp "
+                                              "fits and a straight plunge into material is not made (roughing on "
+                                              "the carried stock); their material is left for the next levels' "
+                                              "flutes or for finishing.")
+    left_length_mm: float = Field(0.0, description="Length of those pieces, mm.")
     guard: GuardSummary | None = None
 
 

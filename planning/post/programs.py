@@ -151,6 +151,8 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
                 rest=bool(getattr(info, "rest", False)), n_helix=int(getattr(info, "n_helix", 0)),
                 n_ramps=int(getattr(info, "n_ramps", 0)),
                 n_plunges_into_material=int(getattr(info, "n_plunges_into_material", 0)),
+                n_pieces_left=int(getattr(info, "n_pieces_left", 0)),
+                left_length_mm=float(getattr(info, "left_length_mm", 0.0)),
                 guard=_guard_summary(getattr(ap, "roughing_guard", None)),
                 allowance_left_mm=getattr(ap, "allowance_left", None),
                 machining_time_s=round(machining_time_s(ap.roughing, feed_mm_min=post.roughing_feed_mm_min,

@@ -55,6 +55,7 @@ from planning.toolpath.guard import guard_toolpath
 from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath, concatenate
 from planning.toolpath.reduce import fit_arcs, reduce_cl
 from planning.toolpath.roughing import roughing_paths
+from planning.toolpath.stock_view import StockView
 from planning.toolpath.safety import (
     cutting_positions,
     finished_reach_mm,
@@ -432,6 +433,7 @@ def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec:
     With ``carried``, rest roughing: only the material of the carried stock (its boundary points
     ``stock_f`` in the area frame) is cut."""
     rp = paths_params.roughing
+    safe_tip_z = top + rp.stock_margin_mm + paths_params.safe_clearance_mm
     floor = float(area_f[:, 2].min()) + rp.stock_allowance_mm
     stock_top = float(cloud_f[:, 2].max()) + rp.stock_margin_mm
     if stock_f is not None:
@@ -440,17 +442,49 @@ def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec:
         t0 = time.perf_counter()
         # with the carried stock: rest roughing, and the end mill's holder kept out of the stock and the part
         rest = {} if carried is None else {"stock_points_mm": stock_f, "stock_spacing_mm": carried.resolution_mm,
-                                           "holder_pieces": carried.roughing_shape.pieces}
+                                           "holder_pieces": carried.roughing_shape.pieces,
+                                           "stock_view": StockView(carried.stock, ap.frame, carried.roughing_shape),
+                                           "travel_cells": None if carried.machines is None else
+                                           _travel_cells(carried.machines[ap.area], ap.frame,
+                                                         carried.roughing_shape.gauge_length_mm, safe_tip_z),
+                                           "rapid_clearance_mm": carried.rapid_clearance_mm}
         rr = roughing_paths(cloud_f, tool_radius_mm=rp.diameter_mm / 2.0,
                             corner_radius_mm=rp.corner_radius_mm, step_down_mm=rp.step_down_mm,
                             stock_allowance_mm=rp.stock_allowance_mm, stock_margin_mm=rp.stock_margin_mm,
                             stepover_mm=rp.stepover_mm, pattern=rp.pattern, floor_z_mm=floor,
-                            safe_z_mm=top + rp.stock_margin_mm + paths_params.safe_clearance_mm,
+                            safe_z_mm=safe_tip_z,
                             window_xy_mm=area_f[:, :2] if rp.window else None, window_reach_mm=window_reach, **rest,
                             **_entry_args(rp), progress=None if progress is None else
                             (lambda done, n: progress(done / max(n, 1), f"level {done}/{n}")))
         ap.roughing, ap.roughing_info = rr.toolpath, rr
         sec["roughing"] = time.perf_counter() - t0
+
+
+def _travel_cells(machine, frame: AreaFrame, gauge_mm: float, lift_z: float):
+    """The ``travel_cells`` of :func:`planning.toolpath.roughing.roughing_paths`: per raster cell,
+    whether the roughing tool's tip at the cell's centre (frame, at height z) and straight above it
+    at ``lift_z`` (the retract height) is within ``machine``'s travel
+    (:meth:`planning.toolpath.guard.SetupMachine.travel_ok`). The set-up's rotary position is fixed,
+    so the controlled point is an affine function of the tip: it is evaluated at four points and
+    extended over the raster."""
+    from planning.toolpath.guard import TRAVEL_SLACK_MM
+
+    base = frame.to_part(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]))
+    m = machine.model.machine_from_tip(base, machine.angles_deg, gauge_mm)
+    m0, dx, dy, dz = m[0], m[1] - m[0], m[2] - m[0], m[3] - m[0]
+    limits = machine.model.profile.linear_limits_mm
+
+    def ok(x0, y0, h, nx, ny, z):
+        x = x0 + (np.arange(nx) + 0.5) * h
+        y = y0 + (np.arange(ny) + 0.5) * h
+        out = np.ones((nx, ny), dtype=bool)
+        for i, (lo, hi) in enumerate(limits):
+            base_i = x[:, None] * dx[i] + y[None, :] * dy[i] + m0[i]
+            for zz in (z, max(z, lift_z)):
+                v = base_i + zz * dz[i]
+                out &= (v >= lo - TRAVEL_SLACK_MM) & (v <= hi + TRAVEL_SLACK_MM)
+        return out
+    return ok
 
 
 def _entry_args(rp) -> dict:

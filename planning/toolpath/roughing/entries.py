@@ -47,7 +47,16 @@ material, plunge at feed). Otherwise, in this order:
    of the segment) at the entry angle, ending at q (the first leg shorter). With ``"ramp"`` the
    ramp comes first; where it must start higher than GAP_MM above the previous level (+ rc), a
    cheaper helix is taken instead, and where no ramp fits, a helix.
-4. else a straight plunge, counted in ``n_plunges_into_material``.
+4. else a straight plunge, counted in ``n_plunges_into_material`` -- except when the roughing
+   reads the material from the stock itself (a stock view, ``exact``; issue 30: a straight plunge
+   into material is a planning error): then the piece is not cut at this level but left, counted
+   in ``n_pieces_left``. Such pieces are the region's slivers, a few cells where the tool centre
+   fits between the part's allowance and the material's edge, or pockets walled in by the part:
+   their material stays over the level for the flutes of the next level's passes beside it, or for
+   finishing. Without a stock view the material is only bounded (the map keeps the full height
+   beside walls it never saw wholly swept), most such "plunges into material" are into air, and
+   leaving them would leave whole passes uncut, so the tool plunges as before. With
+   ``entry="plunge"`` the tool plunges straight everywhere.
 
 **Start height** zs of a helix or ramp: GAP_MM above the highest material under it (the helix's
 circle grown by Rt, or within Rt of the ramp's segment; :meth:`_Entries.material`), at most the
@@ -512,7 +521,11 @@ class _Entries:
         self.G = np.ascontiguousarray(G).ravel()
         self.thr = math.inf
         self.z_prev = math.inf
-        self.n_helix = self.n_ramps = self.n_side = self.n_plunges = 0
+        self.n_helix = self.n_ramps = self.n_side = self.n_plunges = self.n_left = 0
+        #: the material is read from the stock itself (a stock view), not bounded: a piece that only a
+        #: straight plunge would enter is left rather than plunged into
+        self.exact = False
+        self.left_mm = 0.0
 
     def _margs(self, lv: _Level):
         m = self.mat
@@ -525,7 +538,9 @@ class _Entries:
     def enter(self, w: _Writer, lv: _Level, cur, xy, cell, z, safe) -> list[np.ndarray]:
         """Come down from ``cur`` (None: the first approach from the safe height) to the first point
         of the piece ``xy`` (k, 2; ``cell`` its region cell) at level z; returns the polylines cut at
-        the level on the way (for the remaining-material map)."""
+        the level on the way (for the remaining-material map), or None when the piece cannot be
+        entered but by a straight plunge into material (helix and ramp modes): nothing is written, the
+        piece is left (counted in ``n_left``)."""
         q = np.asarray(xy[0], dtype=np.float64)
         top_q = self.material(lv, q, self.Rt)
         if not top_q > z + Z_TOL_MM:
@@ -561,6 +576,9 @@ class _Entries:
                     plan = self._ramp(lv, q, u, seg, z, safe)
             if plan is not None:
                 return self._write(w, lv, cur, plan, q, z, safe)
+        if self.cfg.kind != "plunge" and self.exact:  # no way in but a straight plunge: the piece is left
+            self.n_left += 1
+            return None
         self.n_plunges += 1
         _lift(w, lv, cur, q, z, safe)
         return []
@@ -703,4 +721,10 @@ def _approach(w: _Writer, lv: _Level, cur, p, zs, z, safe):
         _retract(w, cur, zl)
         w.add([p[0], p[1], zl], USE_RAPID)
     if zl > zs:
-        w.add([p[0], p[1], zs], USE_RAPID)
+        zr = zs if w.column_clear is None else min(zl, w.column_clear(p[0], p[1], zs, zl))
+        if zr > zs:                   # the rapid stops where the grown tool would meet material; fed on
+            if zl > zr:
+                w.add([p[0], p[1], zr], USE_RAPID)
+            w.add([p[0], p[1], zs], USE_PLUNGE)
+        else:
+            w.add([p[0], p[1], zs], USE_RAPID)

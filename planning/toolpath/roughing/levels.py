@@ -56,6 +56,7 @@ from planning.toolpath.moves import (
     FEED,
     RAPID,
     USE_CUT,
+    USE_RAPID,
     Toolpath,
     lines,
     path_length_mm,
@@ -136,7 +137,10 @@ class RoughingPath:
     ``n_ramps``, ``n_side_entries``: pieces entered by a helix, a ramp, or from the side (a plunge
     beside the material, then a feed in at the level); ``n_plunges_into_material``: straight
     plunges with remaining material above the level under the tool disc
-    (:mod:`planning.toolpath.roughing.entries`).
+    (:mod:`planning.toolpath.roughing.entries`; only with ``entry="plunge"``);
+    ``n_pieces_left`` / ``left_length_mm``: pieces not cut because no side entry, helix or ramp
+    fits (with a ``stock_view``, helix and ramp modes never plunge straight into material), and
+    their length, mm.
 
     Holder (``holder_pieces``): ``holder``: pieces were given; ``holder_blocked_cells``
     (n_levels,): per level, the raster cells the tool centre could have cut (in the window's reach,
@@ -168,6 +172,8 @@ class RoughingPath:
     n_ramps: int = 0
     n_side_entries: int = 0
     n_plunges_into_material: int = 0
+    n_pieces_left: int = 0
+    left_length_mm: float = 0.0
     holder: bool = False
     holder_blocked_cells: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     n_holder_blocked_cells: int = 0
@@ -181,8 +187,8 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
                    safe_z_mm: float | None = None, window_xy_mm=None, window_reach_mm: float = 0.0,
                    stock_points_mm=None, stock_spacing_mm: float | None = None, entry: str = "helix",
                    entry_angle_deg: float = 3.0, entry_diameter_mm: float | None = None,
-                   ramp_length_mm: float | None = None, holder_pieces=None,
-                   progress: Callable[[int, int], None] | None = None) -> RoughingPath:
+                   ramp_length_mm: float | None = None, holder_pieces=None, stock_view=None,
+                   travel_cells=None, rapid_clearance_mm: float = 0.0, progress: Callable[[int, int], None] | None = None) -> RoughingPath:
     """Z-level roughing of one set-up from a stock box or the stock left (mm, area frame; see
     :mod:`planning.toolpath.roughing`).
 
@@ -211,6 +217,28 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     diameter of the circle the tool centre runs on in a helix, in (0, 2 x cutter diameter) mm (None:
     70 % of the cutter diameter); ``ramp_length_mm``: the longest ramp leg, >= Rt, mm (None: twice
     the cutter diameter).
+
+    ``stock_view`` (rest roughing only; issue 30 item 1): a
+    :class:`planning.toolpath.stock_view.StockView` of the stock in this frame (its own copy). Given,
+    the roughing reads the material from the stock model itself and cuts the view with every level's
+    moves before it plans the next: a level cuts only the cells within Rt + h of material between
+    it and the level above (the cloud's points count as material), and the first level comes from
+    the stock's tops; at the start of every level the remaining-material map and the entries' tops
+    are lowered to what the view says is left (grown by half a ray spacing's diagonal + one cell, so
+    they stay upper bounds of the view's material). So no feed runs in the air beside steep stock
+    faces, under the stock's overhangs (the underside of a block tilted with the set-up), in the
+    holes earlier set-ups cut or below the stock, and entries and lifts meet the material that is
+    there, not the bound of it. None (default): the points' conservative top for all of it, down to
+    the floor, lowered only where the map saw a cell wholly swept.
+
+    ``travel_cells`` (issue 30: planned where the machine goes, not cut out afterwards):
+    ``travel_cells(x0, y0, h, nx, ny, z)`` -> (nx, ny) bool, the raster cells whose centre, as a tool
+    tip at frame height ``z``, the machine reaches within its travel (and with the lift to the
+    retract height); a level cuts only those. None (default): travel not known.
+    ``rapid_clearance_mm`` (>= 0, default 0): how far every rapid keeps its tool from the material (the
+    guard's and the verification's rapid clearance): the retracts feed up, and the rapids down stop,
+    where the tool grown by it clears the remaining material within ``Rt`` + this (the material map,
+    an upper bound).
 
     Holder: ``holder_pieces``: the non-cutting solids above the tip, a sequence of ``(z0_mm,
     z1_mm, radius_mm)`` cylinders from z0 to z1 (may be inf) above the tip, as
@@ -242,7 +270,13 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
         grid = replace(grid, inbox=grid.inbox & win)
     if rest:
         fine = _stock_tops(spts, grid, spacing, floor_map=grid.cmax)
-        near = _disc_max(fine, h, Rt + h)              # material above z within Rt + h of a tool centre
+        read, slab, live = fine, None, None
+        if stock_view is not None:                     # the stock's own top: where there is material to cut
+            read = stock_view.tops(grid.x0, grid.y0, h, grid.nx, grid.ny, fine + h, stock.floor - Rt)
+            read = np.maximum(np.where(fine > -np.inf, read, -np.inf), grid.cmax)
+            slab = _slab_reader(stock_view, grid, fine, Rt)
+            live = _LiveStock(stock_view, grid, read, rapid_clearance_mm)
+        near = _disc_max(read, h, Rt + h)              # material above z within Rt + h of a tool centre
         reach = near[grid.inbox]
         z_top = float(reach.max()) if reach.size else -math.inf
         lo_r = np.array([grid.x0, grid.y0])
@@ -252,7 +286,7 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
         levels = _levels(stock.z_top, stock.floor, step, step_down_mm) if stock.z_top > stock.floor + Z_TOL_MM \
             else np.zeros(0)
     else:
-        fine = near = None
+        fine = near = slab = live = None
         mat = _MaterialMap(grid, stock.box_lo, stock.box_hi, stock.z_top, Rt)
         levels = _levels(stock.z_top, stock.floor, step, step_down_mm)
     ys = _line_ys(stock.box_lo, stock.box_hi, grid.h, Rt, rc, s)
@@ -263,7 +297,8 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     before = mat.volume_above(stock.floor, wmask)
     w, cur, level_retracts, removed, blocked, deepest = _cut_levels(levels, grid, forb, mat, ys, pattern == "oneway",
                                                                     contour, stock.safe, Rt, rc, progress, ent, near,
-                                                                    stock.z_top, hold)
+                                                                    stock.z_top, hold, slab, travel_cells,
+                                                                    _clear_top(mat, Rt, rapid_clearance_mm), live)
     air_top = fine if rest else _box_tops(grid, stock)
     return _result(pts, w, cur, levels, level_retracts, removed, stock, Rt, rc, grid.h, s,
                    rest=rest, ent=ent, air_top=air_top, before=before, after=mat.volume_above(stock.floor, wmask),
@@ -425,16 +460,101 @@ def _levels(z_top, floor, step, step_down_mm) -> np.ndarray:
     return np.array(levels)
 
 
+class _LiveStock:
+    """The stock view (:class:`planning.toolpath.stock_view.StockView`) kept level with the roughing:
+    :meth:`advance` runs the moves written since the last call on the view, reads the material left
+    above the next level and lowers the remaining-material map and the entries' tops to it."""
+
+    def __init__(self, view, grid: _Raster, read, clearance_mm: float = 0.0):
+        self.view, self.grid = view, grid
+        self.clearance_mm = float(clearance_mm)
+        self.top = np.array(read, dtype=np.float64)        # the view's top per cell, as last read
+        self.k = 0                                         # moves already run on the view
+        self.last = None
+        self.grow = 0.5 * math.sqrt(2.0) * float(view.resolution_mm) + grid.h
+
+    def sync(self, w) -> None:
+        """Run the moves ``w`` has written since the last call on the view."""
+        n = sum(w.counts)
+        if n <= self.k:
+            return
+        pts = np.concatenate(w.pts)
+        new = pts[self.k:]
+        rapid = w.use()[self.k:] == USE_RAPID
+        start = np.concatenate([new[:1] if self.last is None else self.last[None, :], new[:-1]])
+        self.view.cut(start, new, rapid)
+        self.k, self.last = pts.shape[0], new[-1].copy()
+
+    def column_clear(self, w, clearance_mm: float):
+        """The writer's ``column_clear(x, y, z, top)`` (:class:`~planning.toolpath.roughing.links._Writer`):
+        the lowest height at or above z from which a rapid straight up to ``top`` keeps the tool
+        ``clearance_mm`` from the material, on the view brought up to date with ``w``'s moves."""
+        def clear(x, y, z, top):
+            self.sync(w)
+            return float(self.view.column_clear_z(np.array([[x, y, z]]), top, clearance_mm)[0])
+        return clear
+
+    def advance(self, w, z: float, mat: _MaterialMap, ent: _Entries) -> None:
+        g = self.grid
+        self.sync(w)
+        # the material left above this level (it only ever goes down: read from the last top down;
+        # where nothing was above the last reading's stop, from that stop)
+        stop = z - g.h
+        start = np.where(self.top > -np.inf, self.top + 1e-9, -np.inf)
+        top = self.view.tops(g.x0, g.y0, g.h, g.nx, g.ny, start, stop)
+        # where nothing is left above the stop, the stop bounds what may be left below it
+        top = np.where(np.isfinite(top), top, np.where(self.top > -np.inf, np.minimum(self.top, stop), -np.inf))
+        self.top = np.maximum(top, g.cmax)
+        bound = _disc_max(self.top, g.h, self.grow)        # an upper bound of the view's material
+        np.minimum(mat.top, _coarse_max(bound), out=mat.top)
+        if ent.use_fine:
+            ent.fine = np.ascontiguousarray(np.minimum(ent.fine, bound))
+
+
+def _slab_reader(view, grid: _Raster, fine, Rt: float):
+    """``slab(z, z_above)`` -> (nx, ny) bool: the raster cells within ``Rt + h`` of a cell whose line
+    along the frame's Z meets the stock (the stock view's :meth:`tops`) or the cloud between the
+    heights z and ``z_above`` (inf: anywhere above z): where a level at z has material to cut."""
+    h, nx, ny = grid.h, grid.nx, grid.ny
+
+    def slab(z, z_above):
+        start = fine + h if not math.isfinite(z_above) else np.minimum(fine + h, z_above)
+        tops = view.tops(grid.x0, grid.y0, h, nx, ny, start, z)
+        has = np.isfinite(tops) | ((grid.cmax > z) & (grid.cmax < z_above))
+        return _disc_max(np.where(has, 1.0, -np.inf), h, Rt + h) > 0.0
+    return slab
+
+
+def _clear_top(mat: _MaterialMap, Rt: float, clearance_mm: float):
+    """The writer's ``clear_top`` (:class:`~planning.toolpath.roughing.links._Writer`): the remaining
+    material within ``Rt + clearance_mm`` of a point (:meth:`_MaterialMap.disc_top`), or None when
+    no clearance is asked."""
+    c = float(clearance_mm)
+    if not c > 0:
+        return None
+    return lambda x, y: mat.disc_top(x, y, Rt + c)
+
+
 def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, ys, oneway, contour, safe, Rt, rc,
-                progress, ent: _Entries, near=None, z_top=math.inf, hold: _HolderMap | None = None):
+                progress, ent: _Entries, near=None, z_top=math.inf, hold: _HolderMap | None = None, slab=None,
+                travel=None, clear_top=None, live=None):
     """Cut every level from the top down: its region (rest roughing, ``near`` not None: only the
     cells whose ``near`` is above the level; ``hold`` not None: without the cells the holder
-    blocks, and lifts that keep the holder clear), pieces, order, links and entries, lowering the
+    blocks, and lifts that keep the holder clear; ``slab`` not None: only the cells ``slab(z, z_above)``
+    gives, within reach of material between the level and the one above, so that no level cuts
+    under an overhang of the stock or in a hole cut by an earlier set-up; ``live`` not None: the
+    moves of every level run on the stock view before the next level is planned
+    (:class:`_LiveStock`); ``travel`` not None: only the cells within the machine's travel at the level), pieces,
+    order, links and entries, lowering the
     remaining material along the cut. Returns (the moves, the last tip (None when nothing was
     cut), lifts within each level, the volume removed at each level, the cells the holder blocked
     at each level, the lowest level cut (NaN when none))."""
     x0, y0, h, nx, ny = grid.x0, grid.y0, grid.h, grid.nx, grid.ny
     w = _Writer()
+    w.clear_top = clear_top
+    ent.exact = live is not None
+    if live is not None and clear_top is not None:
+        w.column_clear = live.column_clear(w, live.clearance_mm)
     cur = None                    # current tip (x, y, z)
     level_retracts = np.zeros(levels.size, np.int64)
     removed = np.zeros(levels.size)
@@ -444,8 +564,15 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     top_dil = None
     scratch = _Scratch(nx * ny)
     for li, z in enumerate(levels):
+        if live is not None and li:    # the levels above cut on the view; the maps lowered to what is left
+            live.advance(w, float(z), mat, ent)
+            top_dil = None
         thr = forb.threshold(z)
         limit = grid.inbox if near is None else grid.inbox & (near > z + Z_TOL_MM)
+        if slab is not None:
+            limit = limit & slab(float(z), float(levels[li - 1]) if li else math.inf)
+        if travel is not None:
+            limit = limit & travel(x0, y0, h, nx, ny, float(z))
         if hold is not None:         # the map at the start of the level: an upper bound of the material during it
             blocked[li] = hold.level(limit, forb.G, thr, z, mat, cur, top_dil is None)
             limit = hold.limit
@@ -507,7 +634,8 @@ def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock
         cell_mm=float(h), stepover_mm=float(s), rest=bool(rest), air_cut_mm=air_cut,
         stock_before_mm3=float(before), stock_after_mm3=float(after), safe_z_mm=float(stock.safe),
         entry=ent.cfg.kind, n_helix=int(ent.n_helix), n_ramps=int(ent.n_ramps), n_side_entries=int(ent.n_side),
-        n_plunges_into_material=int(ent.n_plunges), holder=bool(holder),
+        n_plunges_into_material=int(ent.n_plunges), n_pieces_left=int(ent.n_left),
+        left_length_mm=round(float(ent.left_mm), 1), holder=bool(holder),
         holder_blocked_cells=np.zeros(levels.size, np.int64) if blocked is None else blocked,
         n_holder_blocked_cells=0 if blocked is None else int(blocked.sum()), deepest_cut_mm=float(deepest))
 
@@ -543,13 +671,17 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
                     swept.append(path)
                     linked = True
         if not linked:
-            if here is not None:
-                level_retracts[li] += 1
             if swept:
                 vol += mat.sweep(swept, z, Rt - rc, Rt, rc, 0.25 * lv.h)
                 any_swept = True
                 swept = []
-            swept += ent.enter(w, lv, cur, xy, cells[0], z, safe)
+            entered = ent.enter(w, lv, cur, xy, cells[0], z, safe)
+            if entered is None:       # no entry but a straight plunge: the piece is left, the tool stays
+                ent.left_mm += float(np.hypot(*np.diff(xy, axis=0).T).sum()) if xy.shape[0] > 1 else 0.0
+                continue
+            if here is not None:
+                level_retracts[li] += 1
+            swept += entered
         w.add(np.column_stack([xy[1:], np.full(xy.shape[0] - 1, z)]), USE_CUT)
         prev_line = piece.is_line
         swept.append(xy)

@@ -30,7 +30,7 @@ from planning.simulate.dexel import TriDexel
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _frame_tops(lo, res, n, base, off, cnt, pool, rot, origin, x0, y0, h, start, stop, out, bottom, want_bottom):
+def _frame_tops(lo, res, n, base, off, cnt, pool, rot, origin, x0, y0, h, start, stop, out):
     nx, ny = start.shape
     d = rot[2]
     f = 0
@@ -81,55 +81,17 @@ def _frame_tops(lo, res, n, base, off, cnt, pool, rot, origin, x0, y0, h, start,
                         out[cx, cy] = min(best, t)
                         break
                 t = t1
-            bottom[cx, cy] = math.inf
-            if not want_bottom or out[cx, cy] == -math.inf:
-                continue
-            # the lowest material: the same walk upwards from ``stop`` to the top
-            t = stop
-            top = out[cx, cy]
-            while t < top:
-                t1 = min(t + dt_max, top)
-                tm = 0.5 * (t + t1)
-                mu = p[ua] + tm * d[ua]
-                mv = p[va] + tm * d[va]
-                i = int(math.floor((mu - lo[ua]) / res))
-                j = int(math.floor((mv - lo[va]) / res))
-                if 0 <= i < nu and 0 <= j < n[va]:
-                    s_t, s_t1 = p[f] + t * d[f], p[f] + t1 * d[f]
-                    slo, shi = min(s_t, s_t1), max(s_t, s_t1)
-                    r = base[f] + j * nu + i
-                    o, c = off[r], cnt[r]
-                    best = math.inf
-                    for q in range(o, o + c):
-                        a, b = pool[q, 0], pool[q, 1]
-                        if b < slo or a > shi:
-                            continue
-                        # the lowest t of [a, b] within the step
-                        if d[f] > 0:
-                            tl = t + (max(a, slo) - s_t) / d[f]
-                        else:
-                            tl = t + (min(b, shi) - s_t) / d[f]
-                        if tl < best:
-                            best = tl
-                    if best < math.inf:
-                        bottom[cx, cy] = max(best, t)
-                        break
-                t = t1
-            if bottom[cx, cy] == math.inf:
-                bottom[cx, cy] = top
 
 
 def stock_tops_in_frame(stock: TriDexel, rotation, origin_mm, x0: float, y0: float, h: float, nx: int, ny: int,
-                        start_mm, stop_mm: float, bottoms: bool = False):
+                        start_mm, stop_mm: float) -> np.ndarray:
     """(nx, ny) frame z (mm) of the highest material of ``stock`` on the line along the frame's +Z
     through the centre of every cell of the raster (cells of side ``h`` from (``x0``, ``y0``), frame
     x, y; module docstring). ``rotation`` (3,3): rows the frame's x, y, z axes in part coordinates;
     ``origin_mm`` (3,) the frame's origin (:class:`planning.toolpath.frames.AreaFrame`). The walk
     starts at ``start_mm`` (a scalar or (nx, ny) frame z: a height known to be at or above the
     material, e.g. the conservative top; -inf: no material, skipped) and stops at ``stop_mm``;
-    -inf where it meets no material. ``bottoms=True`` returns ``(tops, bottoms)``: also the lowest
-    material above ``stop_mm`` on each line (the same walk upwards; +inf where there is none), so
-    that ``[bottom, top]`` holds all the material of the line above the stop."""
+    -inf where it meets no material."""
     R = np.ascontiguousarray(rotation, dtype=np.float64).reshape(3, 3)
     o = np.ascontiguousarray(origin_mm, dtype=np.float64).reshape(3)
     s = np.broadcast_to(np.asarray(start_mm, dtype=np.float64), (int(nx), int(ny)))
@@ -139,7 +101,6 @@ def stock_tops_in_frame(stock: TriDexel, rotation, origin_mm, x0: float, y0: flo
     t_max = float(((corners - o) @ R[2]).max())
     s = np.ascontiguousarray(np.where(np.isnan(s), -np.inf, np.minimum(s, t_max)))
     out = np.empty((int(nx), int(ny)))
-    bot = np.empty((int(nx), int(ny)))
     _frame_tops(stock.lo, stock.res, stock.n, stock.base, stock.off, stock.cnt, stock.pool, R, o, float(x0), float(y0),
-                float(h), s, float(stop_mm), out, bot, bool(bottoms))
-    return (out, bot) if bottoms else out
+                float(h), s, float(stop_mm), out)
+    return out

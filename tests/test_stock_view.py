@@ -1,0 +1,192 @@
+"""Issue 30 item 1: the stock read along a set-up's axis (planning.simulate.heightfield), the stock view an
+operation plans and cuts on (planning.toolpath.stock_view), and the roughing planned on it: regions where
+the material is, entries that never plunge straight into material, retracts and rapids that keep the rapid
+clearance, tool tips within the machine's travel. Every check runs the roughing's moves on the tri-dexel
+stock (the simulation's own kernels), not on the roughing's maps."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from planning.simulate.dexel import TriDexel, cut, simulate_moves
+from planning.simulate.heightfield import stock_tops_in_frame
+from planning.simulate.motion import FEED, RAPID, ToolShape
+from planning.toolpath.frames import AreaFrame, area_frame
+from planning.toolpath.guard import part_moves
+from planning.toolpath.roughing import roughing_paths
+from planning.toolpath.stock_view import StockView
+
+RES = 1.0
+SHAPE = ToolShape(number=2, kind="flat", radius_mm=4.0, corner_radius_mm=0.0, flute_length_mm=25.0,
+                  pieces=((25.0, math.inf, 4.0),))
+
+
+def _box(lo, hi, res=RES, pad=12.0):
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    return TriDexel.box(lo, hi, resolution_mm=res, domain_lo=lo - pad, domain_hi=hi + pad)
+
+
+def _tilted_frame(points, axis=(0.47, 0.814, 0.342)):
+    a = np.asarray(axis, float)
+    return area_frame(a / np.linalg.norm(a), points)
+
+
+def _slab(frame, lo, hi, X, Y):
+    """The analytic [t_in, t_out] of the frame's Z lines through (X, Y) in the box [lo, hi] (slab method)."""
+    P = frame.origin_mm + X[..., None] * frame.rotation[0] + Y[..., None] * frame.rotation[1]
+    d = frame.rotation[2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = (lo - P) / d, (hi - P) / d
+    return np.minimum(ta, tb).max(-1), np.maximum(ta, tb).min(-1)
+
+
+def test_tops_of_a_tilted_box_match_the_analytic_top_within_half_a_ray_spacing_times_the_slope():
+    lo, hi = np.array([-30.0, -20.0, -5.0]), np.array([30.0, 20.0, 25.0])
+    stock = _box(lo, hi)
+    rng = np.random.default_rng(0)
+    frame = _tilted_frame(rng.uniform(lo, hi, (500, 3)))
+    h, x0, y0, n = 0.5, -70.0, -70.0, 280
+    tops = stock_tops_in_frame(stock, frame.rotation, frame.origin_mm, x0, y0, h, n, n, np.inf, -200.0)
+    X, Y = np.meshgrid(x0 + (np.arange(n) + 0.5) * h, y0 + (np.arange(n) + 0.5) * h, indexing="ij")
+    t_in, t_out = _slab(frame, lo, hi, X, Y)
+    inside = t_out > t_in + 1e-9
+    both = inside & np.isfinite(tops)
+    # every line through the box reads it, but for a sliver along its silhouette (half a ray spacing)
+    assert both.sum() > 0.98 * inside.sum()
+    assert not np.any(np.isfinite(tops) & ~inside & (np.abs(t_out - t_in) > 2 * RES))
+    # on the faces the reading is the top as the simulation's rays see it: within r / 2 across them,
+    # i.e. r / 2 * tan(face slope to the line); this frame's steepest face leans 70 degrees
+    d = frame.rotation[2]
+    bound = 0.5 * RES * max(math.sqrt(1 - c * c) / c for c in np.abs(d) if c > 0.1) + 1e-6
+    err = tops[both] - t_out[both]
+    assert np.abs(err).max() <= bound
+    assert np.median(np.abs(err)) < 0.1
+    # the walk between two heights: only material between them, the highest
+    mid = float(np.median(t_out[inside]))
+    part = stock_tops_in_frame(stock, frame.rotation, frame.origin_mm, x0, y0, h, n, n, mid, mid - 3.0)
+    has = np.isfinite(part)
+    assert np.all(part[has] <= mid + 1e-9) and np.all(part[has] >= mid - 3.0 - 1e-9)
+    expect = inside & (t_out > mid - 3.0 + bound) & (t_in < mid - bound)
+    assert has[expect].mean() > 0.99
+
+
+def test_the_view_cuts_a_copy_as_the_simulation_does_and_clears_a_column_as_the_guard_does():
+    lo, hi = np.array([-20.0, -20.0, -10.0]), np.array([20.0, 20.0, 10.0])
+    stock = _box(lo, hi)
+    frame = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
+    view = StockView(stock, frame, SHAPE)
+    # a slot 12 mm wide (two passes 4 mm apart), 5 mm deep, then a rapid up out of it
+    a = np.array([[-25.0, -2.0, 5.0], [0.0, -2.0, 5.0], [0.0, 2.0, 5.0], [-25.0, 2.0, 5.0]])
+    b = np.array([[0.0, -2.0, 5.0], [0.0, 2.0, 5.0], [-25.0, 2.0, 5.0], [-25.0, 2.0, 30.0]])
+    kinds = np.array([FEED, FEED, FEED, RAPID])
+    removed = view.cut(a, b, rapid=kinds == RAPID)
+    ref = stock.copy()
+    ref_removed = cut(ref, a, b, np.tile([0.0, 0.0, 1.0], (4, 1)), SHAPE, kinds)
+    np.testing.assert_allclose(removed, ref_removed)
+    assert removed[3] == 0.0 and removed[0] > 0.0
+    assert stock.volume_mm3() == pytest.approx(_box(lo, hi).volume_mm3())          # the carried stock untouched
+    assert view.stock.volume_mm3() == pytest.approx(ref.volume_mm3())
+    # a rapid up from the slot's floor: on its axis the tool grown by 0.5 mm clears the walls (6 mm away)
+    # once its grown tip clears the floor; 1.6 mm off the axis it brushes the wall until above the block
+    z_axis = view.column_clear_z(np.array([[-10.0, 0.0, 5.0]]), 40.0, 0.5)[0]
+    z_wall = view.column_clear_z(np.array([[-10.0, 1.6, 5.0]]), 40.0, 0.5)[0]
+    assert 5.5 - 1e-9 <= z_axis <= 5.5 + 0.5 * RES + 1e-9
+    assert 10.0 + 0.5 - 1e-9 <= z_wall <= 10.0 + 0.5 + 0.5 * RES + 1e-9
+    for x, y, z in ((-10.0, 0.0, z_axis), (-10.0, 1.6, z_wall)):
+        up = simulate_moves(view.stock.copy(), np.array([[x, y, z]]), np.array([[x, y, 40.0]]),
+                            np.array([[0.0, 0.0, 1.0]]), SHAPE, np.array([RAPID]), rapid_clearance_mm=0.5)
+        assert up.rapid_depth_mm[0] == 0.0
+        low = simulate_moves(view.stock.copy(), np.array([[x, y, z - 0.6]]), np.array([[x, y, 40.0]]),
+                             np.array([[0.0, 0.0, 1.0]]), SHAPE, np.array([RAPID]), rapid_clearance_mm=0.5)
+        assert low.rapid_depth_mm[0] > 0.0
+
+
+def _dome(n=5000, radius=22.0, seed=0):
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(n, 3))
+    u[:, 2] = np.abs(u[:, 2])
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    return radius * u
+
+
+def _run(tp, frame, stock, clearance):
+    pm = part_moves(tp, frame)
+    run = simulate_moves(stock.copy(), pm.start, pm.end, np.broadcast_to(pm.axis, pm.start.shape), SHAPE, pm.kind,
+                         rapid_clearance_mm=clearance)
+    d = pm.end - pm.start
+    L = np.linalg.norm(d, axis=1)
+    feed = pm.kind == FEED
+    down = feed & (L > 0) & (-(d @ pm.axis) > math.cos(math.radians(10.0)) * L)
+    return pm, run, L, feed, down
+
+
+@pytest.fixture(scope="module")
+def tilted_dome():
+    """A dome on a block, roughed from a set-up tilted 70 degrees (the half sphere's), from the points of
+    the block's boundary only and from a stock view of it."""
+    cloud = _dome()
+    lo, hi = np.array([-26.0, -26.0, -0.5]), np.array([26.0, 26.0, 24.0])
+    stock = _box(lo, hi)
+    frame = _tilted_frame(cloud)
+    cloud_f = frame.to_frame(cloud)
+    kw = dict(tool_radius_mm=SHAPE.radius_mm, step_down_mm=3.0, stock_allowance_mm=0.5,
+              floor_z_mm=float(cloud_f[:, 2].min()) + 0.5, stock_points_mm=frame.to_frame(stock.boundary_points()),
+              stock_spacing_mm=RES, holder_pieces=SHAPE.pieces, safe_z_mm=float(cloud_f[:, 2].max()) + 30.0)
+    points = roughing_paths(cloud_f, **kw)
+    viewed = roughing_paths(cloud_f, stock_view=StockView(stock, frame, SHAPE), rapid_clearance_mm=0.5, **kw)
+    return frame, stock, lo, points, viewed
+
+
+def test_roughing_on_the_stock_view_cuts_less_air_never_plunges_and_keeps_its_rapids_clear(tilted_dome):
+    frame, stock, lo, points, viewed = tilted_dome
+    res = {}
+    for name, rr in (("points", points), ("view", viewed)):
+        pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
+        air = feed & (run.removed_mm3 < 1e-6)
+        below = feed & (np.maximum(pm.start[:, 2], pm.end[:, 2]) < lo[2]) & air
+        res[name] = dict(air=L[air].sum() / L[feed].sum(), removed=run.removed_mm3.sum(),
+                         plunges=int((down & (run.removed_mm3 > 1e-6)).sum()),
+                         rapids=int((run.rapid_depth_mm > 0).sum()), holder=int((run.holder_depth_mm > 0).sum()),
+                         below=L[below].sum())
+    v, p = res["view"], res["points"]
+    assert v["plunges"] == 0 and viewed.n_plunges_into_material == 0
+    assert v["rapids"] == 0 and v["holder"] == 0
+    # far less feed in the air, and under the block (a tilted cutter still runs along the block's lower
+    # edge with its tip under it, and its retracts feed up there until the grown tool clears the edge)
+    assert v["below"] < 0.25 * p["below"]
+    assert v["air"] < 0.75 * p["air"]
+    # the same material comes off (within the few pieces left for want of an entry)
+    assert v["removed"] > 0.97 * p["removed"]
+    assert viewed.n_pieces_left >= 0 and viewed.left_length_mm >= 0.0
+    # the view was cut with the moves as they were planned: what it removed is what the moves remove
+    assert viewed.toolpath.n_moves > 100
+
+
+def test_travel_cells_are_the_machines_own_travel_test():
+    """The affine extension of the set-up's kinematics over the raster agrees with
+    SetupMachine.travel_ok at the cells' centres (and the lift above them)."""
+    from planning.orientations.kinematics import load_profile
+    from planning.simulate.kinematics import MachineModel
+    from planning.toolpath.area_paths import _travel_cells
+    from planning.toolpath.guard import SetupMachine
+
+    profile = load_profile("compact_trunnion_ac")
+    model = MachineModel(profile, placement_mm=np.array([0.0, 0.0, 0.0]))
+    cloud = _dome()
+    frame = _tilted_frame(cloud)
+    machine = SetupMachine(model=model, angles_deg=np.array([70.0, 120.0]))
+    gauge = 80.0
+    ok = _travel_cells(machine, frame, gauge, lift_z=60.0)
+    x0, y0, h, nx, ny = -400.0, -300.0, 4.0, 200, 150
+    for z in (-40.0, 0.0, 30.0):
+        cells = ok(x0, y0, h, nx, ny, z)
+        X, Y = np.meshgrid(x0 + (np.arange(nx) + 0.5) * h, y0 + (np.arange(ny) + 0.5) * h, indexing="ij")
+        pts = np.stack([X.ravel(), Y.ravel(), np.full(X.size, z)], axis=1)
+        lift = pts.copy()
+        lift[:, 2] = max(z, 60.0)
+        ref = machine.travel_ok(frame.to_part(pts), gauge) & machine.travel_ok(frame.to_part(lift), gauge)
+        assert np.array_equal(cells.ravel(), ref)
+        assert 0 < cells.sum() < cells.size

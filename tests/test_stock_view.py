@@ -190,3 +190,49 @@ def test_travel_cells_are_the_machines_own_travel_test():
         ref = machine.travel_ok(frame.to_part(pts), gauge) & machine.travel_ok(frame.to_part(lift), gauge)
         assert np.array_equal(cells.ravel(), ref)
         assert 0 < cells.sum() < cells.size
+
+
+def test_level_air_trims_a_line_to_where_its_disc_meets_material_not_yet_swept():
+    """planning.toolpath.roughing.air against a brute force over the cells."""
+    from planning.toolpath.roughing.air import _LevelAir
+
+    h, nx, ny, Rt = 0.5, 120, 80, 3.0
+    has = np.zeros((nx, ny), dtype=bool)
+    has[40:70, 30:50] = True                               # material: x in [20, 35), y in [15, 25) mm
+    air = _LevelAir(has, 0.0, 0.0, h, Rt, Rt)
+
+    def brute(j, swept):
+        ii, jj = np.nonzero(has & ~swept)
+        ok = [i for i in range(nx) if np.any((ii - i) ** 2 + (jj - j) ** 2 <= (Rt / h) ** 2)]
+        return (ok[0], ok[-1]) if ok else None
+
+    def line(j):
+        y = (j + 0.5) * h
+        return np.array([[0.0, y], [nx * h, y]]), np.array([0 * ny + j, (nx - 1) * ny + j])
+
+    for j in (20, 24, 25, 40, 55, 56, 60):
+        xy, cells = line(j)
+        got = air.trim(xy, cells, ny)
+        ref = brute(j, air.swept)
+        if ref is None:
+            assert got is None, j
+        else:
+            assert got is not None, j
+            txy, tcells = got
+            assert (tcells[0] // ny, tcells[-1] // ny) == ref
+            assert txy[0, 0] == pytest.approx(ref[0] * h) and txy[1, 0] == pytest.approx((ref[1] + 1) * h)
+    # a cut along y = 20 mm with a flat bottom of 3 mm sweeps the band y in (17, 23) (cells wholly inside):
+    # a line at y = 21 mm then meets only what is left beyond the band, within its disc
+    air.mark([np.array([[0.0, 20.0], [60.0, 20.0]])])
+    assert air.swept[50, 40] and not air.swept[50, 30]
+    for j in (36, 42, 44, 48):
+        xy, cells = line(j)
+        got = air.trim(xy, cells, ny)
+        ref = brute(j, air.swept)
+        assert (got is None) == (ref is None)
+        if ref is not None:
+            assert (got[1][0] // ny, got[1][-1] // ny) == ref
+    # a reversed line keeps its direction
+    xy, cells = line(40)
+    got = air.trim(xy[::-1].copy(), cells[::-1].copy(), ny)
+    assert got is None or got[0][0, 0] > got[0][1, 0]

@@ -61,6 +61,7 @@ from planning.toolpath.moves import (
     lines,
     path_length_mm,
 )
+from planning.toolpath.roughing.air import _LevelAir
 from planning.toolpath.roughing.clearance import min_tool_clearance
 from planning.toolpath.roughing.clearing import (
     _contour_pieces,
@@ -512,16 +513,17 @@ class _LiveStock:
 
 
 def _slab_reader(view, grid: _Raster, fine, Rt: float):
-    """``slab(z, z_above)`` -> (nx, ny) bool: the raster cells within ``Rt + h`` of a cell whose line
-    along the frame's Z meets the stock (the stock view's :meth:`tops`) or the cloud between the
-    heights z and ``z_above`` (inf: anywhere above z): where a level at z has material to cut."""
+    """``slab(z, z_above)`` -> ((nx, ny) bool, (nx, ny) bool): the raster cells within ``Rt + h`` (the
+    level's region: where a tool centre may meet material) of a cell that has material, and the cells
+    that have material: whose line along the frame's Z meets the stock (the stock view's
+    :meth:`tops`) or the cloud between the heights z and ``z_above`` (inf: anywhere above z)."""
     h, nx, ny = grid.h, grid.nx, grid.ny
 
     def slab(z, z_above):
         start = fine + h if not math.isfinite(z_above) else np.minimum(fine + h, z_above)
         tops = view.tops(grid.x0, grid.y0, h, nx, ny, start, z)
         has = np.isfinite(tops) | ((grid.cmax > z) & (grid.cmax < z_above))
-        return _disc_max(np.where(has, 1.0, -np.inf), h, Rt + h) > 0.0
+        return _disc_max(np.where(has, 1.0, -np.inf), h, Rt + h) > 0.0, has
     return slab
 
 
@@ -569,8 +571,11 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
             top_dil = None
         thr = forb.threshold(z)
         limit = grid.inbox if near is None else grid.inbox & (near > z + Z_TOL_MM)
+        air = None
         if slab is not None:
-            limit = limit & slab(float(z), float(levels[li - 1]) if li else math.inf)
+            near_z, has = slab(float(z), float(levels[li - 1]) if li else math.inf)
+            limit = limit & near_z
+            air = _LevelAir(has, x0, y0, h, Rt, Rt - rc)
         if travel is not None:
             limit = limit & travel(x0, y0, h, nx, ny, float(z))
         if hold is not None:         # the map at the start of the level: an upper bound of the material during it
@@ -591,7 +596,7 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
             ent.thr = thr
             ent.z_prev = float(levels[li - 1]) if li else float(z_top)
             cur, removed[li], any_swept = _cut_level(w, lv, pieces, cur, safe, oneway, level_retracts, li, ent, mat,
-                                                     Rt, rc)
+                                                     Rt, rc, air)
             if any_swept:             # the dilated map is redone at the next level
                 top_dil = None
         if progress is not None:
@@ -641,20 +646,29 @@ def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock
 
 
 def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, level_retracts, li, ent: _Entries,
-               mat: _MaterialMap, Rt, rc):
+               mat: _MaterialMap, Rt, rc, air: _LevelAir | None = None):
     """Cut the pieces of one level in the order of
     :func:`~planning.toolpath.roughing.ordering._order`, linked at the level or by lifts and
     entries (:class:`~planning.toolpath.roughing.entries._Entries`); the remaining-material map is
     lowered along what was cut (cells the flat bottom, or the corner, surely swept) before each
-    entry and at the end. Returns the new current tip, the volume removed (mm^3) and whether
-    anything was cut at the level."""
+    entry and at the end. With ``air`` (:class:`~planning.toolpath.roughing.air._LevelAir`) a clearing
+    line is trimmed, just before it is cut, to the span where its disc still meets material of the
+    level that the level's cuts so far have not swept, and skipped when there is none. Returns the
+    new current tip, the volume removed (mm^3) and whether anything was cut at the level."""
     z = lv.z
     here = None                  # (xy, cell, component) where the tool is at this level
     swept = []
     vol = 0.0
     any_swept = False
     prev_line = False
+    cut_all = []                 # every polyline cut at this level, for ``air``
     for piece, xy, cells in _order(pieces, None if cur is None else np.asarray(cur[:2]), oneway):
+        if air is not None and piece.is_line:
+            air.mark(cut_all)
+            trimmed = air.trim(xy, cells, lv.ny)
+            if trimmed is None:      # only air left along it
+                continue
+            xy, cells = trimmed
         q = xy[0]
         linked = False
         if here is not None and here[2] == piece.comp and not (oneway and piece.is_line and prev_line):
@@ -663,12 +677,14 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
             if dist <= worth and lv.visible(here[0], q):
                 w.add([q[0], q[1], z], USE_CUT)
                 swept.append(np.array([here[0], q]))
+                cut_all.append(swept[-1])
                 linked = True
             elif dist <= worth:
                 path = lv.grid_path(here[0], here[1], q, cells[0], worth)
                 if path is not None:
                     w.add(np.column_stack([path[1:], np.full(path.shape[0] - 1, z)]), USE_CUT)
                     swept.append(path)
+                    cut_all.append(path)
                     linked = True
         if not linked:
             if swept:
@@ -682,9 +698,11 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
             if here is not None:
                 level_retracts[li] += 1
             swept += entered
+            cut_all += entered
         w.add(np.column_stack([xy[1:], np.full(xy.shape[0] - 1, z)]), USE_CUT)
         prev_line = piece.is_line
         swept.append(xy)
+        cut_all.append(xy)
         cur = (float(xy[-1, 0]), float(xy[-1, 1]), z)
         here = (xy[-1].copy(), cells[-1], piece.comp)
     if swept:

@@ -1,0 +1,136 @@
+"""Keeping the clearing lines of one level out of the air (Z-level roughing on the stock itself, issue
+30; mm, area frame, raster cells of :mod:`planning.toolpath.roughing.maps`). Stage: per level, while
+:func:`planning.toolpath.roughing.levels._cut_level` writes the level's pieces.
+
+At the start of a level the stock view says which cells hold material between the level and the one
+above (``has``). As the level is cut, :class:`_LevelAir` marks the cells the tool's flat bottom has
+surely swept (every point of the cell within ``Rf`` of a cut: the cell's centre within
+``Rf - h / sqrt 2``), and before a clearing line is cut its ends are trimmed to the first and the last
+of its cells whose tool disc (radius ``Rt`` about the cell's centre) still meets a cell that has
+material and is not swept. A line that meets none is not cut. So a line that only runs along the band
+its neighbour already cleared, or past the stock's edge, is not fed through the air; the gaps inside a
+line are kept (it stays one piece). Conservative: a cell counts as swept only when wholly inside a
+cut, so a line is never trimmed where material may be left.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def _mark_swept(swept, x0, y0, h, xy, r):
+    """Mark the cells whose centre lies within ``r`` of the polyline ``xy`` (m,2)."""
+    nx, ny = swept.shape
+    if r <= 0.0:
+        return
+    for k in range(xy.shape[0]):
+        ax, ay = xy[k, 0], xy[k, 1]
+        if k + 1 < xy.shape[0]:
+            bx, by = xy[k + 1, 0], xy[k + 1, 1]
+        else:
+            bx, by = ax, ay
+        dx, dy = bx - ax, by - ay
+        L2 = dx * dx + dy * dy
+        i0 = max(0, int(math.floor((min(ax, bx) - r - x0) / h)))
+        i1 = min(nx - 1, int(math.floor((max(ax, bx) + r - x0) / h)))
+        j0 = max(0, int(math.floor((min(ay, by) - r - y0) / h)))
+        j1 = min(ny - 1, int(math.floor((max(ay, by) + r - y0) / h)))
+        for i in range(i0, i1 + 1):
+            cx = x0 + (i + 0.5) * h
+            for j in range(j0, j1 + 1):
+                if swept[i, j]:
+                    continue
+                cy = y0 + (j + 0.5) * h
+                t = 0.0
+                if L2 > 0.0:
+                    t = min(1.0, max(0.0, ((cx - ax) * dx + (cy - ay) * dy) / L2))
+                ex, ey = cx - (ax + t * dx), cy - (ay + t * dy)
+                if ex * ex + ey * ey <= r * r:
+                    swept[i, j] = True
+
+
+@njit(cache=True, nogil=True)
+def _useful_span(has, swept, i0, i1, j, reach_cells):
+    """The first and last cell index in [i0, i1) of raster column j whose disc of ``reach_cells``
+    cells meets a cell with ``has`` and not ``swept``; (-1, -1) when none."""
+    nx, ny = has.shape
+    K = int(math.ceil(reach_cells))
+    r2 = reach_cells * reach_cells
+    first = -1
+    for i in range(i0, i1):
+        found = False
+        for di in range(-K, K + 1):
+            ii = i + di
+            if ii < 0 or ii >= nx:
+                continue
+            for dj in range(-K, K + 1):
+                jj = j + dj
+                if jj < 0 or jj >= ny or di * di + dj * dj > r2:
+                    continue
+                if has[ii, jj] and not swept[ii, jj]:
+                    found = True
+                    break
+            if found:
+                break
+        if found:
+            first = i
+            break
+    if first < 0:
+        return -1, -1
+    for i in range(i1 - 1, first - 1, -1):
+        for di in range(-K, K + 1):
+            ii = i + di
+            if ii < 0 or ii >= nx:
+                continue
+            for dj in range(-K, K + 1):
+                jj = j + dj
+                if jj < 0 or jj >= ny or di * di + dj * dj > r2:
+                    continue
+                if has[ii, jj] and not swept[ii, jj]:
+                    return first, i
+    return first, first
+
+
+class _LevelAir:
+    """One level's material (``has`` (nx, ny) bool: material between the level and the one above) and
+    the cells its cuts have swept so far (module docstring). ``Rf``: the flat bottom's radius, ``Rt``
+    the cutter's."""
+
+    def __init__(self, has, x0, y0, h, Rt, Rf):
+        self.has = np.ascontiguousarray(has, dtype=np.bool_)
+        self.swept = np.zeros(self.has.shape, dtype=np.bool_)
+        self.x0, self.y0, self.h = float(x0), float(y0), float(h)
+        self.Rt = float(Rt)
+        self.r_swept = float(Rf) - math.sqrt(0.5) * float(h)
+        self.n_marked = 0
+
+    def mark(self, polylines: list) -> None:
+        """Mark what the polylines ``polylines[n_marked:]`` (the level's cuts, (m,2) each) swept."""
+        for xy in polylines[self.n_marked:]:
+            _mark_swept(self.swept, self.x0, self.y0, self.h, np.ascontiguousarray(xy, dtype=np.float64),
+                        self.r_swept)
+        self.n_marked = len(polylines)
+
+    def trim(self, xy: np.ndarray, cells: np.ndarray, ny: int):
+        """A clearing line (``xy`` (2,2) along X, ``cells`` its first and last raster cell) trimmed to
+        its useful span: (xy, cells), or None when it would cut only air."""
+        ca, cb = int(cells[0]), int(cells[-1])
+        j = ca % ny
+        ia, ib = ca // ny, cb // ny
+        lo_i, hi_i = min(ia, ib), max(ia, ib)
+        first, last = _useful_span(self.has, self.swept, lo_i, hi_i + 1, j, self.Rt / self.h)
+        if first < 0:
+            return None
+        if first == lo_i and last == hi_i:
+            return xy, cells
+        h = self.h
+        xa = max(self.x0 + first * h, float(min(xy[0, 0], xy[-1, 0])))
+        xb = min(self.x0 + (last + 1) * h, float(max(xy[0, 0], xy[-1, 0])))
+        y = float(xy[0, 1])
+        if ib >= ia:
+            return np.array([[xa, y], [xb, y]]), np.array([first * ny + j, last * ny + j])
+        return np.array([[xb, y], [xa, y]]), np.array([last * ny + j, first * ny + j])

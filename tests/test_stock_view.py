@@ -132,9 +132,9 @@ def tilted_dome():
     stock = _box(lo, hi)
     frame = _tilted_frame(cloud)
     cloud_f = frame.to_frame(cloud)
-    kw = dict(tool_radius_mm=SHAPE.radius_mm, step_down_mm=3.0, stock_allowance_mm=0.5,
-              floor_z_mm=float(cloud_f[:, 2].min()) + 0.5, stock_points_mm=frame.to_frame(stock.boundary_points()),
-              stock_spacing_mm=RES, holder_pieces=SHAPE.pieces, safe_z_mm=float(cloud_f[:, 2].max()) + 30.0)
+    kw = {"tool_radius_mm": SHAPE.radius_mm, "step_down_mm": 3.0, "stock_allowance_mm": 0.5,
+              "floor_z_mm": float(cloud_f[:, 2].min()) + 0.5, "stock_points_mm": frame.to_frame(stock.boundary_points()),
+              "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces, "safe_z_mm": float(cloud_f[:, 2].max()) + 30.0}
     points = roughing_paths(cloud_f, **kw)
     viewed = roughing_paths(cloud_f, stock_view=StockView(stock, frame, SHAPE), rapid_clearance_mm=0.5, **kw)
     return frame, stock, lo, points, viewed
@@ -147,10 +147,10 @@ def test_roughing_on_the_stock_view_cuts_less_air_never_plunges_and_keeps_its_ra
         pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
         air = feed & (run.removed_mm3 < 1e-6)
         below = feed & (np.maximum(pm.start[:, 2], pm.end[:, 2]) < lo[2]) & air
-        res[name] = dict(air=L[air].sum() / L[feed].sum(), removed=run.removed_mm3.sum(),
-                         plunges=int((down & (run.removed_mm3 > 1e-6)).sum()),
-                         rapids=int((run.rapid_depth_mm > 0).sum()), holder=int((run.holder_depth_mm > 0).sum()),
-                         below=L[below].sum())
+        res[name] = {"air": L[air].sum() / L[feed].sum(), "removed": run.removed_mm3.sum(),
+                         "plunges": int((down & (run.removed_mm3 > 1e-6)).sum()),
+                         "rapids": int((run.rapid_depth_mm > 0).sum()), "holder": int((run.holder_depth_mm > 0).sum()),
+                         "below": L[below].sum()}
     v, p = res["view"], res["points"]
     assert v["plunges"] == 0 and viewed.n_plunges_into_material == 0
     assert v["rapids"] == 0 and v["holder"] == 0

@@ -75,8 +75,7 @@ def _frame_tops(lo, res, n, base, off, cnt, pool, rot, origin, x0, y0, h, start,
                             th = t1 + (min(b, shi) - s_t1) / d[f]
                         else:
                             th = t1 + (max(a, slo) - s_t1) / d[f]
-                        if th > best:
-                            best = th
+                        best = max(best, th)
                     if best > -math.inf:
                         out[cx, cy] = min(best, t)
                         break

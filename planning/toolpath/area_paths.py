@@ -55,13 +55,13 @@ from planning.toolpath.guard import guard_toolpath
 from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath, concatenate
 from planning.toolpath.reduce import fit_arcs, reduce_cl
 from planning.toolpath.roughing import roughing_paths
-from planning.toolpath.stock_view import StockView
 from planning.toolpath.safety import (
     cutting_positions,
     finished_reach_mm,
     guard_finishing,
     unmachined_points,
 )
+from planning.toolpath.stock_view import StockView
 from planning.toolpath.verify import BinnedCloud, move_clearance
 
 Progress = Callable[[float, str], None]

@@ -189,7 +189,8 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
                    stock_points_mm=None, stock_spacing_mm: float | None = None, entry: str = "helix",
                    entry_angle_deg: float = 3.0, entry_diameter_mm: float | None = None,
                    ramp_length_mm: float | None = None, holder_pieces=None, stock_view=None,
-                   travel_cells=None, rapid_clearance_mm: float = 0.0, progress: Callable[[int, int], None] | None = None) -> RoughingPath:
+                   travel_cells=None, rapid_clearance_mm: float = 0.0,
+                   progress: Callable[[int, int], None] | None = None) -> RoughingPath:
     """Z-level roughing of one set-up from a stock box or the stock left (mm, area frame; see
     :mod:`planning.toolpath.roughing`).
 
@@ -238,8 +239,10 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     retract height); a level cuts only those. None (default): travel not known.
     ``rapid_clearance_mm`` (>= 0, default 0): how far every rapid keeps its tool from the material (the
     guard's and the verification's rapid clearance): the retracts feed up, and the rapids down stop,
-    where the tool grown by it clears the remaining material within ``Rt`` + this (the material map,
-    an upper bound).
+    where the tool grown by it clears the material: with a ``stock_view`` the view brought up to date
+    with the moves so far (the guard's own column test,
+    :meth:`planning.toolpath.stock_view.StockView.column_clear_z`), else the remaining-material map
+    within ``Rt`` + this (an upper bound).
 
     Holder: ``holder_pieces``: the non-cutting solids above the tip, a sequence of ``(z0_mm,
     z1_mm, radius_mm)`` cylinders from z0 to z1 (may be inf) above the tip, as

@@ -236,3 +236,34 @@ def test_level_air_trims_a_line_to_where_its_disc_meets_material_not_yet_swept()
     xy, cells = line(40)
     got = air.trim(xy[::-1].copy(), cells[::-1].copy(), ny)
     assert got is None or got[0][0, 0] > got[0][1, 0]
+
+
+def test_roughing_keeps_the_tool_off_the_obstacles_it_is_given_and_its_rapids_clear():
+    """A clamp beside the block, reaching above the block's floor: the roughing on the stock view with the
+    obstacles' points keeps the whole tool off it (the guard's own collision test), without them it
+    runs into it."""
+    from planning.simulate.dexel import collide
+
+    cloud = _dome()
+    lo, hi = np.array([-26.0, -26.0, -0.5]), np.array([26.0, 26.0, 24.0])
+    stock = _box(lo, hi)
+    clamp = TriDexel.box(np.array([26.5, -8.0, -0.5]), np.array([34.0, 8.0, 6.0]), resolution_mm=RES,
+                         domain_lo=lo - 12.0, domain_hi=hi + 12.0)
+    frame = AreaFrame(rotation=np.eye(3), origin_mm=np.array([0.0, 0.0, 0.0]))
+    kw = dict(tool_radius_mm=SHAPE.radius_mm, step_down_mm=3.0, stock_allowance_mm=0.5, floor_z_mm=0.0,
+              stock_points_mm=stock.boundary_points(), stock_spacing_mm=RES, holder_pieces=SHAPE.pieces,
+              safe_z_mm=40.0, rapid_clearance_mm=0.5)
+    with_obs = roughing_paths(cloud, stock_view=StockView(stock, frame, SHAPE, obstacles=clamp),
+                              obstacle_points_mm=clamp.boundary_points(), **kw)
+    without = roughing_paths(cloud, stock_view=StockView(stock, frame, SHAPE), **kw)
+    hits = {}
+    for name, rr in (("with", with_obs), ("without", without)):
+        pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
+        ax = np.broadcast_to(pm.axis, pm.start.shape)
+        hits[name] = int((collide(clamp, pm.start, pm.end, ax, SHAPE, which="tool") > 0).sum())
+        if name == "with":
+            assert int((run.rapid_depth_mm > 0).sum()) == 0 and int(down.sum() and (run.removed_mm3[down] > 1e-6).sum()) == 0
+            # the rapids keep the clearance from the clamp too
+            rap = pm.kind == RAPID
+            assert int((collide(clamp, pm.start[rap], pm.end[rap], ax[rap], SHAPE, which="tool", grow_mm=0.5) > 0).sum()) == 0
+    assert hits["with"] == 0 and hits["without"] > 0

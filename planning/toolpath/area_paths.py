@@ -441,9 +441,12 @@ def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec:
     if rp.enabled and floor < stock_top:
         t0 = time.perf_counter()
         # with the carried stock: rest roughing, and the end mill's holder kept out of the stock and the part
+        view = None if carried is None else StockView(carried.stock, ap.frame, carried.roughing_shape,
+                                                      obstacles=carried.obstacles)
         rest = {} if carried is None else {"stock_points_mm": stock_f, "stock_spacing_mm": carried.resolution_mm,
                                            "holder_pieces": carried.roughing_shape.pieces,
-                                           "stock_view": StockView(carried.stock, ap.frame, carried.roughing_shape),
+                                           "stock_view": view,
+                                           "obstacle_points_mm": view.obstacle_points(),
                                            "travel_cells": None if carried.machines is None else
                                            _travel_cells(carried.machines[ap.area], ap.frame,
                                                          carried.roughing_shape.gauge_length_mm, safe_tip_z),

@@ -24,11 +24,13 @@ from planning.toolpath.frames import AreaFrame
 
 class StockView:
     """A copy of ``stock`` seen in ``frame`` and cut by ``shape`` (the operation's tool as the
-    simulation sees it). ``resolution_mm``: the stock model's ray spacing (how far across its rays
-    a reading may be off, :meth:`tops`). ``removed_mm3``: what :meth:`cut` has removed so far."""
+    simulation sees it). ``obstacles``: what is never cut (fixtures, riser, table; the carried
+    obstacles, not copied) or None. ``resolution_mm``: the stock model's ray spacing (how far across
+    its rays a reading may be off, :meth:`tops`). ``removed_mm3``: what :meth:`cut` has removed so far."""
 
-    def __init__(self, stock: TriDexel, frame: AreaFrame, shape: ToolShape):
+    def __init__(self, stock: TriDexel, frame: AreaFrame, shape: ToolShape, obstacles: TriDexel | None = None):
         self.stock = stock.copy()
+        self.obstacles = obstacles
         self.frame = frame
         self.shape = shape
         self.resolution_mm = float(stock.res)
@@ -61,9 +63,45 @@ class StockView:
     def column_clear_z(self, points_frame, top_z: float, clearance_mm: float) -> np.ndarray:
         """(n,) for each tool tip (frame, n,3) the lowest height (frame z) at or above it from which
         the whole tool, grown by ``clearance_mm`` and moved straight up to ``top_z``, meets none of
-        the view's material (:func:`planning.toolpath.guard.column_clear_z`, the guard's own test of a
-        rapid up the tool axis)."""
+        the view's material nor the obstacles (:func:`planning.toolpath.guard.column_clear_z`, the
+        guard's own test of a rapid up the tool axis)."""
         from planning.toolpath.guard import column_clear_z
 
-        return column_clear_z(self.frame, self.shape, self.stock, points_frame, float(top_z), 0.0, float(clearance_mm))
+        z = column_clear_z(self.frame, self.shape, self.stock, points_frame, float(top_z), 0.0, float(clearance_mm))
+        if self.obstacles is not None:
+            z = np.maximum(z, column_clear_z(self.frame, self.shape, self.obstacles, points_frame, float(top_z), 0.0,
+                                             float(clearance_mm)))
+        return z
+
+    def rapid_clear_z(self, a_frame, b_frame, z: float, top_z: float, clearance_mm: float,
+                      step_mm: float = 1.0) -> float:
+        """The lowest height (frame z) of ``z``, ``z + step_mm``, ... (at most ``top_z``) at which a
+        rapid from ``a_frame`` to ``b_frame`` (frame x, y) keeps the whole tool ``clearance_mm`` from the
+        view's material and the obstacles (:func:`planning.simulate.dexel.collide` on the segment, as
+        the guard checks a rapid); ``top_z`` when none below is clear."""
+        from planning.simulate.dexel import collide
+
+        a2, b2 = np.asarray(a_frame, dtype=np.float64)[:2], np.asarray(b_frame, dtype=np.float64)[:2]
+        heights = np.arange(float(z), float(top_z), float(step_mm))
+        if heights.size == 0:
+            return float(top_z)
+        s = self.frame.to_part(np.column_stack([np.tile(a2, (heights.size, 1)), heights]))
+        e = self.frame.to_part(np.column_stack([np.tile(b2, (heights.size, 1)), heights]))
+        ax = np.broadcast_to(self.frame.rotation[2], s.shape)
+        hit = collide(self.stock, s, e, ax, self.shape, which="tool", grow_mm=clearance_mm) > 0
+        if self.obstacles is not None:
+            hit |= collide(self.obstacles, s, e, ax, self.shape, which="tool", grow_mm=clearance_mm) > 0
+        free = np.flatnonzero(~hit)
+        # the lowest height above every blocked one (a rapid clear at a height is not always clear above it)
+        last_hit = np.flatnonzero(hit)
+        if last_hit.size == 0:
+            return float(heights[0])
+        k = int(last_hit[-1]) + 1
+        return float(heights[k]) if k < heights.size and free.size else float(top_z)
+
+    def obstacle_points(self) -> np.ndarray:
+        """(K,3) points on the boundary of the obstacles in the frame (mm; empty when there are none)."""
+        if self.obstacles is None:
+            return np.zeros((0, 3))
+        return self.frame.to_frame(self.obstacles.boundary_points())
 

@@ -718,6 +718,8 @@ def _approach(w: _Writer, lv: _Level, cur, p, zs, z, safe):
         w.add([p[0], p[1], safe], USE_RAPID)
     else:
         zl = min(safe, max(_link_height(lv, np.array(cur[:2]), p, cur[2], z, safe), zs))
+        if w.rapid_clear is not None:
+            zl = w.rapid_clear(np.array(cur[:2]), p, zl, safe)
         _retract(w, cur, zl)
         w.add([p[0], p[1], zl], USE_RAPID)
     if zl > zs:

@@ -85,6 +85,7 @@ from planning.toolpath.roughing.links import (
     _Writer,
 )
 from planning.toolpath.roughing.maps import (
+    HOLDER_GAP_MM,
     Z_TOL_MM,
     _air_length,
     _coarse_max,
@@ -189,7 +190,7 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
                    stock_points_mm=None, stock_spacing_mm: float | None = None, entry: str = "helix",
                    entry_angle_deg: float = 3.0, entry_diameter_mm: float | None = None,
                    ramp_length_mm: float | None = None, holder_pieces=None, stock_view=None,
-                   travel_cells=None, rapid_clearance_mm: float = 0.0,
+                   travel_cells=None, rapid_clearance_mm: float = 0.0, obstacle_points_mm=None,
                    progress: Callable[[int, int], None] | None = None) -> RoughingPath:
     """Z-level roughing of one set-up from a stock box or the stock left (mm, area frame; see
     :mod:`planning.toolpath.roughing`).
@@ -237,6 +238,13 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     ``travel_cells(x0, y0, h, nx, ny, z)`` -> (nx, ny) bool, the raster cells whose centre, as a tool
     tip at frame height ``z``, the machine reaches within its travel (and with the lift to the
     retract height); a level cuts only those. None (default): travel not known.
+    ``obstacle_points_mm`` (rest roughing only) (K,3): points sampling the boundary of what is never
+    cut (fixtures, the riser, the table: the carried obstacles' boundary points), area frame, at
+    ``stock_spacing_mm``. Their top per cell (as the stock's, never too low) counts as material that
+    never goes: no tool centre comes within ``Rt`` + HOLDER_GAP_MM of one above its tip less that gap,
+    the holder keeps HOLDER_GAP_MM above them (they are in the remaining-material map, which the
+    holder map reads), and lifts, links and entries go over them. None: obstacles unknown (the
+    guard alone keeps the tool off them).
     ``rapid_clearance_mm`` (>= 0, default 0): how far every rapid keeps its tool from the material (the
     guard's and the verification's rapid clearance): the retracts feed up, and the rapids down stop,
     where the tool grown by it clears the material: with a ``stock_view`` the view brought up to date
@@ -272,14 +280,22 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     if window_xy_mm is not None:
         win = _window_cells(grid, window_xy_mm, window_reach_mm)
         grid = replace(grid, inbox=grid.inbox & win)
+    obs = None
+    if rest and obstacle_points_mm is not None:
+        opts = np.asarray(obstacle_points_mm, dtype=np.float64).reshape(-1, 3)
+        opts = opts[opts[:, 2] > float(stock.floor) - Rt - HOLDER_GAP_MM - h]      # those a tool can meet
+        if opts.shape[0]:
+            obs = _stock_tops(opts, grid, spacing)
     if rest:
         fine = _stock_tops(spts, grid, spacing, floor_map=grid.cmax)
+        if obs is not None:            # never cut: material for the map, the holder, lifts and entries
+            fine = np.maximum(fine, obs)
         read, slab, live = fine, None, None
         if stock_view is not None:                     # the stock's own top: where there is material to cut
             read = stock_view.tops(grid.x0, grid.y0, h, grid.nx, grid.ny, fine + h, stock.floor - Rt)
             read = np.maximum(np.where(fine > -np.inf, read, -np.inf), grid.cmax)
             slab = _slab_reader(stock_view, grid, fine, Rt)
-            live = _LiveStock(stock_view, grid, read, rapid_clearance_mm)
+            live = _LiveStock(stock_view, grid, read, rapid_clearance_mm, obs)
         near = _disc_max(read, h, Rt + h)              # material above z within Rt + h of a tool centre
         reach = near[grid.inbox]
         z_top = float(reach.max()) if reach.size else -math.inf
@@ -302,7 +318,9 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     w, cur, level_retracts, removed, blocked, deepest = _cut_levels(levels, grid, forb, mat, ys, pattern == "oneway",
                                                                     contour, stock.safe, Rt, rc, progress, ent, near,
                                                                     stock.z_top, hold, slab, travel_cells,
-                                                                    _clear_top(mat, Rt, rapid_clearance_mm), live)
+                                                                    _clear_top(mat, Rt, rapid_clearance_mm), live,
+                                                                    None if obs is None else
+                                                                    _disc_max(obs, h, Rt + HOLDER_GAP_MM + h))
     air_top = fine if rest else _box_tops(grid, stock)
     return _result(pts, w, cur, levels, level_retracts, removed, stock, Rt, rc, grid.h, s,
                    rest=rest, ent=ent, air_top=air_top, before=before, after=mat.volume_above(stock.floor, wmask),
@@ -469,13 +487,14 @@ class _LiveStock:
     :meth:`advance` runs the moves written since the last call on the view, reads the material left
     above the next level and lowers the remaining-material map and the entries' tops to it."""
 
-    def __init__(self, view, grid: _Raster, read, clearance_mm: float = 0.0):
+    def __init__(self, view, grid: _Raster, read, clearance_mm: float = 0.0, obstacles=None):
         self.view, self.grid = view, grid
+        self.obstacles = obstacles            # the obstacles' top per cell (never cut), or None
         self.clearance_mm = float(clearance_mm)
         self.top = np.array(read, dtype=np.float64)        # the view's top per cell, as last read
         self.k = 0                                         # moves already run on the view
         self.last = None
-        self.grow = 0.5 * math.sqrt(2.0) * float(view.resolution_mm) + grid.h
+        self.grow = float(view.resolution_mm) + grid.h   # the walk reads a ray within ~0.9 spacing
 
     def sync(self, w) -> None:
         """Run the moves ``w`` has written since the last call on the view."""
@@ -498,6 +517,16 @@ class _LiveStock:
             return float(self.view.column_clear_z(np.array([[x, y, z]]), top, clearance_mm)[0])
         return clear
 
+    def rapid_clear(self, w, clearance_mm: float):
+        """The writer's ``rapid_clear(a, b, z, top)``: the lowest height at or above z at which a rapid
+        across from a to b keeps the tool ``clearance_mm`` from the material (the view, up to date)."""
+        def clear(a, b, z, top):
+            if not z < top:
+                return float(top)
+            self.sync(w)
+            return self.view.rapid_clear_z(a, b, z, top, clearance_mm)
+        return clear
+
     def advance(self, w, z: float, mat: _MaterialMap, ent: _Entries) -> None:
         g = self.grid
         self.sync(w)
@@ -510,6 +539,8 @@ class _LiveStock:
         top = np.where(np.isfinite(top), top, np.where(self.top > -np.inf, np.minimum(self.top, stop), -np.inf))
         self.top = np.maximum(top, g.cmax)
         bound = _disc_max(self.top, g.h, self.grow)        # an upper bound of the view's material
+        if self.obstacles is not None:
+            np.maximum(bound, self.obstacles, out=bound)
         np.minimum(mat.top, _coarse_max(bound), out=mat.top)
         if ent.use_fine:
             ent.fine = np.ascontiguousarray(np.minimum(ent.fine, bound))
@@ -542,12 +573,14 @@ def _clear_top(mat: _MaterialMap, Rt: float, clearance_mm: float):
 
 def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, ys, oneway, contour, safe, Rt, rc,
                 progress, ent: _Entries, near=None, z_top=math.inf, hold: _HolderMap | None = None, slab=None,
-                travel=None, clear_top=None, live=None):
+                travel=None, clear_top=None, live=None, obstacle_near=None):
     """Cut every level from the top down: its region (rest roughing, ``near`` not None: only the
     cells whose ``near`` is above the level; ``hold`` not None: without the cells the holder
     blocks, and lifts that keep the holder clear; ``slab`` not None: only the cells ``slab(z, z_above)``
     gives, within reach of material between the level and the one above, so that no level cuts
-    under an overhang of the stock or in a hole cut by an earlier set-up; ``live`` not None: the
+    under an overhang of the stock or in a hole cut by an earlier set-up; ``obstacle_near`` not
+    None: without the cells where it (the obstacles' top within Rt + HOLDER_GAP_MM) is above the
+    level less that gap; ``live`` not None: the
     moves of every level run on the stock view before the next level is planned
     (:class:`_LiveStock`); ``travel`` not None: only the cells within the machine's travel at the level), pieces,
     order, links and entries, lowering the
@@ -560,6 +593,7 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     ent.exact = live is not None
     if live is not None and clear_top is not None:
         w.column_clear = live.column_clear(w, live.clearance_mm)
+        w.rapid_clear = live.rapid_clear(w, live.clearance_mm)
     cur = None                    # current tip (x, y, z)
     level_retracts = np.zeros(levels.size, np.int64)
     removed = np.zeros(levels.size)
@@ -581,6 +615,8 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
             air = _LevelAir(has, x0, y0, h, Rt, Rt - rc)
         if travel is not None:
             limit = limit & travel(x0, y0, h, nx, ny, float(z))
+        if obstacle_near is not None:  # no cutter within Rt + the gap of a fixture, the riser or the table
+            limit = limit & ~(obstacle_near > z - HOLDER_GAP_MM)
         if hold is not None:         # the map at the start of the level: an upper bound of the material during it
             blocked[li] = hold.level(limit, forb.G, thr, z, mat, cur, top_dil is None)
             limit = hold.limit

@@ -375,6 +375,9 @@ class _Writer:
         #: up to ``top`` is clear of the material by the rapid clearance, read on the stock itself
         #: (None: not known; ``clear_top`` alone is used)
         self.column_clear = None
+        #: ``rapid_clear(a, b, z, top)`` -> the lowest height >= z (at most ``top``) at which a rapid
+        #: from a to b (x, y) is clear of the material by the rapid clearance, on the stock itself
+        self.rapid_clear = None
 
     def add(self, xyz, use):
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
@@ -427,6 +430,8 @@ def _lift(w: _Writer, lv: _Level, cur, q, z, safe, top_q=None):
     else:
         a = np.array(cur[:2])
         zl = _link_height(lv, a, q, cur[2], z, safe)
+        if w.rapid_clear is not None:          # the grown tool clear of the material beside the way
+            zl = w.rapid_clear(a, q, zl, safe)
         _retract(w, cur, zl)
         w.add([q[0], q[1], zl], USE_RAPID)
     zd = min(zl, max(lv.top_at(q) if top_q is None else top_q, z) + GAP_MM)

@@ -55,8 +55,9 @@ def _plunge_runs(tp):
 
 def _entries(tp):
     """(helices, ramps, straight plunges): the plunge-feed runs as arrays of their points (the
-    point before the run first). A run with horizontal motion on a line is a ramp, else a helix
-    (without the straight feed down to its start that may lead it)."""
+    point before the run first). A run with horizontal motion on a line is a ramp, one on a circle a
+    helix (without the straight feed down to its start that may lead it), any other a ramp along the
+    piece's own path."""
     hel, ramps, straight = [], [], []
     for i0, i1 in _plunge_runs(tp):
         p = tp.xyz_mm[i0 - 1:i1]
@@ -69,7 +70,11 @@ def _entries(tp):
         xy = p[:, :2] - p[0, :2]
         d = xy[np.argmax(np.hypot(*xy.T))]
         cross = np.abs(xy[:, 0] * d[1] - xy[:, 1] * d[0]) / np.hypot(*d)
-        (ramps if cross.max() < 1e-6 else hel).append(p)
+        if cross.max() < 1e-6:
+            ramps.append(p)
+            continue
+        _, radii = _circle(p[:, :2])
+        (hel if np.ptp(radii) < 1e-6 * max(1.0, radii.mean()) else ramps).append(p)
     return hel, ramps, straight
 
 

@@ -267,3 +267,56 @@ def test_roughing_keeps_the_tool_off_the_obstacles_it_is_given_and_its_rapids_cl
             rap = pm.kind == RAPID
             assert int((collide(clamp, pm.start[rap], pm.end[rap], ax[rap], SHAPE, which="tool", grow_mm=0.5) > 0).sum()) == 0
     assert hits["with"] == 0 and hits["without"] > 0
+
+
+def _channel(r_in=10.0, r_out=21.0, depth=10.0, half=27.0, step=0.5):
+    """A ring channel, ``depth`` deep, between a post (radius ``r_in``) and a block (hole ``r_out``): the
+    cloud on the post's wall and top, the channel's floor, the hole's wall and the block's top."""
+    pts = []
+    for r in (r_in, r_out):
+        n = int(2 * math.pi * r / step)
+        t = np.linspace(0, 2 * math.pi, n, endpoint=False)
+        for z in np.arange(0.0, depth + 1e-9, step):
+            pts.append(np.column_stack([r * np.cos(t), r * np.sin(t), np.full(n, z)]))
+    g = np.arange(-half, half + 1e-9, step)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    R = np.hypot(X, Y)
+    top = (R <= r_in) | (R >= r_out)
+    pts.append(np.column_stack([X[top], Y[top], np.full(top.sum(), depth)]))
+    floor = (R > r_in) & (R < r_out)
+    pts.append(np.column_stack([X[floor], Y[floor], np.zeros(floor.sum())]))
+    return np.concatenate(pts)
+
+
+def test_a_narrow_ring_channel_no_helix_fits_is_ramped_along_its_own_path_not_plunged():
+    """The tool centre has a ring 2 mm wide: no helix fits, its clearing lines are short chords; the
+    roughing on the stock view enters by ramps along the pieces' own paths, at the entry angle, and
+    leaves next to nothing uncut."""
+    Rt = 4.0
+    shape = ToolShape(number=2, kind="flat", radius_mm=Rt, corner_radius_mm=0.0, flute_length_mm=25.0,
+                      pieces=((25.0, math.inf, 4.0),))
+    cloud = _channel(r_out=10.0 + 2 * Rt + 1.0 + 2.0)
+    # the stock left to rough: the channel, 10 mm deep, over a floor 0.5 mm thick (the allowance)
+    lo, hi = np.array([-27.0, -27.0, 0.0]), np.array([27.0, 27.0, 10.0])
+    stock = _box(lo, hi)
+    frame = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
+    rr = roughing_paths(cloud, tool_radius_mm=Rt, step_down_mm=2.5, stock_allowance_mm=0.5, floor_z_mm=0.5,
+                        stock_points_mm=stock.boundary_points(), stock_spacing_mm=RES, holder_pieces=shape.pieces,
+                        safe_z_mm=25.0, rapid_clearance_mm=0.5, stock_view=StockView(stock, frame, shape))
+    assert rr.n_plunges_into_material == 0 and rr.n_helix == 0 and rr.n_ramps > 0
+    pm = part_moves(rr.toolpath, frame)
+    run = simulate_moves(stock.copy(), pm.start, pm.end, np.broadcast_to(pm.axis, pm.start.shape), shape, pm.kind,
+                         rapid_clearance_mm=0.5)
+    d = pm.end - pm.start
+    L = np.linalg.norm(d, axis=1)
+    feed = pm.kind == FEED
+    straight_down = feed & (L > 0) & (-d[:, 2] > math.cos(math.radians(10.0)) * L)
+    assert not np.any(straight_down & (run.removed_mm3 > 1e-6))
+    assert int((run.rapid_depth_mm > 0).sum()) == 0
+    # every descent that cuts is a ramp at the entry angle (3 degrees) or a feed at a level
+    cutting_down = feed & (d[:, 2] < -1e-9) & (run.removed_mm3 > 1e-6)
+    slope = np.degrees(np.arctan2(-d[cutting_down, 2], np.hypot(d[cutting_down, 0], d[cutting_down, 1])))
+    np.testing.assert_allclose(slope, 3.0, atol=1e-6)
+    # the channel is roughed to its floor: the pieces left are slivers
+    assert rr.deepest_cut_mm == pytest.approx(0.5)
+    assert rr.left_length_mm < 0.05 * rr.length_mm

@@ -44,7 +44,13 @@ material, plunge at feed). Otherwise, in this order:
    downwards, a position allowed at the level is allowed above it: the descent is gouge-free.
 3. ``"ramp"`` (and the helix's fallback): back and forth along the piece's first straight segment
    (its first ``ramp_length`` mm, at least Rt long, in the region), from zs (the material within Rt
-   of the segment) at the entry angle, ending at q (the first leg shorter). With ``"ramp"`` the
+   of the segment) at the entry angle, ending at q (the first leg shorter); where that segment is
+   shorter than Rt (a contour's short edges) and the material is read from the stock itself
+   (``exact``: the ramp starts over the material that is there, not over the map's bound, which
+   keeps the full height beside walls), back and forth along the piece's own path instead
+   (its first ``ramp_length`` mm, at least Rt long: the piece lies in the region, and a position
+   allowed at the level is allowed above it), so a narrow slot or a pocket no helix fits is still
+   entered at the entry angle. With ``"ramp"`` the
    ramp comes first; where it must start higher than GAP_MM above the previous level (+ rc), a
    cheaper helix is taken instead, and where no ramp fits, a helix.
 4. else a straight plunge, counted in ``n_plunges_into_material`` -- except when the roughing
@@ -60,7 +66,9 @@ material, plunge at feed). Otherwise, in this order:
 
 **Start height** zs of a helix or ramp: GAP_MM above the highest material under it (the helix's
 circle grown by Rt, or within Rt of the ramp's segment; :meth:`_Entries.material`), at most the
-safe height; the rapid down to it is therefore clear of the map's material.
+safe height; the rapid down to it is therefore clear of the map's material. With the stock read
+from a stock view (``exact``) the gap is the rapid clearance + ENTRY_GAP_EXTRA_MM instead (the
+material is known, and the rapid down stops where the grown tool clears it anyway).
 
 In air (the first case and side entries) the rapid down stops GAP_MM above that material under
 the disc rather than above the coarser dilated map the lifts read. With ``"plunge"`` every start is
@@ -468,6 +476,46 @@ def _helix_xyz(c, r, phi_end, zs, z, tan) -> np.ndarray:
     return out
 
 
+def _path_ramp_xyz(path, zs, z, tan) -> np.ndarray:
+    """The vertices (k, 3) of a ramp back and forth along the polyline ``path`` (m, 2; ``path[0]`` = q)
+    ending at q at height z, from zs: the tool runs along the path and back (legs of the path's
+    length, the first one shorter), descending ``tan`` x the distance it travels."""
+    seg = np.hypot(*(np.diff(path, axis=0).T))
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    Lr = float(cum[-1])
+    D = max(zs - z, 0.0) / tan                       # the horizontal distance of the whole descent
+    n = max(1, int(math.ceil(D / Lr - 1e-9)))
+    first = D - (n - 1) * Lr
+    # walked backwards from q: leg 0 (the last one) leaves q along the path, leg 1 comes back, ...
+    pts = [np.asarray(path[0], dtype=np.float64)]
+    s_cur = 0.0
+    for k in range(n):
+        length = Lr if k < n - 1 else first
+        out = k % 2 == 0
+        s_next = s_cur + length if out else s_cur - length
+        lo, hi = min(s_cur, s_next), max(s_cur, s_next)
+        inner = cum[(cum > lo + 1e-12) & (cum < hi - 1e-12)]
+        for sv in [*(inner if out else inner[::-1]), s_next]:
+            pts.append(np.array([np.interp(sv, cum, path[:, 0]), np.interp(sv, cum, path[:, 1])]))
+        s_cur = s_next
+    v = np.array(pts[::-1], dtype=np.float64)        # from the start, high, to q
+    lens = np.hypot(*(np.diff(v, axis=0).T))
+    drop = np.concatenate([np.cumsum(lens[::-1])[::-1], [0.0]]) * tan
+    return np.column_stack([v, z + drop])
+
+
+def _path_head(xy, length: float) -> np.ndarray:
+    """The first ``length`` mm (along it) of the polyline ``xy`` (m, 2), as a polyline."""
+    seg = np.hypot(*(np.diff(xy, axis=0).T))
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    if cum[-1] <= length:
+        return np.asarray(xy, dtype=np.float64)
+    k = int(np.searchsorted(cum, length))
+    t = (length - cum[k - 1]) / max(seg[k - 1], 1e-12)
+    end = xy[k - 1] + t * (xy[k] - xy[k - 1])
+    return np.vstack([xy[:k], end[None, :]]).astype(np.float64)
+
+
 def _ramp_xyz(q, p, zs, z, tan) -> np.ndarray:
     """The vertices (k, 3) of a ramp back and forth between q and p ending at q at height z, from
     zs: every leg descends ``tan`` x its length, the first one shorter."""
@@ -525,6 +573,10 @@ class _Entries:
         #: the material is read from the stock itself (a stock view), not bounded: a piece that only a
         #: straight plunge would enter is left rather than plunged into
         self.exact = False
+        #: how far above the material under it a helix or ramp starts (mm): GAP_MM, or with the stock
+        #: read exactly, just above the rapid clearance (every 0.1 mm of it costs 0.1 / tan(entry angle)
+        #: of feed in air: 1.9 mm at 3 degrees)
+        self.gap = GAP_MM
         self.left_mm = 0.0
 
     def _margs(self, lv: _Level):
@@ -564,7 +616,7 @@ class _Entries:
                     return [np.array([q2, q])]
             plan = None
             if self.cfg.kind == "ramp":
-                plan = self._ramp(lv, q, u, seg, z, safe)
+                plan = self._ramp(lv, q, u, seg, z, safe, xy)
                 if plan is not None and plan.zs > self._good(z) + 1e-9:
                     hp = self._helix(lv, q, int(cell), u, z, safe, plan.cost)
                     plan = hp if hp is not None else plan
@@ -573,7 +625,7 @@ class _Entries:
             else:
                 plan = self._helix(lv, q, int(cell), u, z, safe, math.inf)
                 if plan is None:
-                    plan = self._ramp(lv, q, u, seg, z, safe)
+                    plan = self._ramp(lv, q, u, seg, z, safe, xy)
             if plan is not None:
                 return self._write(w, lv, cur, plan, q, z, safe)
         if self.cfg.kind != "plunge" and self.exact:  # no way in but a straight plunge: the piece is left
@@ -586,12 +638,12 @@ class _Entries:
     def _good(self, z) -> float:
         """The lowest start a helix or ramp can expect at level z: GAP_MM above the previous level
         (+ the corner radius), where the previous level's cut left the map."""
-        return max(self.z_prev + self.rc, z) + GAP_MM
+        return max(self.z_prev + self.rc, z) + self.gap
 
     def _start_height(self, T, z, safe) -> float:
         """Where a helix or ramp starts: GAP_MM above the material under it (``T``), at most the safe
         height."""
-        return min(max(T, z) + GAP_MM, safe)
+        return min(max(T, z) + self.gap, safe)
 
     def _write(self, w, lv, cur, plan: _Plan, q, z, safe):
         _approach(w, lv, cur, plan.xyz[0, :2], plan.zs, z, safe)
@@ -624,7 +676,7 @@ class _Entries:
         for r in (cfg.radius, 0.5 * cfg.radius):
             found, cx, cy, ex, ey, phi, zs, cost, atq, now = _near_helix(
                 lv.flat, lv.nx, lv.ny, qx, qy, float(u[0]), float(u[1]), float(r), float(self.Rt), float(z),
-                float(safe), GAP_MM, cfg.tan, float(good), float(cap), _DIR_COS, _DIR_SIN, *self._margs(lv))
+                float(safe), self.gap, cfg.tan, float(good), float(cap), _DIR_COS, _DIR_SIN, *self._margs(lv))
             if found:
                 e = q if atq else np.array([ex, ey])
                 best = self._helix_at(np.array([cx, cy]), r, e, phi, zs, z, cost, None if atq else np.array([e, q]))
@@ -635,7 +687,7 @@ class _Entries:
         for r in (cfg.radius, 0.5 * cfg.radius):
             lim = min(cap, math.inf if best is None else best.cost)
             sites = _helix_sites(lv.flat, lv.nx, lv.ny, qx, qy, FAR_RADII * self.Rt,
-                                 max(1, int(round(0.5 * r / lv.h))), float(r + self.Rt), float(z), GAP_MM,
+                                 max(1, int(round(0.5 * r / lv.h))), float(r + self.Rt), float(z), self.gap,
                                  float(safe), cfg.tan, float(lim), FAR_TRIES, *self._margs(lv))
             if sites.shape[0] == 0:
                 continue
@@ -644,7 +696,7 @@ class _Entries:
             m = 0
             while True:
                 st, m, ex, ey, phi, zs, cost, atq = _far_helix(lv.flat, lv.nx, lv.ny, lv.x0, lv.y0, lv.h, qx, qy,
-                                                               float(r), float(z), float(safe), GAP_MM, cfg.tan,
+                                                               float(r), float(z), float(safe), self.gap, cfg.tan,
                                                                float(bound), sites, order, m)
                 if st == 0:
                     break
@@ -667,21 +719,28 @@ class _Entries:
                 break
         return best
 
-    def _ramp(self, lv, q, u, seg, z, safe):
-        """A ramp along the first segment ending at q (module docstring, 3.); None when it does not
-        fit."""
+    def _ramp(self, lv, q, u, seg, z, safe, xy=None):
+        """A ramp along the first segment ending at q (module docstring, 3.), or, where that is
+        shorter than the shortest ramp and ``xy`` (the piece's polyline) is given, along the piece's
+        own path (its first ``ramp_length`` mm: the piece lies in the region, so the path is allowed
+        at any height above the level); None when neither fits."""
         cfg = self.cfg
-        if u is None or seg is None:
+        if u is not None and seg is not None and min(seg, cfg.ramp) >= cfg.min_ramp:
+            p = q + min(seg, cfg.ramp) * u
+            if lv.visible(q, p):
+                T = float(_seg_material(*self._margs(lv), float(q[0]), float(q[1]), float(p[0]), float(p[1]),
+                                        self.Rt))
+                zs = self._start_height(T, z, safe)
+                return _Plan("ramp", _ramp_xyz(q, p, zs, z, cfg.tan), zs, None, (zs - z) / cfg.tan)
+        if xy is None or xy.shape[0] < 3 or not self.exact:
             return None
-        Lr = min(seg, cfg.ramp)
-        if Lr < cfg.min_ramp:
+        path = _path_head(np.asarray(xy, dtype=np.float64), cfg.ramp)
+        if float(np.hypot(*(np.diff(path, axis=0).T)).sum()) < cfg.min_ramp:
             return None
-        p = q + Lr * u
-        if not lv.visible(q, p):
-            return None
-        T = float(_seg_material(*self._margs(lv), float(q[0]), float(q[1]), float(p[0]), float(p[1]), self.Rt))
+        T = max(float(_seg_material(*self._margs(lv), float(a[0]), float(a[1]), float(b[0]), float(b[1]), self.Rt))
+                for a, b in zip(path[:-1], path[1:]))
         zs = self._start_height(T, z, safe)
-        return _Plan("ramp", _ramp_xyz(q, p, zs, z, cfg.tan), zs, None, (zs - z) / cfg.tan)
+        return _Plan("ramp", _path_ramp_xyz(path, zs, z, cfg.tan), zs, None, (zs - z) / cfg.tan)
 
 
 def _region_cell(lv: _Level, xy) -> int:

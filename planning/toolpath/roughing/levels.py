@@ -485,7 +485,9 @@ def _levels(z_top, floor, step, step_down_mm) -> np.ndarray:
 class _LiveStock:
     """The stock view (:class:`planning.toolpath.stock_view.StockView`) kept level with the roughing:
     :meth:`advance` runs the moves written since the last call on the view, reads the material left
-    above the next level and lowers the remaining-material map and the entries' tops to it."""
+    above the next level and lowers the remaining-material map (to the reading grown by about a ray
+    spacing: an upper bound, which the lifts and the holder map need) and the entries' tops (to the
+    reading itself: where a helix or ramp starts; the rapid down to it is checked on the view) to it."""
 
     def __init__(self, view, grid: _Raster, read, clearance_mm: float = 0.0, obstacles=None):
         self.view, self.grid = view, grid
@@ -539,11 +541,15 @@ class _LiveStock:
         top = np.where(np.isfinite(top), top, np.where(self.top > -np.inf, np.minimum(self.top, stop), -np.inf))
         self.top = np.maximum(top, g.cmax)
         bound = _disc_max(self.top, g.h, self.grow)        # an upper bound of the view's material
+        read = self.top
         if self.obstacles is not None:
             np.maximum(bound, self.obstacles, out=bound)
+            read = np.maximum(read, self.obstacles)
         np.minimum(mat.top, _coarse_max(bound), out=mat.top)
         if ent.use_fine:
-            ent.fine = np.ascontiguousarray(np.minimum(ent.fine, bound))
+            # the entries start their helices and ramps over the material as read (not grown: beside a
+            # wall the growth would reach the part's top); the rapid down to them is checked on the view
+            ent.fine = np.ascontiguousarray(np.minimum(ent.fine, read))
 
 
 def _slab_reader(view, grid: _Raster, fine, Rt: float):
@@ -559,6 +565,11 @@ def _slab_reader(view, grid: _Raster, fine, Rt: float):
         has = np.isfinite(tops) | ((grid.cmax > z) & (grid.cmax < z_above))
         return _disc_max(np.where(has, 1.0, -np.inf), h, Rt + h) > 0.0, has
     return slab
+
+
+#: With the stock read exactly, a helix or ramp starts this far above the rapid clearance over the
+#: material under it (mm).
+ENTRY_GAP_EXTRA_MM = 0.15
 
 
 def _clear_top(mat: _MaterialMap, Rt: float, clearance_mm: float):
@@ -591,6 +602,8 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     w = _Writer()
     w.clear_top = clear_top
     ent.exact = live is not None
+    if live is not None:
+        ent.gap = min(GAP_MM, live.clearance_mm + ENTRY_GAP_EXTRA_MM)
     if live is not None and clear_top is not None:
         w.column_clear = live.column_clear(w, live.clearance_mm)
         w.rapid_clear = live.rapid_clear(w, live.clearance_mm)

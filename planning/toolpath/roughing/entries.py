@@ -578,10 +578,16 @@ class _Entries:
         #: of feed in air: 1.9 mm at 3 degrees)
         self.gap = GAP_MM
         self.left_mm = 0.0
+        #: (nx, ny) the stock's top as read (not grown), where helices and ramps start; None: ``fine``
+        self.fine_start = None
 
-    def _margs(self, lv: _Level):
+    def _margs(self, lv: _Level, start: bool = False):
+        """The material arguments of the kernels: the map and the tops; ``start``: the tops a helix or
+        ramp starts over (``fine_start``, the stock as read, when there is one), else the tops that
+        decide whether there is material under the tool at all (``fine``, an upper bound)."""
         m = self.mat
-        return (m.top, m.cx, m.cy, m.hx, m.hy, m.x0, m.y0, m.H, self.fine, self.use_fine, lv.x0, lv.y0, lv.h)
+        fine = self.fine_start if (start and self.fine_start is not None) else self.fine
+        return (m.top, m.cx, m.cy, m.hx, m.hy, m.x0, m.y0, m.H, fine, self.use_fine, lv.x0, lv.y0, lv.h)
 
     def material(self, lv: _Level, xy, r) -> float:
         """Highest remaining material under the disc of radius r (mm) about xy (module docstring)."""
@@ -676,7 +682,8 @@ class _Entries:
         for r in (cfg.radius, 0.5 * cfg.radius):
             found, cx, cy, ex, ey, phi, zs, cost, atq, now = _near_helix(
                 lv.flat, lv.nx, lv.ny, qx, qy, float(u[0]), float(u[1]), float(r), float(self.Rt), float(z),
-                float(safe), self.gap, cfg.tan, float(good), float(cap), _DIR_COS, _DIR_SIN, *self._margs(lv))
+                float(safe), self.gap, cfg.tan, float(good), float(cap), _DIR_COS, _DIR_SIN,
+                *self._margs(lv, start=True))
             if found:
                 e = q if atq else np.array([ex, ey])
                 best = self._helix_at(np.array([cx, cy]), r, e, phi, zs, z, cost, None if atq else np.array([e, q]))
@@ -688,7 +695,7 @@ class _Entries:
             lim = min(cap, math.inf if best is None else best.cost)
             sites = _helix_sites(lv.flat, lv.nx, lv.ny, qx, qy, FAR_RADII * self.Rt,
                                  max(1, int(round(0.5 * r / lv.h))), float(r + self.Rt), float(z), self.gap,
-                                 float(safe), cfg.tan, float(lim), FAR_TRIES, *self._margs(lv))
+                                 float(safe), cfg.tan, float(lim), FAR_TRIES, *self._margs(lv, start=True))
             if sites.shape[0] == 0:
                 continue
             order = np.ascontiguousarray(np.argsort(sites[:, 3], kind="stable")[:FAR_TRIES])
@@ -728,8 +735,8 @@ class _Entries:
         if u is not None and seg is not None and min(seg, cfg.ramp) >= cfg.min_ramp:
             p = q + min(seg, cfg.ramp) * u
             if lv.visible(q, p):
-                T = float(_seg_material(*self._margs(lv), float(q[0]), float(q[1]), float(p[0]), float(p[1]),
-                                        self.Rt))
+                T = float(_seg_material(*self._margs(lv, start=True), float(q[0]), float(q[1]), float(p[0]),
+                                        float(p[1]), self.Rt))
                 zs = self._start_height(T, z, safe)
                 return _Plan("ramp", _ramp_xyz(q, p, zs, z, cfg.tan), zs, None, (zs - z) / cfg.tan)
         if xy is None or xy.shape[0] < 3 or not self.exact:
@@ -737,7 +744,8 @@ class _Entries:
         path = _path_head(np.asarray(xy, dtype=np.float64), cfg.ramp)
         if float(np.hypot(*(np.diff(path, axis=0).T)).sum()) < cfg.min_ramp:
             return None
-        T = max(float(_seg_material(*self._margs(lv), float(a[0]), float(a[1]), float(b[0]), float(b[1]), self.Rt))
+        T = max(float(_seg_material(*self._margs(lv, start=True), float(a[0]), float(a[1]), float(b[0]), float(b[1]),
+                                    self.Rt))
                 for a, b in zip(path[:-1], path[1:]))
         zs = self._start_height(T, z, safe)
         return _Plan("ramp", _path_ramp_xyz(path, zs, z, cfg.tan), zs, None, (zs - z) / cfg.tan)

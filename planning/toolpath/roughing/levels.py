@@ -547,9 +547,11 @@ class _LiveStock:
             read = np.maximum(read, self.obstacles)
         np.minimum(mat.top, _coarse_max(bound), out=mat.top)
         if ent.use_fine:
-            # the entries start their helices and ramps over the material as read (not grown: beside a
-            # wall the growth would reach the part's top); the rapid down to them is checked on the view
-            ent.fine = np.ascontiguousarray(np.minimum(ent.fine, read))
+            # whether there is material under the tool: the bound; where a helix or ramp starts: the
+            # material as read (not grown: beside a wall the growth reaches the part's top), the rapid
+            # down to it being checked on the view
+            ent.fine = np.ascontiguousarray(np.minimum(ent.fine, bound))
+            ent.fine_start = np.ascontiguousarray(np.minimum(ent.fine, read))
 
 
 def _slab_reader(view, grid: _Raster, fine, Rt: float):

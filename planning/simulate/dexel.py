@@ -67,6 +67,8 @@ RESOLUTION_MM = 0.5
 DEPTH_CAP_MM = 5.0
 #: Moves per kernel call (bounds the scratch: tasks x 2 x CHUNK doubles).
 CHUNK = 1 << 16
+#: Fewer moves than this run in the calling thread (a planner's single checks: a column, a rapid).
+INLINE_MOVES = 16
 #: Tasks (interleaved row sets) per family and thread (``numba.config.NUMBA_NUM_THREADS`` at
 #: construction); the kernels run on ``numba.get_num_threads()`` threads.
 _TASKS_PER_THREAD = 1
@@ -453,7 +455,7 @@ def _run(model: TriDexel, start, end, axis, pieces, mode, grow=None, depth_cap_m
                     # the tasks' moves done so far (t_next moves on as they run)
                     done = float((t_next - mptr[:-1]).sum()) / max(1, int(mptr[-1]))
                     progress((c0 + done * M) / P, f"{what} {c0 + int(done * M)} of {P}")
-            _map(lambda ts: [task(t) for t in ts], [j for j in jobs if j], poll)
+            _map(lambda ts: [task(t) for t in ts], [j for j in jobs if j], poll, inline=M < INLINE_MOVES)
             if not t_status.any():
                 break
             model._repack(t_status)
@@ -472,12 +474,13 @@ _POOL: ThreadPoolExecutor | None = None
 _POOL_SIZE = 0
 
 
-def _map(fn, items, poll: Callable[[], None] | None = None) -> None:
+def _map(fn, items, poll: Callable[[], None] | None = None, inline: bool = False) -> None:
     """Run ``fn`` over ``items`` on ``numba.get_num_threads()`` threads (the kernels release the GIL);
-    with ``poll``, on the pool even for one thread, calling ``poll()`` every 0.1 s while waiting."""
+    with ``poll``, on the pool even for one thread, calling ``poll()`` every 0.1 s while waiting;
+    ``inline``: in this thread (a handful of moves: the pool's hand-over costs more than it saves)."""
     global _POOL, _POOL_SIZE
     nth = max(1, numba.get_num_threads())
-    if poll is None and (nth == 1 or len(items) <= 1):
+    if poll is None and (inline or nth == 1 or len(items) <= 1):
         for it in items:
             fn(it)
         return

@@ -86,6 +86,7 @@ from planning.toolpath.roughing.links import (
 )
 from planning.toolpath.roughing.maps import (
     HOLDER_GAP_MM,
+    TOP_CELLS,
     Z_TOL_MM,
     _air_length,
     _coarse_max,
@@ -296,6 +297,7 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
             read = np.maximum(np.where(fine > -np.inf, read, -np.inf), grid.cmax)
             slab = _slab_reader(stock_view, grid, fine, Rt)
             live = _LiveStock(stock_view, grid, read, rapid_clearance_mm, obs)
+            live.Rt = Rt
         near = _disc_max(read, h, Rt + h)              # material above z within Rt + h of a tool centre
         reach = near[grid.inbox]
         z_top = float(reach.max()) if reach.size else -math.inf
@@ -482,6 +484,23 @@ def _levels(z_top, floor, step, step_down_mm) -> np.ndarray:
     return np.array(levels)
 
 
+def _crop(grid: _Raster, margin_mm: float, align: int = 1) -> tuple[slice, slice]:
+    """The raster's cells within ``margin_mm`` (+ one cell) of the bounding box of its tool-centre
+    cells (``grid.inbox``: the window, the box), the box's corners on multiples of ``align`` cells:
+    what a level's reading of the stock needs to cover."""
+    ii = np.flatnonzero(grid.inbox.any(axis=1))
+    jj = np.flatnonzero(grid.inbox.any(axis=0))
+    if ii.size == 0:
+        return slice(0, 0), slice(0, 0)
+    m = int(math.ceil(margin_mm / grid.h)) + 1
+    i0, i1 = max(0, int(ii[0]) - m), min(grid.nx, int(ii[-1]) + 1 + m)
+    j0, j1 = max(0, int(jj[0]) - m), min(grid.ny, int(jj[-1]) + 1 + m)
+    i0, j0 = i0 - i0 % align, j0 - j0 % align
+    i1 = min(grid.nx, -(-i1 // align) * align)
+    j1 = min(grid.ny, -(-j1 // align) * align)
+    return slice(i0, i1), slice(j0, j1)
+
+
 class _LiveStock:
     """The stock view (:class:`planning.toolpath.stock_view.StockView`) kept level with the roughing:
     :meth:`advance` runs the moves written since the last call on the view, reads the material left
@@ -494,21 +513,22 @@ class _LiveStock:
         self.obstacles = obstacles            # the obstacles' top per cell (never cut), or None
         self.clearance_mm = float(clearance_mm)
         self.top = np.array(read, dtype=np.float64)        # the view's top per cell, as last read
-        self.k = 0                                         # moves already run on the view
+        self.k = 0                                         # blocks of the writer already run on the view
         self.last = None
         self.grow = float(view.resolution_mm) + grid.h   # the walk reads a ray within ~0.9 spacing
+        self.Rt = 0.0
+        self.inner = self.outer = None
 
     def sync(self, w) -> None:
-        """Run the moves ``w`` has written since the last call on the view."""
-        n = sum(w.counts)
-        if n <= self.k:
+        """Run the moves ``w`` has written since the last call on the view (its blocks of points from
+        the first one not run yet)."""
+        if len(w.pts) <= self.k:
             return
-        pts = np.concatenate(w.pts)
-        new = pts[self.k:]
-        rapid = w.use()[self.k:] == USE_RAPID
+        new = np.concatenate(w.pts[self.k:])
+        rapid = np.repeat(np.array(w.codes[self.k:], np.int8), w.counts[self.k:]) == USE_RAPID
         start = np.concatenate([new[:1] if self.last is None else self.last[None, :], new[:-1]])
         self.view.cut(start, new, rapid)
-        self.k, self.last = pts.shape[0], new[-1].copy()
+        self.k, self.last = len(w.pts), new[-1].copy()
 
     def column_clear(self, w, clearance_mm: float):
         """The writer's ``column_clear(x, y, z, top)`` (:class:`~planning.toolpath.roughing.links._Writer`):
@@ -530,28 +550,47 @@ class _LiveStock:
         return clear
 
     def advance(self, w, z: float, mat: _MaterialMap, ent: _Entries) -> None:
+        """Run the moves so far on the view and lower the map and the entries' tops for level ``z``,
+        over the cells about the window (:func:`_crop`: the tool centres' box grown by ``3 Rt``, what
+        lifts, side entries and helices reach; the cells beyond keep their older, higher tops)."""
         g = self.grid
         self.sync(w)
+        if self.inner is None:
+            self.inner = _crop(g, 3.0 * self.Rt, TOP_CELLS)
+            self.outer = _crop(g, 3.0 * self.Rt + self.grow + g.h, TOP_CELLS)
+        (oi, oj), (ii, ij) = self.outer, self.inner
+        if oi.stop <= oi.start or oj.stop <= oj.start:
+            return
         # the material left above this level (it only ever goes down: read from the last top down;
-        # where nothing was above the last reading's stop, from that stop)
+        # where nothing is above the stop, the stop bounds what may be left below it)
         stop = z - g.h
-        start = np.where(self.top > -np.inf, self.top + 1e-9, -np.inf)
-        top = self.view.tops(g.x0, g.y0, g.h, g.nx, g.ny, start, stop)
-        # where nothing is left above the stop, the stop bounds what may be left below it
-        top = np.where(np.isfinite(top), top, np.where(self.top > -np.inf, np.minimum(self.top, stop), -np.inf))
-        self.top = np.maximum(top, g.cmax)
-        bound = _disc_max(self.top, g.h, self.grow)        # an upper bound of the view's material
-        read = self.top
+        old = self.top[oi, oj]
+        start = np.where(old > -np.inf, old + 1e-9, -np.inf)
+        top = self.view.tops(g.x0 + oi.start * g.h, g.y0 + oj.start * g.h, g.h, oi.stop - oi.start,
+                             oj.stop - oj.start, start, stop)
+        top = np.where(np.isfinite(top), top, np.where(old > -np.inf, np.minimum(old, stop), -np.inf))
+        self.top[oi, oj] = np.maximum(top, g.cmax[oi, oj])
+        # an upper bound of the view's material, kept over the inner cells (their discs lie in the outer)
+        bound_o = _disc_max(self.top[oi, oj], g.h, self.grow)
+        inner = (slice(ii.start - oi.start, ii.stop - oi.start), slice(ij.start - oj.start, ij.stop - oj.start))
+        bound = bound_o[inner]
+        read = self.top[ii, ij]
         if self.obstacles is not None:
-            np.maximum(bound, self.obstacles, out=bound)
-            read = np.maximum(read, self.obstacles)
-        np.minimum(mat.top, _coarse_max(bound), out=mat.top)
+            bound = np.maximum(bound, self.obstacles[ii, ij])
+            read = np.maximum(read, self.obstacles[ii, ij])
+        ci = slice(ii.start // TOP_CELLS, -(-ii.stop // TOP_CELLS))
+        cj = slice(ij.start // TOP_CELLS, -(-ij.stop // TOP_CELLS))
+        np.minimum(mat.top[ci, cj], _coarse_max(bound), out=mat.top[ci, cj])
         if ent.use_fine:
             # whether there is material under the tool: the bound; where a helix or ramp starts: the
             # material as read (not grown: beside a wall the growth reaches the part's top), the rapid
             # down to it being checked on the view
-            ent.fine = np.ascontiguousarray(np.minimum(ent.fine, bound))
-            ent.fine_start = np.ascontiguousarray(np.minimum(ent.fine, read))
+            fine = np.array(ent.fine)
+            fine[ii, ij] = np.minimum(fine[ii, ij], bound)
+            start_tops = np.array(fine)
+            start_tops[ii, ij] = np.minimum(fine[ii, ij], read)
+            ent.fine = np.ascontiguousarray(fine)
+            ent.fine_start = np.ascontiguousarray(start_tops)
 
 
 def _slab_reader(view, grid: _Raster, fine, Rt: float):
@@ -561,11 +600,20 @@ def _slab_reader(view, grid: _Raster, fine, Rt: float):
     :meth:`tops`) or the cloud between the heights z and ``z_above`` (inf: anywhere above z)."""
     h, nx, ny = grid.h, grid.nx, grid.ny
 
+    ci, cj = _crop(grid, Rt + 2.0 * h)          # the tool centres' cells and the material their discs reach
+
     def slab(z, z_above):
-        start = fine + h if not math.isfinite(z_above) else np.minimum(fine + h, z_above)
-        tops = view.tops(grid.x0, grid.y0, h, nx, ny, start, z)
-        has = np.isfinite(tops) | ((grid.cmax > z) & (grid.cmax < z_above))
-        return _disc_max(np.where(has, 1.0, -np.inf), h, Rt + h) > 0.0, has
+        near, has = np.zeros((nx, ny), dtype=bool), np.zeros((nx, ny), dtype=bool)
+        if ci.stop <= ci.start or cj.stop <= cj.start:
+            return near, has
+        f = fine[ci, cj]
+        start = f + h if not math.isfinite(z_above) else np.minimum(f + h, z_above)
+        tops = view.tops(grid.x0 + ci.start * h, grid.y0 + cj.start * h, h, ci.stop - ci.start, cj.stop - cj.start,
+                         start, z)
+        cm = grid.cmax[ci, cj]
+        has[ci, cj] = np.isfinite(tops) | ((cm > z) & (cm < z_above))
+        near[ci, cj] = _disc_max(np.where(has[ci, cj], 1.0, -np.inf), h, Rt + h) > 0.0
+        return near, has
     return slab
 
 

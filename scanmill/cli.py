@@ -82,8 +82,10 @@ def _paths_table(result) -> str:
             continue
         parts = [f"area {s.id}:"]
         if p.roughing is not None:
+            left = (f" ({p.roughing.n_pieces_left} pieces, {p.roughing.left_length_mm / 1000:.1f} m, left to the "
+                    f"levels below: no helix or ramp fits)" if p.roughing.n_pieces_left else "")
             parts.append(f"roughing {p.roughing.n_levels} levels, {p.roughing.length_mm / 1000:.1f} m, "
-                         f"{p.roughing.machining_time_s / 60:.0f} min;")
+                         f"{p.roughing.machining_time_s / 60:.0f} min{left};")
         if p.finishing is not None:
             f = p.finishing
             parts.append(f"finishing {f.n_passes} passes, {f.n_cl} moves ({f.n_arcs} arcs), "

@@ -298,6 +298,7 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
             slab = _slab_reader(stock_view, grid, fine, Rt)
             live = _LiveStock(stock_view, grid, read, rapid_clearance_mm, obs)
             live.Rt = Rt
+            live.piece_radii = [float(r) for _, _, r in (stock_view.shape.pieces or ())]
         near = _disc_max(read, h, Rt + h)              # material above z within Rt + h of a tool centre
         reach = near[grid.inbox]
         z_top = float(reach.max()) if reach.size else -math.inf
@@ -484,6 +485,17 @@ def _levels(z_top, floor, step, step_down_mm) -> np.ndarray:
     return np.array(levels)
 
 
+def _seg_top(mat: _MaterialMap, a, b, r: float) -> float:
+    """The highest remaining material (the map) within r of the segment a -> b (x, y; samples at most
+    H / 2 apart, r grown by a quarter of that spacing)."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    L = float(np.hypot(*(b - a)))
+    n = max(1, int(math.ceil(L / (0.5 * mat.H))))
+    grow = 0.5 * L / n
+    return max(mat.disc_top(float(a[0] + (b[0] - a[0]) * k / n), float(a[1] + (b[1] - a[1]) * k / n), r + grow)
+               for k in range(n + 1))
+
+
 def _crop(grid: _Raster, margin_mm: float, align: int = 1) -> tuple[slice, slice]:
     """The raster's cells within ``margin_mm`` (+ one cell) of the bounding box of its tool-centre
     cells (``grid.inbox``: the window, the box), the box's corners on multiples of ``align`` cells:
@@ -517,6 +529,7 @@ class _LiveStock:
         self.last = None
         self.grow = float(view.resolution_mm) + grid.h   # the walk reads a ray within ~0.9 spacing
         self.Rt = 0.0
+        self.piece_radii: list[float] = []
         self.inner = self.outer = None
 
     def sync(self, w) -> None:
@@ -530,21 +543,29 @@ class _LiveStock:
         self.view.cut(start, new, rapid)
         self.k, self.last = len(w.pts), new[-1].copy()
 
-    def column_clear(self, w, clearance_mm: float):
+    def column_clear(self, w, clearance_mm: float, mat: _MaterialMap, reach_mm: float):
         """The writer's ``column_clear(x, y, z, top)`` (:class:`~planning.toolpath.roughing.links._Writer`):
         the lowest height at or above z from which a rapid straight up to ``top`` keeps the tool
-        ``clearance_mm`` from the material, on the view brought up to date with ``w``'s moves."""
+        ``clearance_mm`` from the material, on the view brought up to date with ``w``'s moves. Where the
+        remaining-material map (an upper bound) has nothing within ``reach_mm`` (the widest piece of the
+        tool) + the clearance above ``z - clearance``, the column is clear without asking the view."""
         def clear(x, y, z, top):
+            if mat.disc_top(x, y, reach_mm + clearance_mm) < z - clearance_mm - 1e-6:
+                return float(z)
             self.sync(w)
             return float(self.view.column_clear_z(np.array([[x, y, z]]), top, clearance_mm)[0])
         return clear
 
-    def rapid_clear(self, w, clearance_mm: float):
+    def rapid_clear(self, w, clearance_mm: float, mat: _MaterialMap, reach_mm: float):
         """The writer's ``rapid_clear(a, b, z, top)``: the lowest height at or above z at which a rapid
-        across from a to b keeps the tool ``clearance_mm`` from the material (the view, up to date)."""
+        across from a to b keeps the tool ``clearance_mm`` from the material (the view, up to date);
+        clear without asking the view where the map has nothing within the tool's widest piece + the
+        clearance of the way above ``z - clearance``."""
         def clear(a, b, z, top):
             if not z < top:
                 return float(top)
+            if _seg_top(mat, a, b, reach_mm + clearance_mm) < z - clearance_mm - 1e-6:
+                return float(z)
             self.sync(w)
             return self.view.rapid_clear_z(a, b, z, top, clearance_mm)
         return clear
@@ -655,8 +676,9 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     if live is not None:
         ent.gap = min(GAP_MM, live.clearance_mm + ENTRY_GAP_EXTRA_MM)
     if live is not None and clear_top is not None:
-        w.column_clear = live.column_clear(w, live.clearance_mm)
-        w.rapid_clear = live.rapid_clear(w, live.clearance_mm)
+        reach = max([Rt] + [float(r) for r in live.piece_radii])
+        w.column_clear = live.column_clear(w, live.clearance_mm, mat, reach)
+        w.rapid_clear = live.rapid_clear(w, live.clearance_mm, mat, reach)
     cur = None                    # current tip (x, y, z)
     level_retracts = np.zeros(levels.size, np.int64)
     removed = np.zeros(levels.size)

@@ -320,3 +320,41 @@ def test_a_narrow_ring_channel_no_helix_fits_is_ramped_along_its_own_path_not_pl
     # the channel is roughed to its floor: the pieces left are slivers
     assert rr.deepest_cut_mm == pytest.approx(0.5)
     assert rr.left_length_mm < 0.05 * rr.length_mm
+
+
+def test_level_air_trims_a_contour_chain_and_opens_a_loop_at_its_longest_useless_run():
+    from planning.toolpath.roughing.air import _LevelAir
+
+    h, nx, ny, Rt = 0.5, 100, 100, 2.0
+    has = np.zeros((nx, ny), dtype=bool)
+    has[60:70, 40:60] = True                               # material beside the loop's right side only
+    air = _LevelAir(has, 0.0, 0.0, h, Rt, Rt)
+    # a square loop of side 20 mm about (25, 25) mm, vertices every 0.5 mm (last = first)
+    t = np.arange(0.0, 80.0, 0.5)
+    side = np.minimum(t // 20, 3)
+    u = t - side * 20
+    x = np.select([side == 0, side == 1, side == 2, side == 3], [15 + u, 35 + 0 * u, 35 - u, 15 + 0 * u])
+    y = np.select([side == 0, side == 1, side == 2, side == 3], [15 + 0 * u, 15 + u, 35 + 0 * u, 35 - u])
+    xy = np.column_stack([x, y])
+    xy = np.vstack([xy, xy[:1]])
+    cells = (np.floor(xy[:, 0] / h).astype(np.int64) * ny + np.floor(xy[:, 1] / h).astype(np.int64))
+    got = air.trim_chain(xy, cells, ny, loop=True)
+    assert got is not None
+    txy, tcells = got
+    # brute force: the vertices whose disc (Rt) meets material
+    ii, jj = np.nonzero(has)
+    useful = np.array([np.any((ii - c // ny) ** 2 + (jj - c % ny) ** 2 <= (Rt / h) ** 2) for c in cells[:-1]])
+    assert useful.any() and not useful.all()
+    kept = {tuple(p) for p in np.round(txy, 6)}
+    for p, ok in zip(np.round(xy[:-1], 6), useful):
+        if ok:
+            assert tuple(p) in kept                  # every vertex that cuts is kept
+    assert len(txy) == useful.sum() + 2              # one useful run here: it and the segment either side
+    assert not np.allclose(txy[0], txy[-1])          # an open chain now
+    # an open chain keeps its ends only to the first and last vertex that cut
+    got2 = air.trim_chain(xy[:-1], cells[:-1], ny, loop=False)
+    assert got2 is not None and len(got2[0]) == useful.sum() + 2
+    # a chain that meets nothing is dropped
+    far = xy[:-1] - np.array([10.0, 10.0])
+    fcells = np.floor(far[:, 0] / h).astype(np.int64) * ny + np.floor(far[:, 1] / h).astype(np.int64)
+    assert air.trim_chain(far, fcells, ny, loop=False) is None

@@ -7,7 +7,9 @@ above (``has``). As the level is cut, :class:`_LevelAir` marks the cells the too
 surely swept (every point of the cell within ``Rf`` of a cut: the cell's centre within
 ``Rf - h / sqrt 2``), and before a clearing line is cut its ends are trimmed to the first and the last
 of its cells whose tool disc (radius ``Rt`` about the cell's centre) still meets a cell that has
-material and is not swept. A line that meets none is not cut. So a line that only runs along the band
+material and is not swept. A line that meets none is not cut. A contour chain (the offset contour
+along the part) is trimmed the same way at its ends, and a closed one is opened at its longest run
+of such vertices (:meth:`_LevelAir.trim_chain`). So a line that only runs along the band
 its neighbour already cleared, or past the stock's edge, is not fed through the air; the gaps inside a
 line are kept (it stays one piece). Conservative: a cell counts as swept only when wholly inside a
 cut, so a line is never trimmed where material may be left.
@@ -95,6 +97,34 @@ def _useful_span(has, swept, i0, i1, j, reach_cells):
     return first, first
 
 
+@njit(cache=True, nogil=True)
+def _useful_cells(has, swept, cells, ny, reach_cells):
+    """(k,) bool: whether the disc of ``reach_cells`` cells about each flat raster cell of ``cells``
+    meets a cell with ``has`` and not ``swept``."""
+    nx = has.shape[0]
+    K = int(math.ceil(reach_cells))
+    r2 = reach_cells * reach_cells
+    out = np.zeros(cells.shape[0], np.bool_)
+    for k in range(cells.shape[0]):
+        i, j = cells[k] // ny, cells[k] % ny
+        found = False
+        for di in range(-K, K + 1):
+            ii = i + di
+            if ii < 0 or ii >= nx:
+                continue
+            for dj in range(-K, K + 1):
+                jj = j + dj
+                if jj < 0 or jj >= ny or di * di + dj * dj > r2:
+                    continue
+                if has[ii, jj] and not swept[ii, jj]:
+                    found = True
+                    break
+            if found:
+                break
+        out[k] = found
+    return out
+
+
 class _LevelAir:
     """One level's material (``has`` (nx, ny) bool: material between the level and the one above) and
     the cells its cuts have swept so far (module docstring). ``Rf``: the flat bottom's radius, ``Rt``
@@ -134,3 +164,35 @@ class _LevelAir:
         if ib >= ia:
             return np.array([[xa, y], [xb, y]]), np.array([first * ny + j, last * ny + j])
         return np.array([[xb, y], [xa, y]]), np.array([last * ny + j, first * ny + j])
+
+    def trim_chain(self, xy: np.ndarray, cells: np.ndarray, ny: int, loop: bool):
+        """A contour chain (``xy`` (m,2), ``cells`` (m,) its vertices' raster cells; ``loop``: closed,
+        ``xy[0] == xy[-1]``) without its ends (an open chain) or its longest run (a loop, which becomes
+        an open chain) of vertices whose disc meets no material left at the level: (xy, cells), or
+        None when none does. A vertex kept keeps the segments to its neighbours."""
+        use = _useful_cells(self.has, self.swept, np.ascontiguousarray(cells, dtype=np.int64), ny, self.Rt / self.h)
+        if not use.any():
+            return None
+        if use.all():
+            return xy, cells
+        if not loop:
+            k = np.flatnonzero(use)
+            a, b = max(int(k[0]) - 1, 0), min(int(k[-1]) + 1, len(use) - 1)
+            return xy[a:b + 1], cells[a:b + 1]
+        m = len(use) - 1                                  # the loop's vertices (the last repeats the first)
+        u = use[:m]
+        # the longest cyclic run of vertices not used: the chain starts after it and ends before it
+        best_len, best_start, run, start = 0, 0, 0, 0
+        for t in range(2 * m):
+            if not u[t % m]:
+                if run == 0:
+                    start = t
+                run += 1
+                if run > best_len and run <= m:
+                    best_len, best_start = run, start
+            else:
+                run = 0
+        first = (best_start + best_len) % m               # the first vertex used after the run
+        order = [(first - 1 + t) % m for t in range(m - best_len + 2)]
+        return xy[order], cells[order]
+

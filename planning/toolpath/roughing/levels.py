@@ -787,9 +787,10 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
     prev_line = False
     cut_all = []                 # every polyline cut at this level, for ``air``
     for piece, xy, cells in _order(pieces, None if cur is None else np.asarray(cur[:2]), oneway):
-        if air is not None and piece.is_line:
+        if air is not None:
             air.mark(cut_all)
-            trimmed = air.trim(xy, cells, lv.ny)
+            trimmed = air.trim(xy, cells, lv.ny) if piece.is_line else \
+                air.trim_chain(xy, cells, lv.ny, loop=piece.ends == "loop")
             if trimmed is None:      # only air left along it
                 continue
             xy, cells = trimmed

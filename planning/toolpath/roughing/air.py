@@ -56,48 +56,6 @@ def _mark_swept(swept, x0, y0, h, xy, r):
 
 
 @njit(cache=True, nogil=True)
-def _useful_span(has, swept, i0, i1, j, reach_cells):
-    """The first and last cell index in [i0, i1) of raster column j whose disc of ``reach_cells``
-    cells meets a cell with ``has`` and not ``swept``; (-1, -1) when none."""
-    nx, ny = has.shape
-    K = int(math.ceil(reach_cells))
-    r2 = reach_cells * reach_cells
-    first = -1
-    for i in range(i0, i1):
-        found = False
-        for di in range(-K, K + 1):
-            ii = i + di
-            if ii < 0 or ii >= nx:
-                continue
-            for dj in range(-K, K + 1):
-                jj = j + dj
-                if jj < 0 or jj >= ny or di * di + dj * dj > r2:
-                    continue
-                if has[ii, jj] and not swept[ii, jj]:
-                    found = True
-                    break
-            if found:
-                break
-        if found:
-            first = i
-            break
-    if first < 0:
-        return -1, -1
-    for i in range(i1 - 1, first - 1, -1):
-        for di in range(-K, K + 1):
-            ii = i + di
-            if ii < 0 or ii >= nx:
-                continue
-            for dj in range(-K, K + 1):
-                jj = j + dj
-                if jj < 0 or jj >= ny or di * di + dj * dj > r2:
-                    continue
-                if has[ii, jj] and not swept[ii, jj]:
-                    return first, i
-    return first, first
-
-
-@njit(cache=True, nogil=True)
 def _useful_cells(has, swept, cells, ny, reach_cells):
     """(k,) bool: whether the disc of ``reach_cells`` cells about each flat raster cell of ``cells``
     meets a cell with ``has`` and not ``swept``."""
@@ -107,21 +65,13 @@ def _useful_cells(has, swept, cells, ny, reach_cells):
     out = np.zeros(cells.shape[0], np.bool_)
     for k in range(cells.shape[0]):
         i, j = cells[k] // ny, cells[k] % ny
-        found = False
-        for di in range(-K, K + 1):
-            ii = i + di
-            if ii < 0 or ii >= nx:
-                continue
-            for dj in range(-K, K + 1):
-                jj = j + dj
-                if jj < 0 or jj >= ny or di * di + dj * dj > r2:
-                    continue
-                if has[ii, jj] and not swept[ii, jj]:
-                    found = True
+        for di in range(max(-K, -i), min(K, nx - 1 - i) + 1):
+            for dj in range(max(-K, -j), min(K, ny - 1 - j) + 1):
+                if di * di + dj * dj <= r2 and has[i + di, j + dj] and not swept[i + di, j + dj]:
+                    out[k] = True
                     break
-            if found:
+            if out[k]:
                 break
-        out[k] = found
     return out
 
 
@@ -152,9 +102,11 @@ class _LevelAir:
         j = ca % ny
         ia, ib = ca // ny, cb // ny
         lo_i, hi_i = min(ia, ib), max(ia, ib)
-        first, last = _useful_span(self.has, self.swept, lo_i, hi_i + 1, j, self.Rt / self.h)
-        if first < 0:
+        span = np.arange(lo_i, hi_i + 1, dtype=np.int64) * ny + j
+        use = np.flatnonzero(_useful_cells(self.has, self.swept, span, ny, self.Rt / self.h))
+        if use.size == 0:
             return None
+        first, last = lo_i + int(use[0]), lo_i + int(use[-1])
         if first == lo_i and last == hi_i:
             return xy, cells
         h = self.h

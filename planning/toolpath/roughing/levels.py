@@ -247,11 +247,10 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     holder map reads), and lifts, links and entries go over them. None: obstacles unknown (the
     guard alone keeps the tool off them).
     ``rapid_clearance_mm`` (>= 0, default 0): how far every rapid keeps its tool from the material (the
-    guard's and the verification's rapid clearance): the retracts feed up, and the rapids down stop,
-    where the tool grown by it clears the material: with a ``stock_view`` the view brought up to date
-    with the moves so far (the guard's own column test,
-    :meth:`planning.toolpath.stock_view.StockView.column_clear_z`), else the remaining-material map
-    within ``Rt`` + this (an upper bound).
+    guard's and the verification's rapid clearance; with a ``stock_view`` only): the retracts feed up,
+    the rapids down stop and the rapids across rise where the tool grown by it clears the view
+    brought up to date with the moves so far and the obstacles (the guard's own tests,
+    :meth:`planning.toolpath.stock_view.StockView.column_clear_z` and ``rapid_clear_z``).
 
     Holder: ``holder_pieces``: the non-cutting solids above the tip, a sequence of ``(z0_mm,
     z1_mm, radius_mm)`` cylinders from z0 to z1 (may be inf) above the tip, as
@@ -296,9 +295,7 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
             read = stock_view.tops(grid.x0, grid.y0, h, grid.nx, grid.ny, fine + h, stock.floor - Rt)
             read = np.maximum(np.where(fine > -np.inf, read, -np.inf), grid.cmax)
             slab = _slab_reader(stock_view, grid, fine, Rt)
-            live = _LiveStock(stock_view, grid, read, rapid_clearance_mm, obs)
-            live.Rt = Rt
-            live.piece_radii = [float(r) for _, _, r in (stock_view.shape.pieces or ())]
+            live = _LiveStock(stock_view, grid, read, Rt, rapid_clearance_mm, obs)
         near = _disc_max(read, h, Rt + h)              # material above z within Rt + h of a tool centre
         reach = near[grid.inbox]
         z_top = float(reach.max()) if reach.size else -math.inf
@@ -321,7 +318,7 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     w, cur, level_retracts, removed, blocked, deepest = _cut_levels(levels, grid, forb, mat, ys, pattern == "oneway",
                                                                     contour, stock.safe, Rt, rc, progress, ent, near,
                                                                     stock.z_top, hold, slab, travel_cells,
-                                                                    _clear_top(mat, Rt, rapid_clearance_mm), live,
+                                                                    live,
                                                                     None if obs is None else
                                                                     _disc_max(obs, h, Rt + HOLDER_GAP_MM + h))
     air_top = fine if rest else _box_tops(grid, stock)
@@ -485,17 +482,6 @@ def _levels(z_top, floor, step, step_down_mm) -> np.ndarray:
     return np.array(levels)
 
 
-def _seg_top(mat: _MaterialMap, a, b, r: float) -> float:
-    """The highest remaining material (the map) within r of the segment a -> b (x, y; samples at most
-    H / 2 apart, r grown by a quarter of that spacing)."""
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    L = float(np.hypot(*(b - a)))
-    n = max(1, int(math.ceil(L / (0.5 * mat.H))))
-    grow = 0.5 * L / n
-    return max(mat.disc_top(float(a[0] + (b[0] - a[0]) * k / n), float(a[1] + (b[1] - a[1]) * k / n), r + grow)
-               for k in range(n + 1))
-
-
 def _crop(grid: _Raster, margin_mm: float, align: int = 1) -> tuple[slice, slice]:
     """The raster's cells within ``margin_mm`` (+ one cell) of the bounding box of its tool-centre
     cells (``grid.inbox``: the window, the box), the box's corners on multiples of ``align`` cells:
@@ -520,16 +506,14 @@ class _LiveStock:
     spacing: an upper bound, which the lifts and the holder map need) and the entries' tops (to the
     reading itself: where a helix or ramp starts; the rapid down to it is checked on the view) to it."""
 
-    def __init__(self, view, grid: _Raster, read, clearance_mm: float = 0.0, obstacles=None):
-        self.view, self.grid = view, grid
+    def __init__(self, view, grid: _Raster, read, Rt: float, clearance_mm: float = 0.0, obstacles=None):
+        self.view, self.grid, self.Rt = view, grid, float(Rt)
         self.obstacles = obstacles            # the obstacles' top per cell (never cut), or None
         self.clearance_mm = float(clearance_mm)
         self.top = np.array(read, dtype=np.float64)        # the view's top per cell, as last read
         self.k = 0                                         # blocks of the writer already run on the view
         self.last = None
         self.grow = float(view.resolution_mm) + grid.h   # the walk reads a ray within ~0.9 spacing
-        self.Rt = 0.0
-        self.piece_radii: list[float] = []
         self.inner = self.outer = None
 
     def sync(self, w) -> None:
@@ -543,29 +527,21 @@ class _LiveStock:
         self.view.cut(start, new, rapid)
         self.k, self.last = len(w.pts), new[-1].copy()
 
-    def column_clear(self, w, clearance_mm: float, mat: _MaterialMap, reach_mm: float):
+    def column_clear(self, w, clearance_mm: float):
         """The writer's ``column_clear(x, y, z, top)`` (:class:`~planning.toolpath.roughing.links._Writer`):
         the lowest height at or above z from which a rapid straight up to ``top`` keeps the tool
-        ``clearance_mm`` from the material, on the view brought up to date with ``w``'s moves. Where the
-        remaining-material map (an upper bound) has nothing within ``reach_mm`` (the widest piece of the
-        tool) + the clearance above ``z - clearance``, the column is clear without asking the view."""
+        ``clearance_mm`` from the material, on the view brought up to date with ``w``'s moves."""
         def clear(x, y, z, top):
-            if mat.disc_top(x, y, reach_mm + clearance_mm) < z - clearance_mm - 1e-6:
-                return float(z)
             self.sync(w)
             return float(self.view.column_clear_z(np.array([[x, y, z]]), top, clearance_mm)[0])
         return clear
 
-    def rapid_clear(self, w, clearance_mm: float, mat: _MaterialMap, reach_mm: float):
+    def rapid_clear(self, w, clearance_mm: float):
         """The writer's ``rapid_clear(a, b, z, top)``: the lowest height at or above z at which a rapid
-        across from a to b keeps the tool ``clearance_mm`` from the material (the view, up to date);
-        clear without asking the view where the map has nothing within the tool's widest piece + the
-        clearance of the way above ``z - clearance``."""
+        across from a to b keeps the tool ``clearance_mm`` from the material (the view, up to date)."""
         def clear(a, b, z, top):
             if not z < top:
                 return float(top)
-            if _seg_top(mat, a, b, reach_mm + clearance_mm) < z - clearance_mm - 1e-6:
-                return float(z)
             self.sync(w)
             return self.view.rapid_clear_z(a, b, z, top, clearance_mm)
         return clear
@@ -643,19 +619,9 @@ def _slab_reader(view, grid: _Raster, fine, Rt: float):
 ENTRY_GAP_EXTRA_MM = 0.15
 
 
-def _clear_top(mat: _MaterialMap, Rt: float, clearance_mm: float):
-    """The writer's ``clear_top`` (:class:`~planning.toolpath.roughing.links._Writer`): the remaining
-    material within ``Rt + clearance_mm`` of a point (:meth:`_MaterialMap.disc_top`), or None when
-    no clearance is asked."""
-    c = float(clearance_mm)
-    if not c > 0:
-        return None
-    return lambda x, y: mat.disc_top(x, y, Rt + c)
-
-
 def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, ys, oneway, contour, safe, Rt, rc,
                 progress, ent: _Entries, near=None, z_top=math.inf, hold: _HolderMap | None = None, slab=None,
-                travel=None, clear_top=None, live=None, obstacle_near=None):
+                travel=None, live=None, obstacle_near=None):
     """Cut every level from the top down: its region (rest roughing, ``near`` not None: only the
     cells whose ``near`` is above the level; ``hold`` not None: without the cells the holder
     blocks, and lifts that keep the holder clear; ``slab`` not None: only the cells ``slab(z, z_above)``
@@ -671,14 +637,12 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     at each level, the lowest level cut (NaN when none))."""
     x0, y0, h, nx, ny = grid.x0, grid.y0, grid.h, grid.nx, grid.ny
     w = _Writer()
-    w.clear_top = clear_top
     ent.exact = live is not None
     if live is not None:
         ent.gap = min(GAP_MM, live.clearance_mm + ENTRY_GAP_EXTRA_MM)
-    if live is not None and clear_top is not None:
-        reach = max([Rt] + [float(r) for r in live.piece_radii])
-        w.column_clear = live.column_clear(w, live.clearance_mm, mat, reach)
-        w.rapid_clear = live.rapid_clear(w, live.clearance_mm, mat, reach)
+    if live is not None and live.clearance_mm > 0:
+        w.column_clear = live.column_clear(w, live.clearance_mm)
+        w.rapid_clear = live.rapid_clear(w, live.clearance_mm)
     cur = None                    # current tip (x, y, z)
     level_retracts = np.zeros(levels.size, np.int64)
     removed = np.zeros(levels.size)

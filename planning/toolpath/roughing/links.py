@@ -39,7 +39,6 @@ from numba import njit
 from planning.toolpath.moves import USE_PLUNGE, USE_RAPID, USE_RETRACT
 
 GAP_MM = 1.0            #: rapids stop this far above the remaining material, mm
-CLEAR_EPS_MM = 0.05     #: with a rapid clearance: rapids stay this far above the grown tool's material, mm
 RAPID_RATIO = 5.0       #: a rapid counts as 1 / RAPID_RATIO of its length of feed when links are compared
 STEP_UNITS = 5          #: grid searches count a side step as 5 units and a diagonal one as 7 (7 / 5 <= sqrt 2)
 DIAG_UNITS = 7
@@ -368,12 +367,9 @@ class _Writer:
         self.codes: list[int] = []
         self.counts: list[int] = []
         self.n_retracts = 0
-        #: ``clear_top(x, y)`` -> the highest remaining material within the tool radius + the rapid
-        #: clearance of (x, y), mm (None: no clearance asked): rapids keep above it
-        self.clear_top = None
         #: ``column_clear(x, y, z, top)`` -> the lowest height at or above z from which a rapid straight
         #: up to ``top`` is clear of the material by the rapid clearance, read on the stock itself
-        #: (None: not known; ``clear_top`` alone is used)
+        #: (None: no clearance asked)
         self.column_clear = None
         #: ``rapid_clear(a, b, z, top)`` -> the lowest height >= z (at most ``top``) at which a rapid
         #: from a to b (x, y) is clear of the material by the rapid clearance, on the stock itself
@@ -404,14 +400,12 @@ def _lift_cost(lv: _Level, a, b, z, safe) -> float:
 def _retract(w: _Writer, cur, zl):
     """Out of the cut by GAP_MM at feed (``USE_RETRACT``), then up to ``zl`` by rapid (straight up
     from a position that is safe at its level is safe at any height above). With a rapid clearance
-    (``w.clear_top``) the feed goes on up until the tool grown by it clears the remaining material
-    beside (the wall the tool has just cut along, the part's allowance), so that the rapid does not
-    brush it."""
+    (``w.column_clear``) the feed goes on up until the tool grown by it clears the material beside
+    (the wall the tool has just cut along, the part's allowance), so that the rapid does not brush
+    it."""
     zr = cur[2] + GAP_MM
     if w.column_clear is not None:             # the stock itself, as the moves so far left it
         zr = max(zr, w.column_clear(cur[0], cur[1], cur[2], zl))
-    elif w.clear_top is not None:
-        zr = max(zr, w.clear_top(cur[0], cur[1]) + CLEAR_EPS_MM)
     zr = min(zr, zl)
     w.add([cur[0], cur[1], zr], USE_RETRACT)
     w.n_retracts += 1
@@ -437,8 +431,6 @@ def _lift(w: _Writer, lv: _Level, cur, q, z, safe, top_q=None):
     zd = min(zl, max(lv.top_at(q) if top_q is None else top_q, z) + GAP_MM)
     if w.column_clear is not None:             # the grown tool keeps clear of the material beside
         zd = min(zl, w.column_clear(q[0], q[1], zd, zl))
-    elif w.clear_top is not None:
-        zd = min(zl, max(zd, w.clear_top(q[0], q[1]) + CLEAR_EPS_MM))
     if zd < zl:
         w.add([q[0], q[1], zd], USE_RAPID)
     w.add([q[0], q[1], z], USE_PLUNGE)

@@ -239,8 +239,8 @@ def test_level_air_trims_a_line_to_where_its_disc_meets_material_not_yet_swept()
 
 
 def test_roughing_keeps_the_tool_off_the_obstacles_it_is_given_and_its_rapids_clear():
-    """A clamp beside the block, reaching above the block's floor: the roughing on the stock view with the
-    obstacles' points keeps the whole tool off it (the guard's own collision test), without them it
+    """A clamp beside the block, reaching above the block's floor: the roughing on a stock view that holds
+    the obstacles keeps the whole tool off it (the guard's own collision test), without them it
     runs into it."""
     from planning.simulate.dexel import collide
 
@@ -253,8 +253,7 @@ def test_roughing_keeps_the_tool_off_the_obstacles_it_is_given_and_its_rapids_cl
     kw = dict(tool_radius_mm=SHAPE.radius_mm, step_down_mm=3.0, stock_allowance_mm=0.5, floor_z_mm=0.0,
               stock_points_mm=stock.boundary_points(), stock_spacing_mm=RES, holder_pieces=SHAPE.pieces,
               safe_z_mm=40.0, rapid_clearance_mm=0.5)
-    with_obs = roughing_paths(cloud, stock_view=StockView(stock, frame, SHAPE, obstacles=clamp),
-                              obstacle_points_mm=clamp.boundary_points(), **kw)
+    with_obs = roughing_paths(cloud, stock_view=StockView(stock, frame, SHAPE, obstacles=clamp), **kw)
     without = roughing_paths(cloud, stock_view=StockView(stock, frame, SHAPE), **kw)
     hits = {}
     for name, rr in (("with", with_obs), ("without", without)):

@@ -446,7 +446,6 @@ def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec:
         rest = {} if carried is None else {"stock_points_mm": stock_f, "stock_spacing_mm": carried.resolution_mm,
                                            "holder_pieces": carried.roughing_shape.pieces,
                                            "stock_view": view,
-                                           "obstacle_points_mm": view.obstacle_points(),
                                            "travel_cells": None if carried.machines is None else
                                            _travel_cells(carried.machines[ap.area], ap.frame,
                                                          carried.roughing_shape.gauge_length_mm, safe_tip_z),

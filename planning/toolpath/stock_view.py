@@ -26,7 +26,7 @@ class StockView:
     """A copy of ``stock`` seen in ``frame`` and cut by ``shape`` (the operation's tool as the
     simulation sees it). ``obstacles``: what is never cut (fixtures, riser, table; the carried
     obstacles, not copied) or None. ``resolution_mm``: the stock model's ray spacing (how far across
-    its rays a reading may be off, :meth:`tops`). ``removed_mm3``: what :meth:`cut` has removed so far."""
+    its rays a reading may be off, :meth:`tops`)."""
 
     def __init__(self, stock: TriDexel, frame: AreaFrame, shape: ToolShape, obstacles: TriDexel | None = None):
         self.stock = stock.copy()
@@ -34,8 +34,6 @@ class StockView:
         self.frame = frame
         self.shape = shape
         self.resolution_mm = float(stock.res)
-        self.removed_mm3 = 0.0
-        self.n_cut = 0
 
     def tops(self, x0: float, y0: float, h: float, nx: int, ny: int, start, stop: float) -> np.ndarray:
         """(nx, ny) frame z (mm) of the highest material between ``stop`` and ``start`` (scalar or
@@ -55,10 +53,7 @@ class StockView:
             return np.zeros(0)
         kind = np.where(np.asarray(rapid, dtype=bool).reshape(-1), RAPID, FEED).astype(np.int8)
         ax = np.broadcast_to(self.frame.rotation[2], s.shape)
-        removed = cut(self.stock, s, e, ax, self.shape, kind)
-        self.removed_mm3 += float(removed.sum())
-        self.n_cut += int(s.shape[0])
-        return removed
+        return cut(self.stock, s, e, ax, self.shape, kind)
 
     def column_clear_z(self, points_frame, top_z: float, clearance_mm: float) -> np.ndarray:
         """(n,) for each tool tip (frame, n,3) the lowest height (frame z) at or above it from which
@@ -91,13 +86,9 @@ class StockView:
         hit = collide(self.stock, s, e, ax, self.shape, which="tool", grow_mm=clearance_mm) > 0
         if self.obstacles is not None:
             hit |= collide(self.obstacles, s, e, ax, self.shape, which="tool", grow_mm=clearance_mm) > 0
-        free = np.flatnonzero(~hit)
         # the lowest height above every blocked one (a rapid clear at a height is not always clear above it)
-        last_hit = np.flatnonzero(hit)
-        if last_hit.size == 0:
-            return float(heights[0])
-        k = int(last_hit[-1]) + 1
-        return float(heights[k]) if k < heights.size and free.size else float(top_z)
+        k = int(np.flatnonzero(hit)[-1]) + 1 if hit.any() else 0
+        return float(heights[k]) if k < heights.size else float(top_z)
 
     def obstacle_points(self) -> np.ndarray:
         """(K,3) points on the boundary of the obstacles in the frame (mm; empty when there are none)."""

@@ -191,7 +191,7 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
                    stock_points_mm=None, stock_spacing_mm: float | None = None, entry: str = "helix",
                    entry_angle_deg: float = 3.0, entry_diameter_mm: float | None = None,
                    ramp_length_mm: float | None = None, holder_pieces=None, stock_view=None,
-                   travel_cells=None, rapid_clearance_mm: float = 0.0, obstacle_points_mm=None,
+                   travel_cells=None, rapid_clearance_mm: float = 0.0,
                    progress: Callable[[int, int], None] | None = None) -> RoughingPath:
     """Z-level roughing of one set-up from a stock box or the stock left (mm, area frame; see
     :mod:`planning.toolpath.roughing`).
@@ -239,13 +239,12 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     ``travel_cells(x0, y0, h, nx, ny, z)`` -> (nx, ny) bool, the raster cells whose centre, as a tool
     tip at frame height ``z``, the machine reaches within its travel (and with the lift to the
     retract height); a level cuts only those. None (default): travel not known.
-    ``obstacle_points_mm`` (rest roughing only) (K,3): points sampling the boundary of what is never
-    cut (fixtures, the riser, the table: the carried obstacles' boundary points), area frame, at
-    ``stock_spacing_mm``. Their top per cell (as the stock's, never too low) counts as material that
-    never goes: no tool centre comes within ``Rt`` + HOLDER_GAP_MM of one above its tip less that gap,
-    the holder keeps HOLDER_GAP_MM above them (they are in the remaining-material map, which the
-    holder map reads), and lifts, links and entries go over them. None: obstacles unknown (the
-    guard alone keeps the tool off them).
+    The stock view's obstacles (fixtures, the riser, the table: what is never cut), when it has them:
+    their top per cell from their boundary points (as the stock's, never too low) counts as material
+    that never goes: no tool centre comes within ``Rt`` + HOLDER_GAP_MM of one above its tip less that
+    gap, the holder keeps HOLDER_GAP_MM above them (they are in the remaining-material map, which the
+    holder map reads), and lifts, links and entries go over them. Without them the guard alone keeps
+    the tool off the obstacles.
     ``rapid_clearance_mm`` (>= 0, default 0): how far every rapid keeps its tool from the material (the
     guard's and the verification's rapid clearance; with a ``stock_view`` only): the retracts feed up,
     the rapids down stop and the rapids across rise where the tool grown by it clears the view
@@ -281,8 +280,8 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
         win = _window_cells(grid, window_xy_mm, window_reach_mm)
         grid = replace(grid, inbox=grid.inbox & win)
     obs = None
-    if rest and obstacle_points_mm is not None:
-        opts = np.asarray(obstacle_points_mm, dtype=np.float64).reshape(-1, 3)
+    if rest and stock_view is not None and stock_view.obstacles is not None:
+        opts = stock_view.obstacle_points()
         opts = opts[opts[:, 2] > float(stock.floor) - Rt - HOLDER_GAP_MM - h]      # those a tool can meet
         if opts.shape[0]:
             obs = _stock_tops(opts, grid, spacing)
@@ -582,12 +581,11 @@ class _LiveStock:
             # whether there is material under the tool: the bound; where a helix or ramp starts: the
             # material as read (not grown: beside a wall the growth reaches the part's top), the rapid
             # down to it being checked on the view
-            fine = np.array(ent.fine)
-            fine[ii, ij] = np.minimum(fine[ii, ij], bound)
-            start_tops = np.array(fine)
-            start_tops[ii, ij] = np.minimum(fine[ii, ij], read)
-            ent.fine = np.ascontiguousarray(fine)
-            ent.fine_start = np.ascontiguousarray(start_tops)
+            if ent.fine_start is None:     # the entries' own arrays (``fine`` is the caller's), once
+                ent.fine = np.array(ent.fine)
+                ent.fine_start = ent.fine.copy()
+            ent.fine[ii, ij] = np.minimum(ent.fine[ii, ij], bound)
+            ent.fine_start[ii, ij] = np.minimum(ent.fine[ii, ij], read)
 
 
 def _slab_reader(view, grid: _Raster, fine, Rt: float):

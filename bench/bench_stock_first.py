@@ -23,7 +23,8 @@ before), so that before and after come from the same script:
     .venv/bin/python bench/bench_stock_first.py --root /tmp/base30 --json bench/out/stock_first/before.json
 
 Cases: ``half_sphere`` (the README's plan: normals from the file, 2 set-ups, Ø10 ball), ``slot``, ``post_wall``,
-``filleted_box`` (Ø4), ``dome_mesh`` (a UV sphere's upper half as triangles, facet normals, 3 set-ups) and
+``filleted_box`` (Ø4), ``dome_mesh`` (tests/test_safe_programs.py's: a UV sphere's upper half as triangles,
+facet normals, 3 set-ups) and
 ``femur_like`` (the ``make run`` configuration of scripts/demo_service.py, the cloud without normals).
 """
 
@@ -46,34 +47,6 @@ def _setup_path(root: Path) -> None:
     sys.path.insert(0, str(root))
 
 
-def _dome_mesh():
-    """The upper half of a UV sphere (radius 40 mm, 16 x 32) as vertices and triangles."""
-    n_lat, n_lon, radius = 16, 32, 40.0
-    theta = np.linspace(0, np.pi, n_lat + 1)[1:-1]
-    phi = np.linspace(0, 2 * np.pi, n_lon, endpoint=False)
-    t, p = np.meshgrid(theta, phi, indexing="ij")
-    ring = np.column_stack((np.sin(t).ravel() * np.cos(p).ravel(), np.sin(t).ravel() * np.sin(p).ravel(),
-                            np.cos(t).ravel()))
-    v = np.vstack(([0, 0, 1], ring, [0, 0, -1])) * radius
-    south = v.shape[0] - 1
-    faces = []
-    for j in range(n_lon):
-        faces.append([0, 1 + j, 1 + (j + 1) % n_lon])
-        last = 1 + (n_lat - 2) * n_lon
-        faces.append([south, last + (j + 1) % n_lon, last + j])
-    for i in range(n_lat - 2):
-        for j in range(n_lon):
-            a, b = 1 + i * n_lon + j, 1 + i * n_lon + (j + 1) % n_lon
-            c, d = a + n_lon, b + n_lon
-            faces += [[a, c, b], [b, c, d]]
-    f = np.array(faces, dtype=np.int64)
-    keep = (v[f][:, :, 2] >= -1e-9).all(axis=1)
-    used = np.unique(f[keep])
-    remap = np.full(v.shape[0], -1)
-    remap[used] = np.arange(used.size)
-    return v[used], remap[f[keep]]
-
-
 def case_input(name: str, root: Path):
     """(points, normals or None, faces or None, the configuration document) of a case."""
     from planning.inputs import samples
@@ -84,9 +57,13 @@ def case_input(name: str, root: Path):
 
         s = samples.femur_like()
         return s.points, None, None, json.loads(json.dumps(CONFIGS["femur_like"])), []
-    if name == "dome_mesh":
-        v, f = _dome_mesh()
-        return v, None, f, {}, ["normals.method=facets", "input.mesh_sample_mm=1.0", "setups.max_setups=3"]
+    if name == "dome_mesh":                  # the test suite's reference mesh and its settings
+        sys.path.insert(0, str(root / "tests"))
+        from test_safe_programs import CASES as TEST_CASES
+        from test_safe_programs import _dome_mesh
+
+        s = _dome_mesh()
+        return s.points, None, s.faces, {}, list(TEST_CASES["dome_mesh"][1])
     make, sets = {"half_sphere": (samples.half_sphere, ["normals.method=input", "setups.max_setups=2",
                                                         "tool.diameter_mm=10"]),
                   "slot": (samples.slot, []), "post_wall": (samples.post_wall, []),

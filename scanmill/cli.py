@@ -167,15 +167,26 @@ def cmd_plan(args) -> int:
 
 
 def cmd_sample(args) -> int:
-    from planning.inputs.samples import make_sample
+    from planning.errors import ParameterError
+    from planning.inputs.samples import RANGE_SHAPES, make_sample
     from planning.report.files import write_ply
 
+    name = args.name
+    if args.scanner == "range" and name not in ("range_scan", *RANGE_SHAPES.values()):
+        if name not in RANGE_SHAPES:
+            raise ParameterError(f"--scanner range: no range scan of {name!r}; it scans {', '.join(RANGE_SHAPES)}",
+                                 parameter="scanner", value=name, allowed=list(RANGE_SHAPES))
+        name = RANGE_SHAPES[name]
     kwargs = {}
     if args.points is not None:
         kwargs["n_points"] = args.points
     if args.seed is not None:
         kwargs["seed"] = args.seed
-    s = make_sample(args.name, **kwargs)
+    if args.along_mm is not None:
+        kwargs["along_mm"] = args.along_mm
+    if args.across_mm is not None:
+        kwargs["across_mm"] = args.across_mm
+    s = make_sample(name, **kwargs)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_ply(out, s.points, normals=s.normals, binary=not args.ascii)
@@ -255,11 +266,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_plan)
 
     s = sub.add_parser("sample", help="write a reference cloud (docs/design.md reference cases) as PLY")
-    s.add_argument("name", help="half_sphere, femur_like, slot, post_wall or filleted_box")
+    s.add_argument("name", help="half_sphere, femur_like, slot, post_wall, filleted_box, draft_slot; range scans: "
+                                "range_femur, range_half_sphere, range_slot, range_filleted_box")
     s.add_argument("--out", required=True, help="output PLY file")
     s.add_argument("--points", type=int, help="number of points, where the sample takes one")
     s.add_argument("--seed", type=int, help="random seed")
     s.add_argument("--ascii", action="store_true", help="write ascii PLY instead of binary")
+    s.add_argument("--scanner", choices=["uniform", "range"], default="uniform",
+                   help="uniform: points drawn over the surface (default); range: a simulated range scan in scan "
+                        "lines (femur_like, half_sphere, slot, filleted_box; the part scaled to --points)")
+    s.add_argument("--along-mm", type=float, help="range scan: point spacing along the scan lines (0.3 mm)")
+    s.add_argument("--across-mm", type=float, help="range scan: spacing between the scan lines (0.6 mm)")
     s.set_defaults(func=cmd_sample)
 
     c = sub.add_parser("schema", help="print the JSON Schema of plan.json or of the configuration")

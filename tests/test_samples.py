@@ -333,7 +333,8 @@ def test_post_wall_rejects_a_wall_off_the_plate():
 
 
 def test_make_sample_by_name():
-    assert set(SAMPLES) == {"half_sphere", "femur_like", "slot", "post_wall", "filleted_box", "draft_slot"}
+    assert set(SAMPLES) == {"half_sphere", "femur_like", "slot", "post_wall", "filleted_box", "draft_slot",
+                            "range_scan", "range_femur", "range_half_sphere", "range_slot", "range_filleted_box"}
     assert np.array_equal(make_sample("half_sphere").points, half_sphere().points)
     assert make_sample("slot", n_points=2000, seed=1).name == "slot"
     assert make_sample("post_wall", n_points=2000).points.shape[0] == pytest.approx(2000, rel=0.03)

@@ -20,6 +20,13 @@ arguments always give the same arrays (all randomness comes from ``numpy.random.
   position does (simultaneous 5-axis, issue 19).
 - :func:`filleted_box` - a 60 x 40 x 20 mm box with its top and vertical edges rounded (10 mm
   fillets): the part a new user would bring.
+- :func:`range_scan` - a simulated multi-view range scan of the femur, the half sphere, the slot
+  block or the filleted box (``shape``; registered also as ``range_femur``, ``range_half_sphere``,
+  ``range_slot``, ``range_filleted_box``): per view a grid of rays in scan lines (0.3 mm along,
+  0.6 mm across), the first hit on the exact surface, holes where the surface turns away, noise
+  along the rays, a few outliers and small registration errors between the views; the part is
+  scaled so that about ``n_points`` (40,000) are recorded. :func:`shape_distance` measures how far
+  a point lies from the shape scanned.
 
 Frames: millimetres, z up. The femur, the slot block, the post plate and the filleted box stand on
 the table: the lowest point of the exact surface at z = 0 and the bounding box centred in x and y
@@ -31,7 +38,8 @@ Modules: :mod:`~planning.inputs.samples.common` (:class:`Sample`, argument check
 :mod:`~planning.inputs.samples.femur` (:func:`femur_like`, :func:`femur_implicit`),
 :mod:`~planning.inputs.samples.scanner` (the simulated scanner views of the femur),
 :mod:`~planning.inputs.samples.prismatic` (:func:`slot`, :func:`post_wall`, :func:`draft_slot`),
-:mod:`~planning.inputs.samples.filleted` (:func:`filleted_box`); this package holds the registry
+:mod:`~planning.inputs.samples.filleted` (:func:`filleted_box`),
+:mod:`~planning.inputs.samples.rangescan` (:func:`range_scan`); this package holds the registry
 :data:`SAMPLES` and :func:`make_sample`.
 """
 
@@ -48,10 +56,25 @@ from planning.inputs.samples.femur import (
 )
 from planning.inputs.samples.filleted import filleted_box, filleted_box_inner_box
 from planning.inputs.samples.hemisphere import half_sphere
-from planning.inputs.samples.prismatic import draft_slot, post_wall, slot, slot_floor_max_tilt_deg
+from planning.inputs.samples.prismatic import (
+    draft_slot,
+    post_wall,
+    slot,
+    slot_floor_max_tilt_deg,
+)
+from planning.inputs.samples.rangescan import (
+    RANGE_SHAPES,
+    range_femur,
+    range_filleted_box,
+    range_half_sphere,
+    range_scan,
+    range_slot,
+    shape_distance,
+)
 
 __all__ = [
     "FEMUR_DIMENSIONS_MM",
+    "RANGE_SHAPES",
     "SAMPLES",
     "Sample",
     "draft_slot",
@@ -62,6 +85,12 @@ __all__ = [
     "half_sphere",
     "make_sample",
     "post_wall",
+    "range_femur",
+    "range_filleted_box",
+    "range_half_sphere",
+    "range_scan",
+    "range_slot",
+    "shape_distance",
     "slot",
     "slot_floor_max_tilt_deg",
 ]
@@ -75,6 +104,11 @@ SAMPLES: dict[str, Callable[..., Sample]] = {
     "post_wall": post_wall,
     "filleted_box": filleted_box,
     "draft_slot": draft_slot,
+    "range_scan": range_scan,
+    "range_femur": range_femur,
+    "range_half_sphere": range_half_sphere,
+    "range_slot": range_slot,
+    "range_filleted_box": range_filleted_box,
 }
 
 

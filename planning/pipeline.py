@@ -463,7 +463,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
                                                       config.areas, progress=p))
     run.warnings += _areas_warnings(areas, nrm)
     area_paths = []
-    surface = None
+    surface = carried = None
     pp = config.paths
     order = list(range(int(selected.size)))
     if (pp.finishing.enabled or pp.roughing.enabled) and selected.size:
@@ -482,7 +482,8 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
         programs, path_summaries = run.stage("post", lambda p: post_areas(
             area_paths, setups_axes=sel_axes, rotary_deg=ori.angles_deg[selected], profile=profile,
             placement_mm=gv.placement_mm, gauge_length_mm=tool.gauge_length_mm, config=config))
-    simulation = _simulation(cloud, config, nrm, areas, programs, order, profile, tool, gv, blank, run)
+    simulation = _simulation(cloud, config, nrm, areas, programs, order, profile, tool, gv, blank, run,
+                             area_paths=area_paths, carried=carried if area_paths else None)
 
     names = _ROTARY_NAMES[profile.kinematics]
     result = _plan_result(cloud, config, name, nrm, ori, vis, sel, areas, profile, names,
@@ -509,12 +510,36 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     return PlanOutcome(result=result, arrays=_plan_arrays(nrm, ori, gv.visible, selected, areas, area_paths),
                        points=points, input_labels=areas.input_labels, selected_axes=sel_axes,
                        extra={"programs": programs, "area_paths": area_paths, "areas": areas,
-                              "simulation": simulation})
+                              "simulation": simulation, "verify_again": getattr(simulation, "again", None)})
+
+
+def _simulated_operations(area_paths, carried) -> dict | None:
+    """Per area, the posted operations' moves as the guard ran them on the carried stock (roughing,
+    then 3+2 finishing: the order :func:`planning.post.programs.post_areas` posts them), for the
+    single-pass verification; None when the paths were not run on the carried stock."""
+    if carried is None:
+        return None
+    out = {}
+    for ap in area_paths:
+        ops = []
+        for tp, g in ((ap.roughing, getattr(ap, "roughing_guard", None)),
+                      (ap.finishing, getattr(ap, "finishing_guard", None))):
+            if tp is None:
+                continue
+            if g is None or g.moves is None or tp.axis is not None:
+                ops = None                     # not guarded, or 5-axis (its own post): run again
+                break
+            ops.append(g.moves)
+        if ops is not None:
+            out[ap.area] = ops
+    return out
 
 
 def _simulation(cloud: Cloud, config: PlanConfig, nrm: _Normals, areas: Areas, programs: dict, order: list[int],
-                profile, tool, gv: GlobalVisibility, blank, run: _Run):
-    """Stage 9 (issue 15): the posted programs run on the simulated machine and stock, or why not."""
+                profile, tool, gv: GlobalVisibility, blank, run: _Run, area_paths=(), carried=None):
+    """Stage 9 (issue 15): the posted programs run on the simulated machine and stock, or why not
+    (single pass: the moves the paths stage ran on the ``carried`` stock, once proven to be the
+    programs', are not run again)."""
     from planning.simulate.verify import skipped, verify_plan
 
     if not config.simulate.enabled:
@@ -522,10 +547,22 @@ def _simulation(cloud: Cloud, config: PlanConfig, nrm: _Normals, areas: Areas, p
     if not programs:
         return skipped("no program was posted")
     normals = cloud.normals if cloud.normals is not None else nrm.normals[areas.nearest_sample]
-    return run.stage("simulate", lambda p: verify_plan(
-        programs=programs, order=order, config=config, profile=profile, placement_mm=gv.placement_mm, tool=tool,
-        fixtures=gv.fixtures, points=cloud.points, normals=normals, input_labels=areas.input_labels, blank=blank,
-        progress=p))
+    args = dict(programs=programs, order=order, profile=profile, placement_mm=gv.placement_mm, tool=tool,
+                fixtures=gv.fixtures, points=cloud.points, normals=normals, input_labels=areas.input_labels,
+                blank=blank, simulated=_simulated_operations(area_paths, carried),
+                stock_after=None if carried is None else carried.stock)
+
+    def again(mode: str = "independent", programs: dict | None = None, progress=None):
+        """The verification once more, with ``simulate.mode = mode`` and ``programs`` (default: the
+        posted ones); the plan's outcome keeps this as ``extra["verify_again"]``: the tests compare
+        the two modes on the same programs, and on programs changed after posting."""
+        cfg = config.model_copy(update={"simulate": config.simulate.model_copy(update={"mode": mode})})
+        return verify_plan(config=cfg, progress=progress, **{**args, **({} if programs is None else
+                                                                         {"programs": programs})})
+
+    out = run.stage("simulate", lambda p: verify_plan(config=config, progress=p, **args))
+    out.again = again
+    return out
 
 
 def _plan_result(cloud: Cloud, config: PlanConfig, name, nrm: _Normals, ori: _Orientations, vis: _Visibility,

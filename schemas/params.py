@@ -440,6 +440,12 @@ class SimulateParams(_Strict):
                                            "top up to it, that may never be cut, mm; null: none.")
     rapid_clearance_mm: float = Field(
         0.0, ge=0, le=100, description="A rapid closer than this to material counts as a rapid into material, mm.")
+    mode: Literal["single_pass", "independent"] = Field(
+        "single_pass", description="'single_pass': the programs proven to run exactly the moves the paths stage "
+                                   "already ran on the carried stock (every position within the post's rounding, "
+                                   "every tool and axis) are not run again: their figures and the stock are taken "
+                                   "from that run (anything unproven falls back to 'independent', and the plan "
+                                   "says why); 'independent': every program is run again on a fresh stock.")
 
 
 class FinishingParams(_Strict):

@@ -406,6 +406,11 @@ class Verification(_Out):
     machining_time_s: float = 0.0
     worst: list[VerificationOffence] = Field(default_factory=list, description="The worst offences of each class.")
     notes: list[str] = Field(default_factory=list, description="What the simulation assumed.")
+    mode: Literal["single_pass", "independent"] | None = Field(
+        None, description="'single_pass': the programs were proven to run the moves the paths stage simulated, "
+                          "and that run's figures and stock were taken; 'independent': every program was run "
+                          "again on a fresh stock (simulate.mode, or the single pass was not proven).")
+    mode_note: str = Field("", description="What was proven, or why the programs were run again.")
     seconds: float = 0.0
 
 

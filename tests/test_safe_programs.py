@@ -115,6 +115,60 @@ def test_rs274_reads_the_linuxcnc_programs_within_the_travel(light_plan):
     assert read == len(outcome.result.setups)                 # every set-up has its program
 
 
+def _counts(v) -> tuple:
+    return (v.status, v.rapids_into_material, v.holder_collisions, v.fixture_collisions, v.travel_excursions,
+            v.plunges_into_material, v.unreadable_programs, v.deviation.n_gouged, v.deviation.n_suspected)
+
+
+def test_the_single_pass_verification_equals_the_independent_one(light_plan):
+    """Issue 30 item 2: the plan's verification proved that the posted programs run the moves the
+    paths stage simulated and took that run (``mode`` single_pass: nothing was run twice); running
+    every program again on a fresh stock (``simulate.mode = independent``) gives the same verdict and
+    counts, the same finished share, the same removed volume per program within 0.1 % and the same
+    plunges; the air share within 2 points of the feed length (roughing) or 5 (finishing)."""
+    name, outcome = light_plan
+    single = outcome.result.verification
+    assert single.mode == "single_pass", (name, single.mode_note)
+    assert "proven" in single.mode_note
+    said: list[str] = []
+    independent = outcome.extra["verify_again"]("independent", progress=lambda f, m: said.append(m)).verification
+    assert independent.mode == "independent"
+    for a in independent.areas:           # run again: the progress names every block of moves
+        assert any(m.startswith(f"{a.program}: simulating {a.n_moves} moves") for m in said), (name, a.program)
+        assert any(m.startswith(f"{a.program}: moves 1-") for m in said), (name, a.program)
+    assert _counts(single) == _counts(independent), name
+    assert single.deviation.finished_share == pytest.approx(independent.deviation.finished_share, abs=2e-3)
+    assert single.deviation.left_p95_mm == pytest.approx(independent.deviation.left_p95_mm, abs=0.01)
+    for a, b in zip(single.areas, independent.areas, strict=True):
+        assert (a.program, a.n_moves, a.plunges_into_material) == (b.program, b.n_moves, b.plunges_into_material)
+        assert a.removed_mm3 == pytest.approx(b.removed_mm3, rel=1e-3, abs=1.0), (name, a.program)
+        assert a.machining_time_s == b.machining_time_s
+        for oa, ob in zip(a.operations, b.operations, strict=True):
+            assert (oa.tool, oa.feed_mm, oa.rapid_mm) == (ob.tool, ob.feed_mm, ob.rapid_mm)
+            assert oa.removed_mm3 == pytest.approx(ob.removed_mm3, rel=1e-3, abs=1.0), (name, a.program, oa.tool)
+            # a move is "in air" below 1e-6 mm^3 removed: the finishing's slivers sit at that limit, and
+            # the program's rounding (1e-4 mm) and its own arc chords move its share by a few points
+            assert oa.air_share == pytest.approx(ob.air_share, abs=0.02 if oa.operation == "roughing" else 0.05), \
+                (name, a.program, oa.operation)
+
+
+def test_a_program_changed_after_posting_is_run_again_not_taken_from_the_plan(light_plan):
+    """The single pass takes nothing on trust: a feed move moved 0.05 mm in the text (a hand edit, a
+    post that writes other moves) is not the simulated move, so every program is run again and the
+    plan says which line differed."""
+    name, outcome = light_plan
+    programs = dict(outcome.extra["programs"])
+    prog = next(k for k in programs if k.endswith(".linuxcnc.nc"))
+    lines = programs[prog].split("\n")
+    moves = [i for i, ln in enumerate(lines) if ln.startswith("X")]         # modal moves: "X.. Y.. Z.."
+    k = moves[len(moves) // 2]
+    lines[k] = re.sub(r"X(-?\d+\.?\d*)", lambda m: f"X{float(m.group(1)) + 0.05:.4f}", lines[k], count=1)
+    programs[prog] = "\n".join(lines)
+    v = outcome.extra["verify_again"]("single_pass", programs=programs).verification
+    assert v.mode == "independent", (name, v.mode_note)
+    assert "not proven" in v.mode_note and prog in v.mode_note, v.mode_note
+
+
 def test_every_stage_reports_its_start_and_end_and_never_goes_back(light_plan):
     """Issue 17 item 3: progress that moves (how often in seconds is the machine's business: the
     CLI and the bench show it, no test measures time)."""
@@ -146,11 +200,14 @@ def test_paths_report_every_step_of_every_area(light_plan):
 
 
 def test_the_simulation_reports_every_program_and_its_moves(light_plan):
+    """Every program is named with its moves: proven to be the simulated ones in the plan (single pass);
+    the simulation of each block of moves when they are run again (the test of the two modes)."""
     name, outcome = light_plan
     msgs = [m for st, _, m in outcome.extra["progress_calls"] if st == "simulate"]
     for a in outcome.result.verification.areas:
-        assert any(m.startswith(f"{a.program}: simulating {a.n_moves} moves") for m in msgs), (name, a.program)
-        assert any(m.startswith(f"{a.program}: moves 1-") for m in msgs), (name, a.program)
+        assert any(m.startswith(f"{a.program}: reading") for m in msgs), (name, a.program)
+        assert any(m.startswith(f"{a.program}: proving its {a.n_moves} moves") for m in msgs), (name, a.program)
+        assert any(m.startswith(f"{a.program}: {a.n_moves} moves proven simulated") for m in msgs), (name, a.program)
     assert any("deviation" in m for m in msgs), name
 
 

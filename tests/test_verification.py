@@ -217,21 +217,14 @@ def test_the_deviation_read_in_chunks_is_the_same_and_reports_each(slot_plan, mo
     """Issue 17 item 3: on a large scan the deviation is read in chunks that report progress; per
     point the reading is the same as in one call."""
     import planning.simulate.verify as verify
-    from planning.orientations.kinematics import load_profile
-    from planning.visibility.chain import build_fixtures
 
-    outcome, paths = slot_plan
-    p = outcome.result.parameters
+    outcome, _ = slot_plan
     sim = outcome.extra["simulation"]
-    cloud = read_cloud(paths["plan_json"].parent.parent / "slot.ply")        # the scan with its normals
-    place = np.asarray(outcome.result.visibility.placement_mm, dtype=float)
-    solids = build_fixtures(p.fixtures, place)[0]
     monkeypatch.setattr(verify, "DEVIATION_CHUNK", outcome.points.shape[0] // 3 + 1)
     said = []
-    again = verify.verify_plan(programs=outcome.extra["programs"], order=outcome.result.machining_order, config=p,
-                               profile=load_profile(p.machine.profile), placement_mm=place, tool=p.tool.assembly(),
-                               fixtures=solids, points=outcome.points, normals=cloud.normals,
-                               input_labels=outcome.input_labels, progress=lambda f, m: said.append(m))
+    # the same verification (same mode, so the same stock) read in three chunks
+    again = outcome.extra["verify_again"](sim.verification.mode, progress=lambda f, m: said.append(m))
+    assert again.verification.mode == sim.verification.mode
     assert np.array_equal(again.deviation_mm, sim.deviation_mm, equal_nan=True)
     assert sum("deviation of the scan" in m for m in said) == 3
 

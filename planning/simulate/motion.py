@@ -69,3 +69,45 @@ class ProgramMotion:
     @property
     def n_moves(self) -> int:
         return int(self.line.shape[0])
+
+
+@dataclass
+class SimulatedMoves:
+    """One operation's moves as they were run on the carried stock while the paths were planned
+    (:func:`planning.toolpath.guard.run_on_stock`, the guard's last, accepted run), kept so that the
+    verification can take them instead of running the program again (:mod:`planning.simulate.single_pass`).
+
+    ``tool``: the T number; ``source`` (n,) int: the toolpath move each segment belongs to (an arc is
+    several chords); ``start_mm`` / ``end_mm`` (n,3): tool tip (part frame); ``axis`` (n,3):
+    unit tool axis; ``kind`` (n,) :data:`RAPID` / :data:`FEED`; ``removed_mm3`` (n,) what each move
+    cut; ``rapid_depth_mm`` / ``holder_depth_mm`` / ``fixture_depth_mm`` (n,) as
+    :class:`planning.simulate.run.MoveFigures` (a rapid measured with the tool grown by
+    ``rapid_clearance_mm``); ``fixture`` (n,) bool: the tool in a fixture, the riser or the table;
+    ``travel`` (n,) bool: a move end beyond the machine's travel; ``stock_before`` / ``stock_after``
+    (:class:`~planning.simulate.dexel.TriDexel`): the stock the moves met and the one they left
+    (references; nobody changes them afterwards)."""
+
+    tool: int
+    source: np.ndarray
+    start_mm: np.ndarray
+    end_mm: np.ndarray
+    axis: np.ndarray
+    kind: np.ndarray
+    removed_mm3: np.ndarray
+    rapid_depth_mm: np.ndarray
+    holder_depth_mm: np.ndarray
+    fixture: np.ndarray
+    travel: np.ndarray
+    rapid_clearance_mm: float
+    stock_before: object = None
+    stock_after: object = None
+
+    @property
+    def n_moves(self) -> int:
+        return int(self.kind.shape[0])
+
+    @property
+    def clean(self) -> bool:
+        """No offence of any class on any move."""
+        return not (np.any(self.rapid_depth_mm > 0) or np.any(self.holder_depth_mm > 0)
+                    or np.any(self.fixture) or np.any(self.travel))

@@ -48,6 +48,9 @@ Progress = Callable[[float, str], None]
 
 #: Offences of each class listed in ``verification.worst``.
 WORST_PER_CLASS = 5
+#: The share of the verification's progress that reading the programs back (and proving them) takes.
+READ_SHARE = 0.1
+
 #: Scan points whose deviation is read in one call (the calls report progress between them).
 DEVIATION_CHUNK = 500_000
 
@@ -55,11 +58,13 @@ DEVIATION_CHUNK = 500_000
 @dataclass
 class SimulationOutcome:
     """``verification``: the plan.json block; ``deviation_mm`` (N,) per input point (NaN where not
-    measured); ``stock``: the final stock model (for the mesh artifact)."""
+    measured); ``stock``: the final stock model (for the mesh artifact); ``again``: ``again(mode)``
+    runs the verification once more in another ``simulate.mode`` (set by the pipeline)."""
 
     verification: Verification
     deviation_mm: np.ndarray | None = None
     stock: object = None
+    again: object = None
 
 
 def skipped(message: str) -> SimulationOutcome:
@@ -236,7 +241,8 @@ def verification_status(v: Verification) -> str:
 
 def verify_plan(*, programs: dict[str, str], order, config, profile, placement_mm, tool: ToolAssembly,
                 fixtures: Sequence, points: np.ndarray, normals: np.ndarray, input_labels: np.ndarray,
-                blank=None, progress: Progress | None = None) -> SimulationOutcome:
+                blank=None, progress: Progress | None = None, simulated: dict | None = None,
+                stock_after=None) -> SimulationOutcome:
     """Run every area's program of ``programs`` on the simulated machine and stock (module docstring).
 
     ``order``: the areas in their machining order (``plan.json machining_order``; an int ``k``
@@ -244,7 +250,13 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
     part-frame origin on the table; ``tool`` the finishing assembly; ``fixtures`` the fixture solids
     and the table (part frame); ``points`` (N,3) the scan with unit ``normals`` (N,3) and
     ``input_labels`` (N,); ``blank`` the mesh of a 'mesh' stock
-    (:func:`planning.simulate.models.load_blank`). Lengths in mm."""
+    (:func:`planning.simulate.models.load_blank`). Lengths in mm.
+
+    ``simulated``: per area, the operations' moves as the paths stage ran them on the carried stock
+    (:class:`~planning.simulate.motion.SimulatedMoves`, in program order), and ``stock_after`` the
+    carried stock they left: with ``simulate.mode = "single_pass"`` the programs proven to run those
+    moves are not run again (:mod:`planning.simulate.single_pass`); when one is not, or without
+    them, every program runs here (``verification.mode`` says which was done, and why)."""
     from planning.simulate import models as stock_models
     from planning.simulate.program import check_travel, read_program
     from planning.simulate.run import deviation_pair, run_moves
@@ -268,12 +280,15 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
     n_steps = len(names) + 1                  # every program, then the deviation of the scan
 
     def say(n_done: int, fraction: float, message: str) -> None:
+        # the reading takes the first tenth, then every program and the deviation a share each
         if progress is not None:
-            progress((n_done + max(0.0, min(1.0, fraction))) / n_steps, message)
+            progress(READ_SHARE + (1.0 - READ_SHARE) * (n_done + max(0.0, min(1.0, fraction))) / n_steps, message)
 
+    read = []                                 # (n_done, name, area, motion)
     for n_done, name in enumerate(names):
         area = int(name.split("_")[1].split(".")[0])
-        say(n_done, 0.0, f"{name}: reading ({n_done + 1}/{len(names)})")
+        if progress is not None:
+            progress(0.5 * READ_SHARE * n_done / len(names), f"{name}: reading ({n_done + 1}/{len(names)})")
         try:
             motion = read_program(programs[name], dialect=dialect, program=name, area=area, profile=profile,
                                   placement_mm=placement_mm, tools=tools)
@@ -283,11 +298,24 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
             continue
         v.notes += [n for n in motion.notes if n not in v.notes]
         motions.append(motion)
+        read.append((n_done, name, area, motion))
+    runs, stock = None, models.stock
+    v.mode, v.mode_note = "independent", "simulate.mode is 'independent'"
+    if sim.mode == "single_pass":
+        runs, v.mode_note = _single_pass(read, simulated, stock_after, models, tools, config,
+                                         None if progress is None else
+                                         (lambda k, m: progress(READ_SHARE * (0.5 + 0.5 * k / len(read)), m)))
+        if runs is not None:
+            v.mode, stock = "single_pass", stock_after
+    for n_done, name, area, motion in read:
         travel = check_travel(motion, profile)
-        say(n_done, 0.05, f"{name}: simulating {motion.n_moves} moves ({n_done + 1}/{len(names)})")
-        run = run_moves(models.stock, models.obstacles, motion, tools, rapid_clearance_mm=sim.rapid_clearance_mm,
-                        progress=None if progress is None else
-                        (lambda f, m, n_done=n_done, name=name: say(n_done, 0.05 + 0.95 * f, f"{name}: {m}")))
+        if runs is not None:
+            run = runs[name]
+        else:
+            say(n_done, 0.05, f"{name}: simulating {motion.n_moves} moves ({n_done + 1}/{len(names)})")
+            run = run_moves(models.stock, models.obstacles, motion, tools, rapid_clearance_mm=sim.rapid_clearance_mm,
+                            progress=None if progress is None else
+                            (lambda f, m, n_done=n_done, name=name: say(n_done, 0.05 + 0.95 * f, f"{name}: {m}")))
         av = AreaVerification(area=area, program=name, n_moves=motion.n_moves,
                               removed_mm3=round(float(run.removed_mm3.sum()), 1),
                               machining_time_s=round(_machining_time_s(motion, config), 1),
@@ -308,14 +336,14 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
                                       amount=round(float(t["excess"]), 4),
                                       detail=f"{t['axis']} {t['value']:.3f} beyond {t['limit']:.3f}")
                   for t in sorted(travel, key=lambda t: -t["excess"])[:WORST_PER_CLASS]]
-        say(n_done, 1.0, f"{name}: {motion.n_moves} moves simulated")
+        say(n_done, 1.0, f"{name}: {motion.n_moves} moves " + ("proven simulated" if runs is not None else "simulated"))
     # the deviation of every scan point, in chunks so that a large scan still reports (per point: the same)
     dev, dev_high = np.empty(points.shape[0]), np.empty(points.shape[0])
     for a in range(0, max(points.shape[0], 1), DEVIATION_CHUNK):
         b = min(points.shape[0], a + DEVIATION_CHUNK)
         say(len(names), 0.8 * a / max(points.shape[0], 1), f"deviation of the scan from the simulated stock: "
                                                              f"points {a + 1}-{b} of {points.shape[0]}")
-        dev[a:b], dev_high[a:b] = deviation_pair(models.stock, points[a:b], normals[a:b], max_mm=10.0)
+        dev[a:b], dev_high[a:b] = deviation_pair(stock, points[a:b], normals[a:b], max_mm=10.0)
     fp = config.paths.finishing
     limit = fp.tolerance_mm + fp.scallop_mm + models.measuring_bound_mm
     gouge = fp.tolerance_mm + models.measuring_bound_mm
@@ -340,4 +368,32 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
     v.status = verification_status(v)
     v.message = _message(v)
     v.seconds = round(time.perf_counter() - t0, 3)
-    return SimulationOutcome(verification=v, deviation_mm=dev, stock=models.stock)
+    return SimulationOutcome(verification=v, deviation_mm=dev, stock=stock)
+
+
+def _single_pass(read, simulated, stock_after, models, tools, config, say):
+    """``({program name: MoveFigures}, note)`` when every program read in ``read`` is proven to run the
+    moves the paths stage simulated (:func:`planning.simulate.single_pass.prove_program`), else
+    ``(None, why not)``; ``say(k, message)`` before the k-th program (or None)."""
+    from planning.simulate.single_pass import proof_tolerance_mm, prove_program
+
+    if simulated is None or stock_after is None:
+        return None, "the paths were not run on the carried stock (paths.carry_stock is false, or no paths)"
+    if not read:
+        return None, "no program was read"
+    tol = proof_tolerance_mm(config.post.decimals)
+    runs, n_sim, n_chk = {}, 0, 0
+    for n_done, (_, name, area, motion) in enumerate(read):
+        if say is not None:
+            say(n_done, f"{name}: proving its {motion.n_moves} moves are the simulated ones")
+        if area not in simulated:
+            return None, f"{name}: the paths stage simulated no operation of area {area}"
+        proof = prove_program(motion, simulated[area], models.stock, models.obstacles, tools, tol_mm=tol,
+                              rapid_clearance_mm=config.simulate.rapid_clearance_mm)
+        if proof.figures is None:
+            return None, f"not proven, every program was run again: {proof.reason}"
+        runs[name] = proof.figures
+        n_sim += proof.n_simulated
+        n_chk += proof.n_checked
+    return runs, (f"{n_sim} program moves proven to be the moves simulated while planning (within "
+                  f"{tol:g} mm); {n_chk} others (tool changes, moves to and from machine Z0) run here")

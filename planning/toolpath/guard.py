@@ -38,7 +38,7 @@ from planning.simulate.dexel import TriDexel, collide, simulate_moves
 from planning.simulate.kinematics import MachineModel, arc_chords
 from planning.simulate.motion import FEED as SIM_FEED
 from planning.simulate.motion import RAPID as SIM_RAPID
-from planning.simulate.motion import ToolShape
+from planning.simulate.motion import SimulatedMoves, ToolShape
 from planning.toolpath.fiveaxis.axes import slerp
 from planning.toolpath.frames import AreaFrame
 from planning.toolpath.moves import (
@@ -215,10 +215,12 @@ class _FixtureMemo:
 
 def run_on_stock(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriDexel, obstacles: TriDexel | None,
                  machine: SetupMachine | None, *, rapid_clearance_mm: float, progress: Progress | None = None,
-                 _fixtures: _FixtureMemo | None = None) -> tuple[Offences, TriDexel, np.ndarray]:
+                 _fixtures: _FixtureMemo | None = None, keep: dict | None = None
+                 ) -> tuple[Offences, TriDexel, np.ndarray]:
     """Steps 1-2 of the module docstring: ``(offences per toolpath move, the stock after the moves
     (a copy; ``stock`` is unchanged), removed volume per toolpath move mm^3)``. ``progress``:
-    ``progress(fraction, message)`` (unthrottled: the caller's)."""
+    ``progress(fraction, message)`` (unthrottled: the caller's). ``keep``: a dict that receives the
+    run's part moves and figures as ``keep["moves"]`` (:class:`~planning.simulate.motion.SimulatedMoves`)."""
     pm = part_moves(tp, frame)
     P = tp.n_moves
     n = pm.start.shape[0]
@@ -244,6 +246,12 @@ def run_on_stock(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriDex
         travel = ~machine.travel_ok(pm.end, shape.gauge_length_mm)
     removed = np.zeros(P)
     np.add.at(removed, pm.source, run.removed_mm3)
+    if keep is not None:
+        keep["moves"] = SimulatedMoves(
+            tool=int(shape.number), source=pm.source, start_mm=pm.start, end_mm=pm.end, axis=np.ascontiguousarray(ax), kind=pm.kind,
+            removed_mm3=run.removed_mm3, rapid_depth_mm=run.rapid_depth_mm, holder_depth_mm=run.holder_depth_mm,
+            fixture=fixture, travel=travel, rapid_clearance_mm=float(rapid_clearance_mm),
+            stock_before=stock, stock_after=after)
     return (Offences(rapid=per_move(run.rapid_depth_mm > 0), holder=per_move(run.holder_depth_mm > 0),
                      fixture=per_move(fixture), travel=per_move(travel)), after, removed)
 
@@ -253,7 +261,9 @@ class GuardOutcome:
     """The guarded operation: ``toolpath`` and its ``pass_index`` (None when none was given);
     ``stock`` the stock after it; ``found`` the offences of the first run (per class, moves);
     ``rapids_to_feed`` rapids replaced by a way over the stock (up, across, down); ``dropped`` CL points cut out; ``truncated`` moves
-    cut off at the end (step 4); ``rounds`` the runs made; ``removed_mm3`` the volume it removes."""
+    cut off at the end (step 4); ``rounds`` the runs made; ``removed_mm3`` the volume it removes; ``moves`` the
+    accepted run's moves and figures (None when nothing ran), which the verification takes when it
+    proves the posted program runs them (:mod:`planning.simulate.single_pass`)."""
 
     toolpath: Toolpath
     pass_index: np.ndarray | None
@@ -264,6 +274,7 @@ class GuardOutcome:
     truncated: int = 0
     rounds: int = 0
     removed_mm3: float = 0.0
+    moves: SimulatedMoves | None = None
 
     @property
     def clean(self) -> bool:
@@ -461,9 +472,10 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
         if tp.n_moves == 0:                    # nothing (left) to run
             out.toolpath, out.pass_index, out.rounds = tp, pass_index, rnd
             return finish(out)
+        kept: dict = {}
         off, after, removed = run_on_stock(tp, frame, shape, stock, obstacles, machine,
                                            rapid_clearance_mm=rapid_clearance_mm, progress=round_progress(rnd),
-                                           _fixtures=fixtures)
+                                           _fixtures=fixtures, keep=kept)
         lo, span = lo + span, 0.5 * (1.0 - lo - span)
         out.rounds = rnd + 1
         if rnd == 0:
@@ -472,7 +484,7 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
         if not bad.any():
             # the repairs and the CL cut may leave null moves: the post writes none
             tp, pass_index = _without_null_moves(tp, pass_index)
-            out.toolpath, out.pass_index, out.stock = tp, pass_index, after
+            out.toolpath, out.pass_index, out.stock, out.moves = tp, pass_index, after, kept["moves"]
             out.removed_mm3 = float(removed.sum())
             return finish(out)
         if rnd == max_rounds:
@@ -521,9 +533,10 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
     out.truncated = tp.n_moves - first
     tp, pass_index = _truncate(tp, pass_index, first, safe_z_mm)
     tp, pass_index = _without_null_moves(tp, pass_index)
+    kept = {}
     off, after, removed = run_on_stock(tp, frame, shape, stock, obstacles, machine,
                                        rapid_clearance_mm=rapid_clearance_mm,
-                                       progress=round_progress(max_rounds + 1), _fixtures=fixtures)
-    out.toolpath, out.pass_index, out.stock = tp, pass_index, after
+                                       progress=round_progress(max_rounds + 1), _fixtures=fixtures, keep=kept)
+    out.toolpath, out.pass_index, out.stock, out.moves = tp, pass_index, after, kept["moves"]
     out.removed_mm3 = float(removed.sum())
     return finish(out)

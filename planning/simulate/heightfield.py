@@ -16,7 +16,8 @@ it to decide where there is material to cut (air or not), never to clear a rapid
 bound from the boundary points for that, :func:`planning.toolpath.roughing.maps._stock_tops`).
 
 Cost: one walk per cell, from ``start`` (the conservative top, a few mm above the true one) down
-to the first material or ``stop``; the cells run in parallel (numba ``prange``).
+to the first material or ``stop``, within the model's domain only (so an infinite or far start costs
+nothing more); the cells run in parallel (numba ``prange``).
 """
 
 from __future__ import annotations
@@ -53,8 +54,20 @@ def _frame_tops(lo, res, n, base, off, cnt, pool, rot, origin, x0, y0, h, start,
             py = origin[1] + x * rot[0, 1] + y * rot[1, 1]
             pz = origin[2] + x * rot[0, 2] + y * rot[1, 2]
             p = (px, py, pz)
-            while t > stop:
-                t1 = max(t - dt_max, stop)
+            # only the part of the line inside the model's domain can meet material
+            t_lo, t_hi = -math.inf, math.inf
+            for k in range(3):
+                a_k, b_k = lo[k], lo[k] + n[k] * res
+                if abs(d[k]) < 1e-15:
+                    if p[k] < a_k or p[k] > b_k:
+                        t_lo, t_hi = math.inf, -math.inf
+                    continue
+                u0, u1 = (a_k - p[k]) / d[k], (b_k - p[k]) / d[k]
+                t_lo, t_hi = max(t_lo, min(u0, u1)), min(t_hi, max(u0, u1))
+            t = min(t, t_hi)
+            low = max(stop, t_lo)
+            while t > low:
+                t1 = max(t - dt_max, low)
                 tm = 0.5 * (t + t1)
                 mu = p[ua] + tm * d[ua]
                 mv = p[va] + tm * d[va]

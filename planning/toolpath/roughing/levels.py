@@ -311,7 +311,10 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
     ys = _line_ys(stock.box_lo, stock.box_hi, grid.h, Rt, rc, s)
     forb = _ForbiddenMap(grid.cmax, grid.h, Rt, rc, a, stock.big)
     ent = _Entries(cfg, mat, fine, forb.G, Rt, rc, edge=(Rt + h) if rest else h, win=win)
-    hold = _HolderMap(pieces, grid, mat, a, Rt, stock.big, win) if pieces.shape[0] else None
+    # on the stock view, the map is read on one ray family; the other two may keep slivers of up to
+    # a ray spacing that the simulation's holder check sees: the holder keeps that much more gap
+    gap = HOLDER_GAP_MM + (float(stock_view.resolution_mm) if stock_view is not None else 0.0)
+    hold = _HolderMap(pieces, grid, mat, a, Rt, stock.big, win, gap_mm=gap) if pieces.shape[0] else None
     wmask = _coarse_max(grid.inbox.astype(np.float64)) > 0      # coarse cells of the window's tool centres
     before = mat.volume_above(stock.floor, wmask)
     w, cur, level_retracts, removed, blocked, deepest = _cut_levels(levels, grid, forb, mat, ys, pattern == "oneway",

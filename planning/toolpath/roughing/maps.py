@@ -690,7 +690,7 @@ class _HolderMap:
         as lowered by the levels cut so far) above ``z + z0 - HOLDER_GAP_MM`` on a coarse cell
         closer than r. Per level (:meth:`level`), from the map at the start of the level: ``HT``
         (ncx, ncy, the map's coarse cells), the largest over the pieces of (the highest material
-        within reach) - z0; blocked where ``HT > z - HOLDER_GAP_MM``. The level's own cut only
+        within reach) - z0; blocked where ``HT > z - gap`` (``gap_mm``, default HOLDER_GAP_MM). The level's own cut only
         lowers the map (to z, or z + rc under the corner), so the map at its start is an upper
         bound of the material during the level: safe; it is also not too strict while z0 >
         step + HOLDER_GAP_MM + rc (what the level removes, between z and the level above, is
@@ -710,8 +710,9 @@ class _HolderMap:
     (:meth:`planning.toolpath.roughing.links._Level.corridor_top`).
     """
 
-    def __init__(self, pieces, grid: _Raster, mat: _MaterialMap, a, Rt, big, win=None):
+    def __init__(self, pieces, grid: _Raster, mat: _MaterialMap, a, Rt, big, win=None, gap_mm: float = HOLDER_GAP_MM):
         h, nx, ny = grid.h, grid.nx, grid.ny
+        self.gap = float(gap_mm)
         H = mat.H
         self.h, self.H, self.nx, self.ny = h, H, nx, ny
         self.x0, self.y0 = grid.x0, grid.y0
@@ -755,7 +756,7 @@ class _HolderMap:
         p = self.pad
         ci0, ci1 = max(i0 - p, 0) // T, -(-min(i1 + 1 + p, nx) // T)
         cj0, cj1 = max(j0 - p, 0) // T, -(-min(j1 + 1 + p, ny) // T)
-        zm = float(z) - HOLDER_GAP_MM
+        zm = float(z) - self.gap
         w = self.win_c
         if changed or w is None or zm < self.valid_zm or not (w[0] <= ci0 and ci1 <= w[1] and w[2] <= cj0
                                                                and cj1 <= w[3]):

@@ -25,7 +25,7 @@ HERE = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE / "bench"))
 
-from bench_stock_first import CASES, case_input  # noqa: E402
+from bench_stock_first import CASES, case_input
 
 
 def _figures(v) -> dict:
@@ -61,14 +61,17 @@ def run_case(name: str) -> dict:
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| case | verification s: single pass / independent | verdict (travel, rapids, holder, fixture, "
-             "plunges, gouged) single / independent | finished share | air share roughing, finishing: single / "
-             "independent | removed cm^3 roughing, finishing: single / independent |",
+    lines = [("| case | verification s: single pass / independent | verdict (travel, rapids, holder, fixture, "
+              "plunges, gouged) single / independent | finished share | air share roughing, finishing: single / "
+              "independent | removed cm^3 roughing, finishing: single / independent |"),
              "|---|---|---|---|---|---|"]
     for r in rows:
         s, i = r["single"], r["independent"]
-        air = lambda f: ", ".join(f"{f['air_share'].get(k, 0):.1%}" for k in ("roughing", "finishing"))  # noqa: E731
-        rem = lambda f: ", ".join(f"{f['removed_cm3'].get(k, 0):g}" for k in ("roughing", "finishing"))  # noqa: E731
+        def air(f):
+            return ", ".join(f"{f['air_share'].get(k, 0):.1%}" for k in ("roughing", "finishing"))
+
+        def rem(f):
+            return ", ".join(f"{f['removed_cm3'].get(k, 0):g}" for k in ("roughing", "finishing"))
         lines.append(f"| {r['case']} | {s['seconds']:.2f} ({s['mode']}) / {i['seconds']:.2f} | "
                      f"{s['status']} {tuple(s['counts'])} / {i['status']} {tuple(i['counts'])} | "
                      f"{s['finished_share']} / {i['finished_share']} | {air(s)} / {air(i)} | {rem(s)} / {rem(i)} |")

@@ -144,7 +144,6 @@ def _prove_operation(motion: ProgramMotion, op: SimulatedMoves, i: int, figs: Mo
     real = np.flatnonzero(move_len > tol_mm)
     real = real[real > 0]
     if real.size == 0:
-        taken[i0] = False
         return i0 + 1, ""
     # what the moves merged into the next real one removed goes with it
     owner_of_move = np.minimum(np.searchsorted(real, np.arange(last.size), side="left"), real.size - 1)

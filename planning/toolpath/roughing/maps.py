@@ -687,7 +687,7 @@ class _HolderMap:
         the source cells (``r + a + h + (2b - 1) h / sqrt 2`` between blocks of b x b cells, b
         growing with r so that a disc spans about HOLDER_BLOCKS blocks).
     (b) the remaining material: the material map (:class:`_MaterialMap`, the box or the given stock
-        as lowered by the levels cut so far) above ``z + z0 - HOLDER_GAP_MM`` on a coarse cell
+        as lowered by the levels cut so far) above ``z + z0 - gap`` on a coarse cell
         closer than r. Per level (:meth:`level`), from the map at the start of the level: ``HT``
         (ncx, ncy, the map's coarse cells), the largest over the pieces of (the highest material
         within reach) - z0; blocked where ``HT > z - gap`` (``gap_mm``, default HOLDER_GAP_MM). The level's own cut only

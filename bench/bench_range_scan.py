@@ -48,7 +48,6 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -83,12 +82,10 @@ def run_one(case: str, n_points: int, overrides: list[str]) -> dict:
     """Plan the sample ``case`` of ``n_points`` points in this process; return its figures."""
     t_start = time.perf_counter()
     import numba
-    from bench_scaling import _RssSampler
+    from bench_scaling import _RssSampler, plan_and_write
 
     from planning.inputs import Cloud
     from planning.inputs.samples import make_sample
-    from planning.pipeline import run_plan
-    from planning.report.plan_files import write_plan
     from schemas.params import apply_overrides, parse_config
 
     cfg = parse_config(apply_overrides({}, overrides))
@@ -105,20 +102,9 @@ def run_one(case: str, n_points: int, overrides: list[str]) -> dict:
             sampler.mark()
             sampler.stage = stage
 
-    t0 = time.perf_counter()
-    out = run_plan(Cloud(points=s.points, normals=None, source_format="generated"), cfg, name=case,
-                   progress=progress)
-    t_plan = time.perf_counter() - t0
-    sampler.mark()
-    sampler.stage = "write"
-    with tempfile.TemporaryDirectory() as d:
-        t1 = time.perf_counter()
-        write_plan(out, d)
-        t_write = time.perf_counter() - t1
-    sampler.stop()
+    out, seconds, t_plan, t_write = plan_and_write(Cloud(points=s.points, normals=None, source_format="generated"),
+                                                   cfg, case, sampler, progress)
     r = out.result
-    seconds = {t.stage: float(t.seconds) for t in r.timings}
-    seconds["write"] = t_write
     v = r.verification
     rough_feed = rough_air = 0.0
     rough_plunges = 0

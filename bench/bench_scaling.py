@@ -81,12 +81,32 @@ class _RssSampler:
         self._t.join()
 
 
+def plan_and_write(cloud, cfg, name: str, sampler: _RssSampler, progress):
+    """``run_plan`` with ``progress`` (which marks the sampler's stages), then ``write_plan`` into a
+    temporary folder as the stage ``write``; the sampler stopped. Returns ``(outcome, seconds per stage
+    from plan.json timings plus "write", plan s, write s)``."""
+    from planning.pipeline import run_plan
+    from planning.report.plan_files import write_plan
+
+    t0 = time.perf_counter()
+    out = run_plan(cloud, cfg, name=name, progress=progress)
+    t_plan = time.perf_counter() - t0
+    sampler.mark()
+    sampler.stage = "write"
+    with tempfile.TemporaryDirectory() as d:
+        t1 = time.perf_counter()
+        write_plan(out, d)
+        t_write = time.perf_counter() - t1
+    sampler.stop()
+    seconds = {t.stage: float(t.seconds) for t in out.result.timings}
+    seconds["write"] = t_write
+    return out, seconds, t_plan, t_write
+
+
 def run_one(n_points: int) -> dict:
     """Plan the femur-like shape sampled at ``n_points`` in this process; return its figures."""
     from planning.inputs import Cloud
     from planning.inputs.samples import make_sample
-    from planning.pipeline import run_plan
-    from planning.report.plan_files import write_plan
     from schemas.params import parse_config
 
     s = make_sample("femur_like", n_points=n_points)
@@ -109,20 +129,9 @@ def run_one(n_points: int) -> dict:
             sampler.mark()
             sampler.stage = stage
 
-    t0 = time.perf_counter()
-    out = run_plan(Cloud(points=s.points, normals=None, source_format="generated"), cfg, name="femur_like",
-                   progress=progress)
-    t_plan = time.perf_counter() - t0
-    sampler.mark()
-    sampler.stage = "write"
-    with tempfile.TemporaryDirectory() as d:
-        t1 = time.perf_counter()
-        write_plan(out, d)
-        t_write = time.perf_counter() - t1
-    sampler.stop()
+    out, seconds, t_plan, t_write = plan_and_write(Cloud(points=s.points, normals=None, source_format="generated"),
+                                                   cfg, "femur_like", sampler, progress)
     r = out.result
-    seconds = {t.stage: float(t.seconds) for t in r.timings}
-    seconds["write"] = t_write
     return {"n_points": n_points, "n_sampled": int(r.normals.n_sampled), "k": int(r.selection.k),
             "status": r.status, "verdict": None if r.verification is None else r.verification.status,
             "seconds": seconds, "plan_s": t_plan, "total_s": t_plan + t_write,

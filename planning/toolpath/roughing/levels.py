@@ -505,7 +505,9 @@ class _LiveStock:
     """The stock view (:class:`planning.toolpath.stock_view.StockView`) kept level with the roughing:
     :meth:`advance` runs the moves written since the last call on the view, reads the material left
     above the next level and lowers the remaining-material map (to the reading grown by about a ray
-    spacing: an upper bound, which the lifts and the holder map need) and the entries' tops (to the
+    spacing across: an upper bound of the material on the ray family read, which the lifts and the
+    holder map need; the other two families may keep slivers up to a ray spacing above it, which the
+    holder map's gap covers) and the entries' tops (to the
     reading itself: where a helix or ramp starts; the rapid down to it is checked on the view) to it."""
 
     def __init__(self, view, grid: _Raster, read, Rt: float, clearance_mm: float = 0.0, obstacles=None):

@@ -169,6 +169,41 @@ def test_roughing_on_the_stock_view_cuts_less_air_never_plunges_and_keeps_its_ra
     assert viewed.toolpath.n_moves > 100
 
 
+def test_entries_feed_down_through_air_the_stock_shows_and_never_into_it(tilted_dome, monkeypatch):
+    """Where the stock itself shows air, a helix or ramp is begun by a straight feed down to just above
+    the material, and a piece whose start the maps put under material but the stock shows in air is
+    entered straight down; no straight feed down removes anything, and the entries feed less in air
+    than the same roughing with the feed down turned off (its gap set above every start)."""
+    import planning.toolpath.roughing.entries as E
+    from planning.toolpath.moves import USE_PLUNGE
+
+    frame, stock, lo, points, viewed = tilted_dome
+
+    def entry_air(rr):
+        pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
+        entry = feed & (rr.toolpath.use[pm.source] == USE_PLUNGE)
+        return L[entry & (run.removed_mm3 < 1e-6)].sum(), run, down, L, feed
+
+    air, run, down, L, feed = entry_air(viewed)
+    assert viewed.n_fed_down > 0
+    # a straight feed down is in air, to the stock's own rays: the helices' tops, the side entries and
+    # the lifts alike
+    assert down.sum() > 10
+    assert np.all(run.removed_mm3[down] < 1e-6)
+    monkeypatch.setattr(E, "ENTRY_FEED_GAP_MM", 1e3)
+    cloud_f = frame.to_frame(_dome())
+    kw = {"tool_radius_mm": SHAPE.radius_mm, "step_down_mm": 3.0, "stock_allowance_mm": 0.5,
+          "floor_z_mm": float(cloud_f[:, 2].min()) + 0.5, "stock_points_mm": frame.to_frame(stock.boundary_points()),
+          "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces, "safe_z_mm": float(cloud_f[:, 2].max()) + 30.0}
+    slow = roughing_paths(cloud_f, stock_view=StockView(stock, frame, SHAPE), rapid_clearance_mm=0.5, **kw)
+    assert slow.n_fed_down == 0
+    air_slow, run_slow, *_ = entry_air(slow)
+    # every helix or ramp fed down saves at least (gap - ENTRY_FEED_GAP_MM) / tan(entry angle) of
+    # descent less the straight feed: most of the entries' air
+    assert air < air_slow - viewed.n_fed_down * 2.0
+    assert run.removed_mm3.sum() == pytest.approx(run_slow.removed_mm3.sum(), rel=0.01)
+
+
 def test_travel_cells_are_the_machines_own_travel_test():
     """The affine extension of the set-up's kinematics over the raster agrees with
     SetupMachine.travel_ok at the cells' centres (and the lift above them)."""

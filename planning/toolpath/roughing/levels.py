@@ -75,7 +75,7 @@ from planning.toolpath.roughing.common import (
     _check_tool,
     _finite,
 )
-from planning.toolpath.roughing.entries import _Entries, _entry_cfg
+from planning.toolpath.roughing.entries import FEED_CLEAR_MM, _Entries, _entry_cfg
 from planning.toolpath.roughing.links import (
     GAP_MM,
     _Level,
@@ -143,7 +143,10 @@ class RoughingPath:
     (:mod:`planning.toolpath.roughing.entries`; only with ``entry="plunge"``);
     ``n_pieces_left`` / ``left_length_mm``: pieces not cut because no side entry, helix or ramp
     fits (with a ``stock_view``, helix and ramp modes never plunge straight into material), and
-    their length, mm.
+    their length, mm. With a ``stock_view``: ``n_entered_in_air``: pieces whose start the maps
+    put under material but the stock itself shows in air (entered by a feed straight down, no
+    helix or ramp); ``n_fed_down``: helices and ramps begun by a straight feed down through the air
+    to just above the material (ENTRY_FEED_GAP_MM) instead of descending from the rapid clearance.
 
     Holder (``holder_pieces``): ``holder``: pieces were given; ``holder_blocked_cells``
     (n_levels,): per level, the raster cells the tool centre could have cut (in the window's reach,
@@ -177,6 +180,8 @@ class RoughingPath:
     n_plunges_into_material: int = 0
     n_pieces_left: int = 0
     left_length_mm: float = 0.0
+    n_entered_in_air: int = 0
+    n_fed_down: int = 0
     holder: bool = False
     holder_blocked_cells: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     n_holder_blocked_cells: int = 0
@@ -643,7 +648,11 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     ent.exact = live is not None
     if live is not None:
         ent.gap = min(GAP_MM, live.clearance_mm + ENTRY_GAP_EXTRA_MM)
+    if live is not None:
+        touch = live.column_clear(w, FEED_CLEAR_MM)
+        ent.clear = lambda x, y, z, top: touch(x, y, z, top) <= z + Z_TOL_MM
     if live is not None and live.clearance_mm > 0:
+        w.gap = ent.gap
         w.column_clear = live.column_clear(w, live.clearance_mm)
         w.rapid_clear = live.rapid_clear(w, live.clearance_mm)
     cur = None                    # current tip (x, y, z)
@@ -731,7 +740,8 @@ def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock
         stock_before_mm3=float(before), stock_after_mm3=float(after), safe_z_mm=float(stock.safe),
         entry=ent.cfg.kind, n_helix=int(ent.n_helix), n_ramps=int(ent.n_ramps), n_side_entries=int(ent.n_side),
         n_plunges_into_material=int(ent.n_plunges), n_pieces_left=int(ent.n_left),
-        left_length_mm=round(float(ent.left_mm), 1), holder=bool(holder),
+        left_length_mm=round(float(ent.left_mm), 1), n_entered_in_air=int(ent.n_in_air),
+        n_fed_down=int(ent.n_fed_down), holder=bool(holder),
         holder_blocked_cells=np.zeros(levels.size, np.int64) if blocked is None else blocked,
         n_holder_blocked_cells=0 if blocked is None else int(blocked.sum()), deepest_cut_mm=float(deepest))
 

@@ -374,6 +374,10 @@ class _Writer:
         #: ``rapid_clear(a, b, z, top)`` -> the lowest height >= z (at most ``top``) at which a rapid
         #: from a to b (x, y) is clear of the material by the rapid clearance, on the stock itself
         self.rapid_clear = None
+        #: how far a retract feeds up out of the cut and a lift's rapid stops above the material under
+        #: it (mm): GAP_MM, or less where the stock itself is read (``column_clear``: the rapids are
+        #: checked on it, so the gap is only what the feed needs, not a guard against the maps' error)
+        self.gap = GAP_MM
 
     def add(self, xyz, use):
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
@@ -398,12 +402,12 @@ def _lift_cost(lv: _Level, a, b, z, safe) -> float:
 
 
 def _retract(w: _Writer, cur, zl):
-    """Out of the cut by GAP_MM at feed (``USE_RETRACT``), then up to ``zl`` by rapid (straight up
+    """Out of the cut by ``w.gap`` (GAP_MM without a stock view) at feed (``USE_RETRACT``), then up to ``zl`` by rapid (straight up
     from a position that is safe at its level is safe at any height above). With a rapid clearance
     (``w.column_clear``) the feed goes on up until the tool grown by it clears the material beside
     (the wall the tool has just cut along, the part's allowance), so that the rapid does not brush
     it."""
-    zr = cur[2] + GAP_MM
+    zr = cur[2] + w.gap
     if w.column_clear is not None:             # the stock itself, as the moves so far left it
         zr = max(zr, w.column_clear(cur[0], cur[1], cur[2], zl))
     zr = min(zr, zl)
@@ -415,7 +419,7 @@ def _retract(w: _Writer, cur, zl):
 
 def _lift(w: _Writer, lv: _Level, cur, q, z, safe, top_q=None):
     """Lift from ``cur`` (or from nowhere: first approach at the safe height), rapid over, rapid down to
-    GAP_MM above the remaining material under the disc at q (``top_q``: that height, mm, when the
+    ``w.gap`` (GAP_MM without a stock view) above the remaining material under the disc at q (``top_q``: that height, mm, when the
     caller knows it more closely than the dilated map's :meth:`_Level.top_at`; never below the
     material), plunge to z."""
     if cur is None:
@@ -428,7 +432,7 @@ def _lift(w: _Writer, lv: _Level, cur, q, z, safe, top_q=None):
             zl = w.rapid_clear(a, q, zl, safe)
         _retract(w, cur, zl)
         w.add([q[0], q[1], zl], USE_RAPID)
-    zd = min(zl, max(lv.top_at(q) if top_q is None else top_q, z) + GAP_MM)
+    zd = min(zl, max(lv.top_at(q) if top_q is None else top_q, z) + w.gap)
     if w.column_clear is not None:             # the grown tool keeps clear of the material beside
         zd = min(zl, w.column_clear(q[0], q[1], zd, zl))
     if zd < zl:

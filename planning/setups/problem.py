@@ -108,6 +108,11 @@ def _unique_rows(B: np.ndarray):
     return first.astype(np.int64), counts.astype(np.int64)
 
 
+def _wgram_t(Y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """:func:`_wgram` of ``X = Y^T`` (axes x classes): ``Y diag(w) Y^T``, as float64."""
+    return ((Y * w[None, :]) @ Y.T).astype(np.float64)
+
+
 def _wgram(X: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted Gram matrix ``X^T diag(w) X`` (classes x axes -> axes x axes), as float64: entry
     (a, b) is the weight of the classes both axes a and b see."""
@@ -150,6 +155,9 @@ class _Problem:
         self.C, self.m = A.shape
         self.ftype = np.float32 if n < 2**24 else np.float64  # integer sums stay exact
         self.Af = A.astype(self.ftype)
+        # axes x classes, row-major: a node of the search gathers its few candidate axes over the
+        # classes it changes (a few rows, then those columns) instead of copying whole class rows
+        self.ATf = np.ascontiguousarray(self.Af.T)
         self.wf = self.w.astype(self.ftype)
         self.sizes = (self.wf @ self.Af).astype(np.float64) if self.m else np.zeros(0)
         if self.m:

@@ -36,6 +36,21 @@ instead of 47 s, a 10k-point subsample of it in 0.2 s instead of 16 s (same answ
 0.90 in 3.2 s and 0.7 s); the LP bound there is 94,878 points against the best 94,727 and the
 required 95,631.  On a time-out the best found is returned with the price bound as the most any
 selection can cover.
+
+Range scans (issue 32, ``bench/bench_proofs_range.py``).  Three things made proofs on simulated range
+scans (10k-25k sampled points, 8k-18k classes x 130 axes) take seconds: (1) for one or two set-ups
+the LP was solved (0.5-2.5 s) although the search settles them at its root; they are now proven
+from the Gram matrix (:func:`_small_max_cover`); (2) where the price bound does not prove
+infeasibility, an existence search at max_setups and then the "cover" search for the answer ran
+over the same tree; the "cover" search now runs first and settles both (it stops at the first
+subset reaching the coverage when there is one); (3) a node paid for the Gram matrix of the
+once-covered classes (the largest set below the root) and for copying whole class rows: only the
+least-overlap search keeps ``Q`` and ``h`` now, the coverage searches evaluate the overlap at the
+leaves of the best coverage, build ``P`` from the still uncovered classes where they are fewer
+than the newly covered ones, and gather only the candidates' columns.  Range half sphere R 100 mm
+(25,359 sampled points): 0.97 with max 2 set-ups 1.75 s -> 0.05 s, 0.995 with 3 1.52 s -> 0.62 s,
+0.999 with 4 18.0 s -> 3.1 s; coverage 1.0 with 5 (the best 5 leave 8 points) still takes ~50 s:
+there the LP relaxation covers every point and the search has no strong bound.
 """
 
 from __future__ import annotations
@@ -55,7 +70,14 @@ from planning.setups.bounds import (
 )
 from planning.setups.heuristics import _heuristics, _local_search, _timeout_fallback
 from planning.setups.lagrange import _price_bound, _prices
-from planning.setups.problem import _key_cover, _key_overlap, _Outcome, _Problem, _wgram
+from planning.setups.problem import (
+    _key_cover,
+    _key_overlap,
+    _Outcome,
+    _Problem,
+    _wgram,
+    _wgram_t,
+)
 
 
 class _Timeout(Exception):
@@ -78,6 +100,10 @@ _PROBE_NODES = 40
 # the points more than required: near the largest coverage the price bound prunes most subtrees
 # (femur-like, 0.94: 677 -> 93 nodes), far below it it prunes little and costs a Gram product a node
 _NEAR_CEILING = 0.005
+# the fewest axes the prices are computed for: a search for one or two axes is settled at its root
+# (every pair evaluated exactly from the Gram matrix, a few milliseconds), while the LP costs 0.5-2 s
+# on range-scan matrices (18k classes x 133 axes: range half sphere R 100 mm, issue 32)
+_MIN_PRICE_R = 3
 
 
 class _Search:
@@ -88,16 +114,19 @@ class _Search:
     mode "max":     the largest covered >= floor, nothing else: only a strictly larger coverage
                     than the incumbent's is looked for (ties are settled by the caller).
     ``stop_at_first``: stop as soon as any subset with covered >= floor is found (existence).
+    ``stop_cover``: stop as soon as a subset covers at least this many points.
 
     The state every method shares: the incumbent (``best_key``, ``best_sel``), the open frames of
     the DFS (each with its children's lower bounds, read for the bound reported at a time-out) and
     the node count.  The bound arithmetic lives in :mod:`planning.setups.bounds`; a node is a dict
     (``S`` chosen axes, ``cov``/``ov`` point counts, ``cand`` candidate axes, ``g``, ``h``, ``P``,
-    ``Q`` and ``deg`` the classes' coverage degree capped at 2).
+    ``Q`` and ``deg`` the classes' coverage degree capped at 2, or ``U`` the uncovered classes as
+    indices where the overlap is not tracked, see ``track_overlap``).
     """
 
     def __init__(self, prob: _Problem, k: int, mode: str, floor: float, deadline: float,
-                 incumbent=None, stop_at_first=False, progress=None, prices=None, max_nodes=None):
+                 incumbent=None, stop_at_first=False, progress=None, prices=None, max_nodes=None,
+                 stop_cover=None):
         self.p = prob
         # Lagrangian prices of the classes (planning.setups.lagrange), or None: no price bound
         self.mu = None if prices is None else np.asarray(prices, dtype=prob.ftype)
@@ -107,10 +136,16 @@ class _Search:
         self.floor = float(floor)
         self.deadline = deadline
         self.stop_at_first = stop_at_first
+        self.stop_cover = stop_cover  # stop once a subset covers this much (None: never)
         self.keyf = _key_overlap if mode == "overlap" else _key_cover
         self.strict = mode == "max"
         if self.strict:
             self.mode = mode = "cover"
+        # only the least-overlap search keeps the once-covered Gram matrix Q and the gains h: in
+        # the other modes overlap only breaks exact ties of coverage, so it is evaluated at the
+        # leaves that tie the best coverage (on range scans the once-covered classes outnumber the
+        # newly covered ones 2:1 below the root, and Q was the largest product; issue 32)
+        self.track_overlap = mode == "overlap"
         self.best_key = None
         self.best_sel = None
         if incumbent is not None:
@@ -128,7 +163,7 @@ class _Search:
         key = self.keyf(int(round(ov)), int(round(cov)), self.p.tuple_of(sel))
         if self.best_key is None or key < self.best_key:
             self.best_key, self.best_sel = key, list(sel)
-        if self.stop_at_first:
+        if self.stop_at_first or (self.stop_cover is not None and cov >= self.stop_cover):
             raise _Found
 
     def _floor(self) -> float:
@@ -165,10 +200,10 @@ class _Search:
         order = np.lexsort((np.arange(p.m), -p.sizes))
         cand = order.astype(np.int64)
         node = dict(
-            S=[], deg=np.zeros(p.C, np.uint8), cov=0.0, ov=0.0, cand=cand,
+            S=[], deg=np.zeros(p.C, np.uint8), U=np.arange(p.C), cov=0.0, ov=0.0, cand=cand,
             g=p.sizes[cand].copy(), h=np.zeros(cand.size),
             P=p.gram[np.ix_(cand, cand)] if k >= 2 else None,
-            Q=np.zeros((cand.size, cand.size)) if k >= 2 else None,
+            Q=np.zeros((cand.size, cand.size)) if k >= 2 and self.track_overlap else None,
         )
         if self.mu is not None:
             Pm = _wgram(p.Af, self.mu)[np.ix_(cand, cand)]
@@ -211,12 +246,12 @@ class _Search:
         if cand.size == 0:
             return
         covs = cov + g
-        ovs = ov + h
         ok = covs >= floor
         if not ok.any():
             return
         idx = np.flatnonzero(ok)
-        self._pick(S, [(int(i),) for i in idx], covs[idx], ovs[idx], cand)
+        ovs = (ov + h)[idx] if self.track_overlap else None
+        self._pick(S, [(int(i),) for i in idx], covs[idx], ovs, cand)
 
     def _leaves2(self, node):
         floor = self._floor()
@@ -231,12 +266,23 @@ class _Search:
             return
         ia, ib = np.nonzero(ok)
         covs = covm[ia, ib]
-        Q, P = node["Q"], node["P"]
-        ovs = ov + h[ia] + h[ib] - Q[ia, ib] + P[ia, ib]
+        ovs = None
+        if self.track_overlap:
+            Q, P = node["Q"], node["P"]
+            ovs = ov + h[ia] + h[ib] - Q[ia, ib] + P[ia, ib]
         self._pick(S, list(zip(ia.tolist(), ib.tolist(), strict=True)), covs, ovs, cand)
 
     def _pick(self, S, pos_tuples, covs, ovs, cand):
-        """Best of the evaluated leaves (positions into cand) offered to the incumbent."""
+        """Best of the evaluated leaves (positions into cand) offered to the incumbent; ``ovs`` None
+        (overlap not tracked): evaluated exactly for the leaves of the best coverage only."""
+        if ovs is None:
+            m1 = float(covs.max())
+            if self.best_key is not None and -m1 > self.best_key[0]:
+                return
+            top = np.flatnonzero(covs == m1)
+            pos_tuples = [pos_tuples[b] for b in top]
+            covs = covs[top]
+            ovs = np.array([float(self.p.evaluate(S + [int(cand[q]) for q in t])[1]) for t in pos_tuples])
         if self.mode == "overlap":
             k1, k2 = ovs, -covs
         else:
@@ -323,9 +369,11 @@ class _Search:
         # the parent's Gram rows of j are the weights j shares with each candidate among the
         # uncovered (P) and once-covered (Q) classes: the child's g and h without touching classes
         s1 = node["P"][j, after]
-        s2 = node["Q"][j, after]
         g = node["g"][after] - s1
-        h = node["h"][after] + s1 - s2
+        if self.track_overlap:
+            h = node["h"][after] + s1 - node["Q"][j, after]
+        else:
+            h = node["h"][after]  # zeros: not tracked
         inc = self._overlap_incumbent()
         # single-axis filters: an axis whose own added overlap, or whose best coverage together
         # with the best other gains, already rules it out cannot appear in this subtree
@@ -355,24 +403,44 @@ class _Search:
         p = self.p
         cand2 = node["cand"][after]
         child = dict(S=node["S"] + [axis], cov=cov, ov=ov, cand=cand2, g=g, h=h,
-                     P=None, Q=None, deg=None)
+                     P=None, Q=None, deg=None, U=None)
         if rc >= 2:
             col = p.AT[axis]
-            deg = node["deg"]
-            R1 = np.flatnonzero((deg == 0) & col)  # classes j covers first
-            R2 = np.flatnonzero((deg == 1) & col)  # classes j turns into overlap
-            X1 = np.take(np.take(p.Af, R1, axis=0), cand2, axis=1)
-            X2 = np.take(np.take(p.Af, R2, axis=0), cand2, axis=1)
-            G1 = _wgram(X1, p.wf[R1])
-            G2 = _wgram(X2, p.wf[R2])
             ix = np.ix_(after, after)
-            child["P"] = node["P"][ix] - G1
-            child["Q"] = node["Q"][ix] + G1 - G2
-            d = deg + col  # 0, 1 or 2 (= two or more): all the search needs
-            np.minimum(d, 2, out=d)
-            child["deg"] = d
-            if sc is not None:
-                child["Pm"] = node["Pm"][ix] - _wgram(X1, self.mu[R1])
+            # the candidates' rows of the axes x classes matrix over the classes that count only:
+            # a child has few candidates (21 of 133 axes on average on range scans, over 3k + 7k
+            # classes), and copying whole class rows first cost 6x the products (issue 32)
+            R0 = None
+            if self.track_overlap:
+                deg = node["deg"]
+                R1 = np.flatnonzero((deg == 0) & col)  # classes j covers first
+                if rc >= 3:  # the child's children need its degrees
+                    d = deg + col  # 0, 1 or 2 (= two or more): all the search needs
+                    np.minimum(d, 2, out=d)
+                    child["deg"] = d
+            else:  # the uncovered classes as indices: few below the root
+                U = node["U"]
+                inside = col[U]
+                R1, R0 = U[inside], U[~inside]  # covered first by j / still uncovered
+                if rc >= 3:
+                    child["U"] = R0
+                if R0.size >= R1.size:  # P from scratch over R0 where fewer
+                    R0 = None
+            if R0 is not None:
+                Y0 = p.ATf[np.ix_(cand2, R0)]
+                child["P"] = _wgram_t(Y0, p.wf[R0])
+                if sc is not None:
+                    child["Pm"] = _wgram_t(Y0, self.mu[R0])
+            else:
+                Y1 = p.ATf[np.ix_(cand2, R1)]
+                G1 = _wgram_t(Y1, p.wf[R1])
+                child["P"] = node["P"][ix] - G1
+                if sc is not None:
+                    child["Pm"] = node["Pm"][ix] - _wgram_t(Y1, self.mu[R1])
+            if self.track_overlap:
+                R2 = np.flatnonzero((deg == 1) & col)  # classes j turns into overlap
+                Y2 = p.ATf[np.ix_(cand2, R2)]
+                child["Q"] = node["Q"][ix] + G1 - _wgram_t(Y2, p.wf[R2])
         if sc is not None:
             child.update(s=sc, M=Mc)
         return child
@@ -383,6 +451,27 @@ class _Search:
 # --------------------------------------------------------------------------------------------
 
 
+def _small_max_cover(prob: _Problem, k: int) -> float:
+    """The largest coverage of at most k <= 2 reduced axes, exactly (zone conflicts respected), from
+    the sizes and the Gram matrix: the root proof where the LP is not worth its cost."""
+    if prob.m == 0 or k < 1:
+        return 0.0
+    best = float(prob.sizes.max())
+    if k >= 2 and prob.m >= 2:
+        ok = np.triu(np.ones((prob.m, prob.m), bool), 1) & ~prob.conflict
+        if ok.any():
+            cov = prob.sizes[:, None] + prob.sizes[None, :] - prob.gram
+            best = max(best, float(cov[ok].max()))
+    return best
+
+
+def _root_bound(prob: _Problem, prices, k: int) -> float:
+    """No k axes cover more than this: exact for k <= 2, else the price bound (inf without prices)."""
+    if k < _MIN_PRICE_R:
+        return _small_max_cover(prob, k)
+    return math.inf if prices is None else _price_bound(prob, prices, k)
+
+
 def _progress_fn(progress, lo, hi, text):
     """progress(fraction) of one search mapped onto [lo, hi] of the whole call, with ``text``."""
     if progress is None:
@@ -390,7 +479,7 @@ def _progress_fn(progress, lo, hi, text):
     return lambda f: progress(lo + (hi - lo) * float(f), text)
 
 
-def _best_cover_at(prob, k, floor, incumbent, deadline, prices, running):
+def _best_cover_at(prob, k, floor, incumbent, deadline, prices, running, stop_cover=None):
     """The best k-subset in the infeasible order (most covered, least overlap, smallest tuple)
     among those covering at least ``floor``: a "cover" search from the ``incumbent`` (sel or None).
     Returns the search (``best_sel`` None where no k axes reach ``floor``); the search is also put
@@ -400,13 +489,13 @@ def _best_cover_at(prob, k, floor, incumbent, deadline, prices, running):
         c, o = prob.evaluate(incumbent)
         if c >= floor:
             inc = (list(incumbent), _key_cover(o, c, prob.tuple_of(incumbent)))
-    s = _Search(prob, k, "cover", floor, deadline, incumbent=inc, prices=prices)
+    s = _Search(prob, k, "cover", floor, deadline, incumbent=inc, prices=prices, stop_cover=stop_cover)
     running.append(s)
     s.run()
     return s
 
 
-def _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound):
+def _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound, at_kmax=None):
     """Infeasible case (proven before the call): the best subset of at most K axes, in the order of
     :mod:`planning.setups.select` (most covered, then fewest axes, least overlap, smallest tuple).
 
@@ -416,6 +505,8 @@ def _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound):
     asked whether it reaches C* too (the price bound rules most of them out at the root; else an
     existence search with floor C*), and the first that does is searched again.  With zone conflicts
     a subset may not extend, so every k is searched in turn, a larger k needing strictly more.
+    ``at_kmax``: that "cover" search at K, already run to its end (by :func:`_solve_bnb`, which
+    settles infeasibility with it where the price bound does not).
     Returns (sel, note); the note says what a time-out left unproven (``bound``: the price bound,
     no selection of at most K axes covers more)."""
     kmax = min(K, prob.m)
@@ -425,6 +516,9 @@ def _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound):
     ks = range(1, kmax + 1) if prob.has_conflicts else [kmax]
     cstar = None  # the largest coverage, once proven
     running: list = []  # the searches started, the last one is what a time-out interrupts
+    if at_kmax is not None and not prob.has_conflicts:
+        ks = []
+        best = (-at_kmax.best_key[0], kmax, list(at_kmax.best_sel))
     try:
         for k in ks:
             floor = 1 if best is None else best[0] + 1  # a larger k must cover strictly more
@@ -439,8 +533,8 @@ def _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound):
         cstar = best[0]
         if not prob.has_conflicts:  # the smallest k that reaches C* too
             for k in range(1, kmax):
-                if _price_bound(prob, prices, k) < cstar:
-                    continue  # the price bound: no k axes reach C*
+                if _root_bound(prob, prices, k) < cstar:
+                    continue  # the price bound (exact for k <= 2): no k axes reach C*
                 if progress:
                     progress(0.9, f"do {k} set-up(s) reach the best coverage?")
                 if k in heur and heur[k][1] >= cstar:
@@ -465,6 +559,8 @@ def _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound):
                 best = (c, len(s.best_sel), list(s.best_sel))
         if best is None:
             return [], "time limit reached before any selection was found"
+        if bound is None:
+            return best[2], "time limit reached: the best coverage shown may not be the maximum"
         return best[2], (f"time limit reached: the best coverage shown may not be the maximum; no "
                          f"selection covers more than {math.floor(bound)} points")
     return best[2], ""
@@ -478,7 +574,11 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
     Where greedy does not reach the coverage with K axes, the price bound of
     :mod:`planning.setups.lagrange` (the LP dual of max coverage with K axes) is tried first: below
     ``prob.required`` it proves at once that no k <= K reaches it (coverage never falls as axes are
-    added, and the bound holds for fewer axes too), and its prices then bound every search.  Where
+    added, and the bound holds for fewer axes too), and its prices then bound every search.  Above
+    it (and without zone conflicts) the "cover" search at K settles it: its largest coverage is
+    the answer of the infeasible case, or it stops at a K-subset reaching the coverage, and the
+    smaller k are then asked as below.  For K <= 2 the exact largest coverage of one or two axes
+    (:func:`_small_max_cover`) takes the place of the LP.  Where
     greedy reaches it, the existence searches first run without prices; one that needs more than
     ``_PROBE_NODES`` nodes is restarted with the prices for its k (often settled by the root bound
     then).  The least-overlap search gets the prices for k* where the required coverage lies within
@@ -488,7 +588,13 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
     kmax = min(K, prob.m)
     prices = bound = None
     price_r = None  # the number of axes the prices were computed for
-    if kmax >= 1 and not (kmax in heur and heur[kmax][1] >= req):
+    kmax_found = None  # a kmax-subset reaching the coverage, where the search at kmax found one
+    if 1 <= kmax < _MIN_PRICE_R and not (kmax in heur and heur[kmax][1] >= req):
+        bound = _small_max_cover(prob, kmax)  # exact: every pair from the Gram matrix
+        if bound < req:
+            sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, None, bound)
+            return _Outcome("infeasible", sel, None, note)
+    if kmax >= _MIN_PRICE_R and not (kmax in heur and heur[kmax][1] >= req):
         if progress:
             progress(0.05, f"can {kmax} set-ups reach the coverage at all?")
         prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=deadline)
@@ -496,12 +602,32 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
         if bound < req:
             sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound)
             return _Outcome("infeasible", sel, None, note)
+        if not prob.has_conflicts and kmax in heur:
+            # the price bound does not settle it: the largest coverage of kmax axes does (coverage
+            # never falls as axes are added).  That search is the answer of the infeasible case
+            # too, so a proof near the ceiling runs one search instead of an existence search and
+            # then this one; it stops at the first subset reaching the coverage (issue 32)
+            if progress:
+                progress(0.1, f"the best coverage of {kmax} set-ups")
+            running: list = []
+            try:
+                s = _best_cover_at(prob, kmax, 1, heur[kmax][0], deadline, prices, running,
+                                   stop_cover=req)
+            except _Timeout:
+                return _timeout_fallback(prob, heur, 1, kmax)
+            if -s.best_key[0] < req:
+                sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound, at_kmax=s)
+                return _Outcome("infeasible", sel, None, note)
+            kmax_found = list(s.best_sel)
     kstar, found = None, None
     for k in range(1, kmax + 1):
         if progress:
             progress(0.3 * (k - 1) / kmax, f"is {k} set-up(s) enough?")
         if k in heur and heur[k][1] >= req:
             kstar, found = k, heur[k][0]
+            break
+        if k == kmax and kmax_found is not None:
+            kstar, found = k, kmax_found
             break
         s = _Search(prob, k, "cover", req, deadline, stop_at_first=True, prices=prices,
                     max_nodes=None if prices is not None else _PROBE_NODES)
@@ -521,13 +647,14 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
             kstar, found = k, s.best_sel
             break
     if kstar is None:
-        if price_r != kmax:
+        if price_r != kmax and kmax >= _MIN_PRICE_R:
             prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=deadline)
         sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound)
         return _Outcome("infeasible", sel, None, note)
     # stage 2: least overlap at k*
     inc = _local_search(prob, found, "overlap", req)
-    if price_r != kstar and kstar in heur and heur[kstar][1] - req <= _NEAR_CEILING * prob.n:
+    if (price_r != kstar and kstar >= _MIN_PRICE_R and kstar in heur
+            and heur[kstar][1] - req <= _NEAR_CEILING * prob.n):
         prices, bound = _prices(prob, kstar, heur[kstar][0], deadline=deadline)
         # kept only where the bound is near the coverage asked (it prunes nothing far above it)
         price_r = kstar if bound - req <= _NEAR_CEILING * prob.n and bound < prob.w.sum() else None

@@ -61,7 +61,7 @@ from planning.setups.heuristics import _heuristics
 from planning.setups.lagrange import _prices
 from planning.setups.problem import _Problem, _validate
 from planning.setups.result import SetupSelection, _make_result
-from planning.setups.search import _solve_bnb
+from planning.setups.search import _MIN_PRICE_R, _small_max_cover, _solve_bnb
 
 __all__ = ["SOLVERS", "CoverageBound", "SetupSelection", "brute_force_setups", "coverage_upper_bound", "select_setups"]
 
@@ -179,7 +179,8 @@ def coverage_upper_bound(visibility, *, coverage=0.95, max_setups=5, min_points=
     a search: greedy max coverage first (where its ``max_setups`` axes reach ``ceil(coverage * n)``
     no bound can rule the matrix out, and the number of points some axis sees is returned), else the
     price bound of :mod:`planning.setups.lagrange` (the LP dual of max coverage with ``max_setups``
-    axes), the same proof :func:`select_setups` runs first. Zone conflicts are ignored (they only
+    axes), the same proof :func:`select_setups` runs first (for one or two axes the exact largest
+    coverage, from the Gram matrix, instead). Zone conflicts are ignored (they only
     remove subsets), so the bound holds with them. Used where many matrices are to be ruled out
     quickly (:mod:`planning.placement.search`)."""
     t0 = time.perf_counter()
@@ -195,6 +196,9 @@ def coverage_upper_bound(visibility, *, coverage=0.95, max_setups=5, min_points=
         greedy = int(max((c for _, c, _ in heur.values()), default=0))
         if greedy >= required:
             return CoverageBound(seen, greedy, required, prob.n, time.perf_counter() - t0)
-        _mu, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=t0 + float(time_limit_s))
+        if kmax < _MIN_PRICE_R:  # one or two axes: every pair from the Gram matrix, exactly
+            bound = _small_max_cover(prob, kmax)
+        else:
+            _mu, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=t0 + float(time_limit_s))
     return CoverageBound(int(min(seen, math.floor(bound + 1e-9))), greedy, required, prob.n,
                          time.perf_counter() - t0)

@@ -1,0 +1,194 @@
+"""Set-up proofs on range-scan matrices (issue 32): the answers near the largest coverage, where the
+price bound does not settle infeasibility and the search at max_setups does, against exhaustive
+enumeration; one or two set-ups proven from the Gram matrix without the LP; the overlap evaluated
+only at the leaves of the best coverage in the coverage searches (ties)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from planning.setups import brute_force_setups, search, select_setups
+from planning.setups.problem import _Problem
+
+
+def answer(r):
+    return r.status, r.k, r.covered, r.overlap, r.selected.tolist(), r.best_coverage_at_max
+
+
+@pytest.fixture(scope="module")
+def range_matrices():
+    """The set-up stage's matrix of three small simulated range scans (scan lines, holes, noise,
+    outliers, registration errors), through the pipeline's normals, orientations and visibility."""
+    from planning import pipeline as pl
+    from planning.inputs import Cloud
+    from planning.inputs.samples import range_scan
+    from planning.orientations import load_profile
+    from schemas.params import PlanConfig
+
+    cfg = PlanConfig()
+    profile = load_profile(cfg.machine.profile)
+    ori = pl._orientations(cfg, profile)
+    out = {}
+    for shape in ("half_sphere", "slot", "femur_like"):
+        s = range_scan(shape, n_points=3000, seed=0)
+        cloud = Cloud(points=s.points, normals=None, source_format="generated")
+        nrm = pl._normals(cloud, cfg, None)
+        _, gv = pl._visibility(cloud.points, nrm, ori, cfg, cfg.tool.assembly(), profile, None, None)
+        out[shape] = np.ascontiguousarray(pl.selection_matrix(gv.visible, ori.axes, nrm.normals, cfg))
+    return out
+
+
+def column_subset(V, m, seed):
+    """m columns of V that see something (the largest two and m - 2 drawn with ``seed``), in order."""
+    rng = np.random.default_rng(seed)
+    seen = np.flatnonzero(V.sum(axis=0) > 0)
+    top = seen[np.argsort(-V[:, seen].sum(axis=0), kind="stable")[:2]]
+    rest = np.setdiff1d(seen, top)
+    cols = np.sort(np.concatenate([top, rng.choice(rest, m - 2, replace=False)]))
+    return np.ascontiguousarray(V[:, cols])
+
+
+def coverage_for(required, n):
+    """A coverage whose ceil(coverage * n) is exactly ``required``."""
+    return (required - 0.5) / n
+
+
+@pytest.fixture
+def paths(monkeypatch):
+    """Which proofs ran: the number of axes each LP was solved for, and the best-coverage answers
+    that reused the search at max_setups."""
+    seen = {"lp": [], "at_kmax": 0}
+    real_prices, real_best = search._prices, search._bnb_best_cover
+
+    def prices(prob, r, *a, **kw):
+        seen["lp"].append(r)
+        return real_prices(prob, r, *a, **kw)
+
+    def best(*a, **kw):
+        if kw.get("at_kmax") is not None:
+            seen["at_kmax"] += 1
+        return real_best(*a, **kw)
+
+    monkeypatch.setattr(search, "_prices", prices)
+    monkeypatch.setattr(search, "_bnb_best_cover", best)
+    return seen
+
+
+@pytest.mark.parametrize("shape", ["half_sphere", "slot", "femur_like"])
+def test_targets_around_the_largest_coverage_match_brute_force(range_matrices, shape, paths):
+    """For 2, 3 and 4 set-ups on 16 columns of the matrix: the largest coverage C* (brute force),
+    then the targets C* - 1, C* (feasible at the ceiling) and C* + 1 (infeasible by one point):
+    the same answer as the exhaustive enumeration, the proof for one or two set-ups without an LP."""
+    n = range_matrices[shape].shape[0]
+    for seed in range(2):
+        V = column_subset(range_matrices[shape], 16, seed)
+        for K in (2, 3, 4):
+            top = brute_force_setups(V, coverage=1.0, max_setups=K)
+            cstar = top.covered
+            for req in (cstar - 1, cstar, cstar + 1):
+                if not 1 <= req <= n:
+                    continue
+                params = {"coverage": coverage_for(req, n), "max_setups": K}
+                ref = brute_force_setups(V, **params)
+                got = select_setups(V, **params)
+                assert answer(got) == answer(ref), (shape, seed, K, req)
+                assert (ref.status == "infeasible") == (req > cstar)
+    assert all(r >= 3 for r in paths["lp"])  # one or two set-ups: the exact pair bound, no LP
+
+
+def test_near_ceiling_infeasibility_is_settled_by_the_search_at_max_setups(range_matrices, paths):
+    """Instances where greedy misses the coverage, the price bound does not prove it and no K axes
+    reach it: the one search at max_setups gives both the proof and the answer (equal to brute
+    force), and that path is taken here."""
+    hits = 0
+    for shape, Vfull in range_matrices.items():
+        n = Vfull.shape[0]
+        for seed in range(3):
+            V = column_subset(Vfull, 14, 10 + seed)
+            for K in (3, 4):
+                cstar = brute_force_setups(V, coverage=1.0, max_setups=K).covered
+                if cstar >= n:
+                    continue
+                before = paths["at_kmax"]
+                params = {"coverage": coverage_for(cstar + 1, n), "max_setups": K}
+                got = select_setups(V, **params)
+                assert answer(got) == answer(brute_force_setups(V, **params)), (shape, seed, K)
+                assert got.status == "infeasible" and got.covered == cstar
+                hits += paths["at_kmax"] - before
+    assert hits >= 3
+
+
+def test_full_range_matrix_proof_is_tight(range_matrices):
+    """On every column of the half sphere's matrix (too many for brute force): the best coverage of
+    5 and 3 set-ups that an infeasible answer reports is reached (the same selection proven
+    optimal at that coverage) and one point more is proven infeasible with the same answer."""
+    V = range_matrices["half_sphere"]
+    n = V.shape[0]
+    for K in (3, 5):
+        inf = select_setups(V, coverage=1.0, max_setups=K)
+        if inf.status != "infeasible":
+            continue
+        cstar = inf.covered
+        one_more = select_setups(V, coverage=coverage_for(cstar + 1, n), max_setups=K)
+        assert answer(one_more)[:5] == answer(inf)[:5]
+        at = select_setups(V, coverage=coverage_for(cstar, n), max_setups=K)
+        assert at.status == "optimal" and at.covered >= cstar
+        # the fewest axes at C*: none of the smaller k reaches it
+        if at.k > 1:
+            assert select_setups(V, coverage=coverage_for(cstar, n), max_setups=at.k - 1).status == "infeasible"
+
+
+def tie_instance(seed):
+    """Columns built from a few blocks of points, so that many subsets cover exactly as much and
+    overlap and index order decide; some points unseen (a ceiling below 100 %)."""
+    rng = np.random.default_rng(seed)
+    blocks = int(rng.integers(4, 9))
+    size = rng.integers(1, 6, blocks)
+    owner = np.repeat(np.arange(blocks), size)
+    n = owner.size + int(rng.integers(0, 4))
+    m = int(rng.integers(5, 11))
+    cols = rng.random((blocks, m)) < 0.4
+    V = np.zeros((n, m), bool)
+    V[: owner.size] = cols[owner]
+    return V, int(rng.integers(2, 5))
+
+
+@pytest.mark.parametrize("seed", range(60))
+def test_coverage_ties_match_brute_force(seed):
+    """Exact ties of coverage in the coverage searches (the overlap is computed only for the leaves
+    of the best coverage): the least overlap, then the smallest tuple, as brute force."""
+    V, K = tie_instance(seed)
+    n = V.shape[0]
+    cstar = brute_force_setups(V, coverage=1.0, max_setups=K).covered
+    for req in {max(1, cstar - 1), max(1, cstar), min(n, cstar + 1)}:
+        params = {"coverage": coverage_for(req, n), "max_setups": K}
+        assert answer(select_setups(V, **params)) == answer(brute_force_setups(V, **params)), (seed, req)
+
+
+def test_zone_conflicts_on_a_range_matrix_match_brute_force(range_matrices):
+    """A functional zone (every fifth point) on 12 columns of the slot block's matrix: the search
+    per k of the infeasible case and the feasible case, as brute force."""
+    V = column_subset(range_matrices["slot"], 12, 3)
+    n = V.shape[0]
+    zone = np.zeros(n, bool)
+    zone[::5] = True
+    for K in (2, 3):
+        cstar = brute_force_setups(V, coverage=1.0, max_setups=K, zone_mask=zone).covered
+        for req in (cstar, cstar + 1):
+            if req > n:
+                continue
+            params = {"coverage": coverage_for(req, n), "max_setups": K, "zone_mask": zone}
+            assert answer(select_setups(V, **params)) == answer(brute_force_setups(V, **params)), (K, req)
+
+
+def test_small_max_cover_is_the_exact_best_of_one_and_two_axes(range_matrices):
+    """The root proof for one or two set-ups: the largest coverage of any one or two reduced axes,
+    exactly (every pair counted on the point rows)."""
+    V = column_subset(range_matrices["femur_like"], 20, 7)
+    prob = _Problem(V, None, 1, 1)
+    cols = V.astype(np.int64)
+    one = int(cols.sum(axis=0).max())
+    two = max(int(((cols[:, a] + cols[:, b]) > 0).sum()) for a in range(V.shape[1]) for b in range(a + 1, V.shape[1]))
+    assert search._small_max_cover(prob, 1) == one
+    assert search._small_max_cover(prob, 2) == max(one, two)

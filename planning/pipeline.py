@@ -151,7 +151,8 @@ def _normals(cloud: Cloud, config: PlanConfig, progress, facets=None) -> _Normal
                                  sampled_fraction=sample_index.size / n_input)
         return _Normals(sample_index, normals, summary)
     res = sphere_throwing(cloud.points, sphere_diameter_mm=p.sphere_diameter_mm,
-                          grid_spacing_mm=p.grid_spacing_mm, directions=p.directions, progress=progress)
+                          grid_spacing_mm=p.grid_spacing_mm, directions=p.directions, progress=progress,
+                          refine=p.refine)
     check_normal_share(cloud.points, int(res.sample_index.size), units=config.input.units,
                        sphere_diameter_mm=p.sphere_diameter_mm, tool_diameter_mm=config.tool.diameter_mm,
                        max_extent_mm=config.input.max_extent_mm, accept_small_part=config.input.accept_small_part)

@@ -384,6 +384,21 @@ def test_disc_maximum_gives_the_distance_transform_map():
             np.testing.assert_array_equal(got > t, ref)
 
 
+def test_disc_maximum_is_the_same_in_any_number_of_blocks_of_rows():
+    """The rows are shared among the threads in blocks (one per thread); each block filters the rows
+    within reach of its edges itself: any number of blocks gives the same map, bit for bit."""
+    from planning.toolpath.roughing.maps import _disc_max_blocks
+
+    rng = np.random.default_rng(13)
+    for _ in range(20):
+        nx, ny = (int(v) for v in rng.integers(1, 60, 2))
+        v = np.where(rng.random((nx, ny)) < 0.3, rng.normal(size=(nx, ny)), -np.inf)
+        h, reach = float(rng.uniform(0.1, 1.0)), float(rng.uniform(0.05, 8.0))
+        one = _disc_max_blocks(v, h, reach, 1)
+        for nb in (2, 3, 7, nx):
+            np.testing.assert_array_equal(_disc_max_blocks(v, h, reach, min(nb, nx)), one)
+
+
 def test_square_maximum_matches_the_maximum_filter():
     rng = np.random.default_rng(12)
     for _ in range(20):

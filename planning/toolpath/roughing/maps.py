@@ -65,8 +65,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from planning.errors import ParameterError
 from planning.toolpath.roughing.common import _seg_d2
@@ -260,37 +261,99 @@ def _square_max(a, k):
 
 
 @njit(cache=True, nogil=True)
-def _disc_max(v, h, reach):
-    """``out[c] = max v[c']`` over the cells c' whose centre is closer than ``reach`` to c's
-    (``sqrt(di^2 + dj^2) h < reach``; -inf when none): with ``v`` the cells' highest point, a cell
-    is within ``reach`` of a cell holding a point above t exactly when ``out > t`` (the same test
-    as an exact distance transform of the cells above t). The disc is cut in rows of offsets
-    ``di``, each a 1-D window of half width ``w(di)``: one row filter per distinct width."""
-    nx, ny = v.shape
+def _disc_widths(h, reach):
+    """Per row offset ``di`` (0..K) the half width of the disc's row (-1 past the disc) and K."""
     K = int(math.ceil(reach / h)) + 1
     wd = np.full(K + 1, -1, np.int64)
     for di in range(K + 1):
         for dj in range(K + 1):
             if math.sqrt(float(di * di + dj * dj)) * h < reach:
                 wd[di] = dj
+    return wd, K
+
+
+@njit(cache=True, nogil=True)
+def _row_window_max(v, i, k, buf, G, H, out_row):
+    """``out_row[j] = max(v[i, j - k : j + k + 1])`` (clipped), van Herk / Gil-Werman on one row with
+    the caller's buffers (each at least ``ny + 2k`` long)."""
+    m = v.shape[1]
+    w = 2 * k + 1
+    L = m + 2 * k
+    for p in range(k):
+        buf[p] = -np.inf
+        buf[k + m + p] = -np.inf
+    for j in range(m):
+        buf[k + j] = v[i, j]
+    for b0 in range(0, L, w):
+        b1 = min(b0 + w, L)
+        g = buf[b0]
+        G[b0] = g
+        for p in range(b0 + 1, b1):
+            g = max(g, buf[p])
+            G[p] = g
+        g = buf[b1 - 1]
+        H[b1 - 1] = g
+        for p in range(b1 - 2, b0 - 1, -1):
+            g = max(g, buf[p])
+            H[p] = g
+    for j in range(m):
+        out_row[j] = max(H[j], G[j + 2 * k])
+
+
+def _disc_max(v, h, reach):
+    """``out[c] = max v[c']`` over the cells c' whose centre is closer than ``reach`` to c's
+    (``sqrt(di^2 + dj^2) h < reach``; -inf when none): with ``v`` the cells' highest point, a cell
+    is within ``reach`` of a cell holding a point above t exactly when ``out > t`` (the same test
+    as an exact distance transform of the cells above t). The disc is cut in rows of offsets
+    ``di``, each a 1-D window of half width ``w(di)`` (van Herk / Gil-Werman): per block of output
+    rows, each input row within reach is filtered once per width it is needed at. One block of rows
+    per thread (``NUMBA_NUM_THREADS``; the rows within reach of a block's edges are filtered by both
+    blocks), one parallel region a call."""
+    v = np.ascontiguousarray(v, dtype=np.float64)
+    return _disc_max_blocks(v, float(h), float(reach), max(1, min(v.shape[0], numba.get_num_threads())))
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _disc_max_blocks(v, h, reach, nb):
+    """:func:`_disc_max` in ``nb`` blocks of rows, one per ``prange`` iteration."""
+    nx, ny = v.shape
+    wd, K = _disc_widths(h, reach)
     out = np.full((nx, ny), -np.inf)
-    tmp = np.empty((nx, ny))
-    done = np.zeros(K + 1, np.bool_)
-    for d0 in range(K + 1):
-        if wd[d0] < 0 or done[d0]:
-            continue
-        _max_rows(v, wd[d0], tmp)
-        for di in range(d0, K + 1):
-            if wd[di] != wd[d0]:
-                continue
-            done[di] = True
-            for sgn in (-1, 1):
-                if di == 0 and sgn == 1:
+    if wd[0] < 0 or nx == 0 or ny == 0:
+        return out
+    for b in prange(nb):
+        i0 = b * nx // nb
+        i1 = (b + 1) * nx // nb
+        L = ny + 2 * (K + 1)
+        buf = np.empty(L)
+        G = np.empty(L)
+        H = np.empty(L)
+        row = np.empty(ny)
+        # every input row r within reach of the block, filtered at every width its offsets need
+        for r in range(max(0, i0 - K), min(nx, i1 + K)):
+            last_w = -2
+            for di in range(K + 1):
+                w = wd[di]
+                if w < 0:
+                    break
+                # the output rows r - di and r + di inside the block take this row at width w(di)
+                lo_ok = i0 <= r + di < i1
+                hi_ok = di > 0 and i0 <= r - di < i1
+                if not lo_ok and not hi_ok:
                     continue
-                dd = sgn * di
-                for i in range(max(0, -dd), min(nx, nx - dd)):
+                if w != last_w:
+                    _row_window_max(v, r, w, buf, G, H, row)
+                    last_w = w
+                if lo_ok:
+                    o = r + di
                     for j in range(ny):
-                        out[i, j] = max(out[i, j], tmp[i + dd, j])
+                        if row[j] > out[o, j]:
+                            out[o, j] = row[j]
+                if hi_ok:
+                    o = r - di
+                    for j in range(ny):
+                        if row[j] > out[o, j]:
+                            out[o, j] = row[j]
     return out
 
 

@@ -8,7 +8,9 @@ default.
 
 from __future__ import annotations
 
+import difflib
 import json
+import typing
 from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -650,16 +652,53 @@ class PlanConfig(_Strict):
         return self.model_dump(mode="json", by_alias=True)
 
 
+def _model_in(annotation) -> type[BaseModel] | None:
+    """The parameter group (a pydantic model) an annotation holds, directly or in Optional/Annotated."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in typing.get_args(annotation):
+        found = _model_in(arg)
+        if found is not None:
+            return found
+    return None
+
+
+def _names(model: type[BaseModel]) -> list[str]:
+    """The public names of a group's parameters (the alias where there is one)."""
+    return [f.alias or name for name, f in model.model_fields.items()]
+
+
+def _did_you_mean(loc: tuple) -> str:
+    """For an unknown parameter at ``loc`` (the path of keys): the nearest known name in its group
+    (``difflib``, as the path would be written), or '' when none is near."""
+    model: type[BaseModel] | None = PlanConfig
+    for key in loc[:-1]:
+        field = next((f for name, f in model.model_fields.items() if key in (name, f.alias)), None)
+        model = None if field is None else _model_in(field.annotation)
+        if model is None:
+            return ""
+    near = difflib.get_close_matches(str(loc[-1]), _names(model), n=1, cutoff=0.6)
+    return ".".join([*map(str, loc[:-1]), near[0]]) if near else ""
+
+
 def _describe(err: dict[str, Any]) -> str:
-    path = ".".join(str(p) for p in err.get("loc", ())) or "(document)"
+    loc = tuple(err.get("loc", ()))
+    path = ".".join(str(p) for p in loc) or "(document)"
     msg = err.get("msg", "invalid")
     if err.get("type") == "extra_forbidden":
-        return f"{path}: unknown parameter"
+        near = _did_you_mean(loc) if loc else ""
+        return f"{path}: unknown parameter" + (f" (did you mean {near}?)" if near else "")
     if "input" in err and err.get("type") != "missing":
         shown = json.dumps(err["input"], default=str)
         if len(shown) > 80:
             shown = shown[:77] + "..."
-        return f"{path} = {shown}: {msg}"
+        hint = ""
+        limit = (err.get("ctx") or {}).get("le")
+        value = err["input"]
+        if err.get("type") == "less_than_equal" and limit == 1 and isinstance(value, (int, float)) \
+                and not isinstance(value, bool) and 1 < value <= 100:
+            hint = f" (a fraction: {value:g} % is {value / 100:g})"
+        return f"{path} = {shown}: {msg}{hint}"
     return f"{path}: {msg}"
 
 

@@ -90,3 +90,30 @@ def test_round_trip_through_json():
     c = parse_config({"setups": {"coverage": 0.8}, "visibility": {"cone_deg": [5, 70]}})
     again = PlanConfig.model_validate(c.to_json_dict())
     assert again == c
+
+
+def test_an_unknown_parameter_names_the_nearest_known_one_in_its_group():
+    """A misspelt name gets "did you mean" with the name as it would be written (group path, public
+    alias); a group misspelt gets the group; a name near nothing gets no guess."""
+    cases = {
+        "tool.diamter_mm=6": "tool.diamter_mm: unknown parameter (did you mean tool.diameter_mm?)",
+        "paths.finishing.scalop_mm=0.01": "(did you mean paths.finishing.scallop_mm?)",
+        "setup.coverage=0.9": "setup: unknown parameter (did you mean setups?)",
+        "visibility.globl=true": "(did you mean visibility.global?)",
+    }
+    for item, expect in cases.items():
+        with pytest.raises(ParameterError) as e:
+            parse_config(apply_overrides({}, [item]))
+        assert expect in str(e.value), (item, str(e.value))
+    with pytest.raises(ParameterError) as e:
+        parse_config(apply_overrides({}, ["tool.zzz=1"]))
+    assert "tool.zzz: unknown parameter" in str(e.value) and "did you mean" not in str(e.value)
+
+
+def test_a_percentage_where_a_fraction_is_asked_says_so():
+    with pytest.raises(ParameterError) as e:
+        parse_config(apply_overrides({}, ["setups.coverage=95"]))
+    assert "setups.coverage = 95" in str(e.value) and "(a fraction: 95 % is 0.95)" in str(e.value)
+    with pytest.raises(ParameterError) as e:           # beyond 100: no percentage reading of it
+        parse_config(apply_overrides({}, ["setups.coverage=950"]))
+    assert "a fraction" not in str(e.value)

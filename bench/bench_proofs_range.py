@@ -19,7 +19,7 @@ planning/setups package of git revision REV on the same matrices (same run, its 
 and prints whether the answers are the same.  ``--json PATH`` writes every figure.
 
     .venv/bin/python bench/bench_proofs_range.py
-    .venv/bin/python bench/bench_proofs_range.py --before HEAD --json /tmp/proofs_range.json
+    .venv/bin/python bench/bench_proofs_range.py --before e66e245 --json /tmp/proofs_range.json   # e66e245: the commit before the change
     .venv/bin/python bench/bench_proofs_range.py --points 40000 --scan outlier_share=0.01
     .venv/bin/python bench/bench_proofs_range.py --scales 1 --scan along_mm=1.0 across_mm=2.0   # a full-size bone
 """

@@ -218,8 +218,12 @@ def cmd_warmup(args) -> int:
     from planning.warmup import WARMUP_SAMPLE, warm
 
     rep = warm(progress=_Progress(quiet=not args.verbose))
-    print(f"warmup: planned the {WARMUP_SAMPLE} sample in {rep.seconds:.1f} s, {rep.n_compiled} kernel "
-          f"compilation(s) ({len(set(rep.compiled))} distinct; 0: all were in the cache)")
+    if rep.n_compiled == 0:
+        print(f"warmup: planned the {WARMUP_SAMPLE} sample in {rep.seconds:.1f} s; every kernel came from the "
+              f"numba cache (nothing compiled)")
+    else:
+        print(f"warmup: planned the {WARMUP_SAMPLE} sample in {rep.seconds:.1f} s; compiled {rep.n_compiled} kernel "
+              f"signature(s) of {len(set(rep.compiled))} kernel(s) that were not in the numba cache (cached now)")
     print(f"numba cache: {rep.cache_dir}  threading layer: {rep.threading_layer}")
     if args.list:
         for name in sorted(set(rep.compiled)):

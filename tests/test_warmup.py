@@ -129,7 +129,12 @@ def test_warmup_compiles_what_a_default_plan_needs(src, tmp_path):
                          capture_output=True, text=True, timeout=1800)
     assert cli.returncode == 0, cli.stderr[-3000:]
     assert f"numba cache: {cache}" in cli.stdout, cli.stdout
+    assert "that were not in the numba cache (cached now)" in cli.stdout, cli.stdout
     assert list(cache.glob("scanmill-warm-*")), "a finished warm-up leaves its marker"
+    cli2 = subprocess.run([sys.executable, "-m", "scanmill.cli", "warmup"], check=False, cwd=src, env=_env(src, cache),
+                          capture_output=True, text=True, timeout=1800)
+    assert cli2.returncode == 0 and "every kernel came from the numba cache (nothing compiled)" in cli2.stdout, \
+        cli2.stdout
     again = _child(src, cache, "warmup")
     assert again["compiled"] == [], f"a second warm-up compiled {again['compiled']}"
     plan = _child(src, cache, "plan", str(ply), "{}")

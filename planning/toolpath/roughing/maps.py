@@ -188,32 +188,43 @@ class _ForbiddenMap:
 
 
 @njit(cache=True, nogil=True)
-def _max_rows(a, k, out):
-    """``out[i, j] = max(a[i, j - k : j + k + 1])`` (the window clipped to the row), van Herk /
-    Gil-Werman: blocks of 2k + 1 on the row padded by k with -inf, prefix and suffix maxima."""
-    n, m = a.shape
+def _row_window_max(v, i, k, buf, G, H, out_row):
+    """``out_row[j] = max(v[i, j - k : j + k + 1])`` (the window clipped to the row), van Herk /
+    Gil-Werman: blocks of 2k + 1 on the row padded by k with -inf, prefix and suffix maxima, in the
+    caller's buffers (each at least ``ny + 2k`` long)."""
+    m = v.shape[1]
     w = 2 * k + 1
     L = m + 2 * k
-    buf = np.full(L, -np.inf)
-    G = np.empty(L)
-    H = np.empty(L)
+    for p in range(k):
+        buf[p] = -np.inf
+        buf[k + m + p] = -np.inf
+    for j in range(m):
+        buf[k + j] = v[i, j]
+    for b0 in range(0, L, w):
+        b1 = min(b0 + w, L)
+        g = buf[b0]
+        G[b0] = g
+        for p in range(b0 + 1, b1):
+            g = max(g, buf[p])
+            G[p] = g
+        g = buf[b1 - 1]
+        H[b1 - 1] = g
+        for p in range(b1 - 2, b0 - 1, -1):
+            g = max(g, buf[p])
+            H[p] = g
+    for j in range(m):
+        out_row[j] = max(H[j], G[j + 2 * k])
+
+
+@njit(cache=True, nogil=True)
+def _max_rows(a, k, out):
+    """``out[i, j] = max(a[i, j - k : j + k + 1])`` (the window clipped to the row), every row by
+    :func:`_row_window_max`."""
+    n, m = a.shape
+    L = m + 2 * k
+    buf, G, H = np.empty(L), np.empty(L), np.empty(L)
     for i in range(n):
-        for j in range(m):
-            buf[k + j] = a[i, j]
-        for b0 in range(0, L, w):
-            b1 = min(b0 + w, L)
-            g = buf[b0]
-            G[b0] = g
-            for p in range(b0 + 1, b1):
-                g = max(g, buf[p])
-                G[p] = g
-            g = buf[b1 - 1]
-            H[b1 - 1] = g
-            for p in range(b1 - 2, b0 - 1, -1):
-                g = max(g, buf[p])
-                H[p] = g
-        for j in range(m):
-            out[i, j] = max(H[j], G[j + 2 * k])
+        _row_window_max(a, i, k, buf, G, H, out[i])
 
 
 @njit(cache=True, nogil=True)
@@ -272,32 +283,12 @@ def _disc_widths(h, reach):
     return wd, K
 
 
-@njit(cache=True, nogil=True)
-def _row_window_max(v, i, k, buf, G, H, out_row):
-    """``out_row[j] = max(v[i, j - k : j + k + 1])`` (clipped), van Herk / Gil-Werman on one row with
-    the caller's buffers (each at least ``ny + 2k`` long)."""
-    m = v.shape[1]
-    w = 2 * k + 1
-    L = m + 2 * k
-    for p in range(k):
-        buf[p] = -np.inf
-        buf[k + m + p] = -np.inf
-    for j in range(m):
-        buf[k + j] = v[i, j]
-    for b0 in range(0, L, w):
-        b1 = min(b0 + w, L)
-        g = buf[b0]
-        G[b0] = g
-        for p in range(b0 + 1, b1):
-            g = max(g, buf[p])
-            G[p] = g
-        g = buf[b1 - 1]
-        H[b1 - 1] = g
-        for p in range(b1 - 2, b0 - 1, -1):
-            g = max(g, buf[p])
-            H[p] = g
-    for j in range(m):
-        out_row[j] = max(H[j], G[j + 2 * k])
+@njit(cache=True, nogil=True, inline="always")
+def _max_into(out, o, row):
+    """``out[o] = max(out[o], row)`` element-wise."""
+    for j in range(row.shape[0]):
+        if row[j] > out[o, j]:
+            out[o, j] = row[j]
 
 
 def _disc_max(v, h, reach):
@@ -345,15 +336,9 @@ def _disc_max_blocks(v, h, reach, nb):
                     _row_window_max(v, r, w, buf, G, H, row)
                     last_w = w
                 if lo_ok:
-                    o = r + di
-                    for j in range(ny):
-                        if row[j] > out[o, j]:
-                            out[o, j] = row[j]
+                    _max_into(out, r + di, row)
                 if hi_ok:
-                    o = r - di
-                    for j in range(ny):
-                        if row[j] > out[o, j]:
-                            out[o, j] = row[j]
+                    _max_into(out, r - di, row)
     return out
 
 

@@ -74,7 +74,9 @@ def instances(V: np.ndarray, seed: int) -> dict[str, np.ndarray]:
 # ------------------------------------------------------------------------------------------------
 
 
-def worker(npz: str, cases: list[tuple[str, float]], max_setups: int, repeat: int, setups_dir: str | None):
+def select_setups_of(setups_dir: str | None):
+    """``select_setups`` of the working tree, or of the package exported under ``setups_dir``
+    (:func:`export_revision`, put in front of the working tree's), after a warm-up call (imports)."""
     if setups_dir:  # the package of another revision in front of the working tree's
         import planning
 
@@ -82,6 +84,11 @@ def worker(npz: str, cases: list[tuple[str, float]], max_setups: int, repeat: in
     from planning.setups import select_setups
 
     select_setups(np.eye(4, dtype=bool), coverage=0.95, max_setups=2)  # warm-up: imports
+    return select_setups
+
+
+def worker(npz: str, cases: list[tuple[str, float]], max_setups: int, repeat: int, setups_dir: str | None):
+    select_setups = select_setups_of(setups_dir)
     data = np.load(npz)
     out = []
     for name, cov in cases:
@@ -98,9 +105,10 @@ def worker(npz: str, cases: list[tuple[str, float]], max_setups: int, repeat: in
     print("JSON " + json.dumps(out), flush=True)
 
 
-def run_worker(npz, cases, max_setups, repeat, setups_dir=None):
-    cmd = [sys.executable, os.path.abspath(__file__), "--worker", npz, "--max-setups", str(max_setups),
-           "--repeat", str(repeat), "--cases", json.dumps(cases)]
+def run_json_worker(script: str, args: list[str], setups_dir: str | None = None):
+    """``script`` run with ``args`` (and ``--setups-dir``) in a fresh process: the figures it prints on
+    its ``JSON`` line."""
+    cmd = [sys.executable, os.path.abspath(script), *args]
     if setups_dir:
         cmd += ["--setups-dir", setups_dir]
     p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=False)
@@ -108,6 +116,21 @@ def run_worker(npz, cases, max_setups, repeat, setups_dir=None):
         if line.startswith("JSON "):
             return json.loads(line[5:])
     raise RuntimeError(f"worker failed:\n{p.stdout}\n{p.stderr}")
+
+
+def run_worker(npz, cases, max_setups, repeat, setups_dir=None):
+    return run_json_worker(__file__, ["--worker", npz, "--max-setups", str(max_setups), "--repeat", str(repeat),
+                                      "--cases", json.dumps(cases)], setups_dir)
+
+
+def solver_runs(before: str | None, tmp: str) -> list[tuple[str, str | None]]:
+    """(label, exported package dir or None) of the solvers to run: revision ``before`` (exported
+    under ``tmp``) when given, then the working tree."""
+    runs = []
+    if before:
+        runs.append((f"before ({before})", export_revision(before, os.path.join(tmp, "before"))))
+    runs.append(("after (working tree)", None))
+    return runs
 
 
 def export_revision(rev: str, dest: str) -> str:
@@ -167,10 +190,7 @@ def main(argv=None):
         np.savez(npz, **{k: inst[k] for k in names})
         for nm in names:
             print(f"{nm}: {inst[nm].shape[0]} points x {inst[nm].shape[1]} axes, max {a.max_setups} set-ups")
-        runs = []
-        if a.before:
-            runs.append((f"before ({a.before})", export_revision(a.before, os.path.join(tmp, "before"))))
-        runs.append(("after (working tree)", None))
+        runs = solver_runs(a.before, tmp)
         results = {}
         for label, d in runs:
             results[label] = run_worker(npz, cases, a.max_setups, a.repeat, d)

@@ -30,7 +30,6 @@ import argparse
 import hashlib
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -91,13 +90,9 @@ def range_visibility(shape: str, n_points: int, seed: int, scan: dict, cache_dir
 
 
 def worker(npz: str, cases: list, setups_dir: str | None, time_limit: float):
-    if setups_dir:  # the package of another revision in front of the working tree's
-        import planning
+    from bench_infeasible import select_setups_of
 
-        planning.__path__.insert(0, setups_dir)
-    from planning.setups import select_setups
-
-    select_setups(np.eye(4, dtype=bool), coverage=0.95, max_setups=2)  # warm-up: imports
+    select_setups = select_setups_of(setups_dir)
     t = time.perf_counter()  # the first LP of the process: SciPy's optimize import and HiGHS
     select_setups(np.eye(6, dtype=bool), coverage=0.95, max_setups=3)
     cold = time.perf_counter() - t
@@ -113,15 +108,10 @@ def worker(npz: str, cases: list, setups_dir: str | None, time_limit: float):
 
 
 def run_worker(npz, cases, setups_dir, time_limit):
-    cmd = [sys.executable, os.path.abspath(__file__), "--worker", npz, "--cases", json.dumps(cases),
-           "--time-limit", str(time_limit)]
-    if setups_dir:
-        cmd += ["--setups-dir", setups_dir]
-    p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=False)
-    for line in p.stdout.splitlines():
-        if line.startswith("JSON "):
-            return json.loads(line[5:])
-    raise RuntimeError(f"worker failed:\n{p.stdout}\n{p.stderr}")
+    from bench_infeasible import run_json_worker
+
+    return run_json_worker(__file__, ["--worker", npz, "--cases", json.dumps(cases), "--time-limit",
+                                      str(time_limit)], setups_dir)
 
 
 def main(argv=None):
@@ -160,12 +150,9 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as tmp:
         npz = os.path.join(tmp, "instances.npz")
         np.savez(npz, **{k: v[0] for k, v in samples.items()})
-        runs = []
-        if a.before:
-            from bench_infeasible import export_revision
+        from bench_infeasible import solver_runs
 
-            runs.append((f"before ({a.before})", export_revision(a.before, os.path.join(tmp, "before"))))
-        runs.append(("after (working tree)", None))
+        runs = solver_runs(a.before, tmp)
         results = {}
         for label, d in runs:
             results[label] = run_worker(npz, cases, d, a.time_limit)

@@ -87,8 +87,8 @@ def _fit(tree, p, idx, nin, radius_mm, min_points, max_flatness, min_spread, max
     n = idx.size
     centre = p[idx]
     nb = tree.query_ball_point(centre, float(radius_mm), return_sorted=False)
-    counts = np.fromiter((len(j) for j in nb), dtype=np.int64, count=n)
-    flat = np.fromiter((i for j in nb for i in j), dtype=np.int64, count=int(counts.sum()))
+    counts = np.fromiter(map(len, nb), dtype=np.int64, count=n)
+    flat = np.concatenate(nb).astype(np.int64) if counts.sum() else np.zeros(0, np.int64)
     del nb
     owner = np.repeat(np.arange(n), counts)
     q = p[flat] - centre[owner]                     # about the sampled point: small numbers, no cancellation

@@ -79,7 +79,7 @@ meets nothing (``n_fed_down``); otherwise the whole descent stays.
 **The stock decides, the maps propose (with a stock view).** The maps bound the material from
 one ray family, grown by a ray spacing; the stock view reads all three. A piece whose start the
 maps put under material is entered straight down when the stock shows the tool there, and the
-column above it, clear by FEED_CLEAR_MM (``n_in_air``: no helix or ramp needed); a side entry's
+column above it up to the safe height, clear by FEED_CLEAR_MM (``n_in_air``: no helix or ramp needed); a side entry's
 start is moved further out until the stock shows its straight feed down meets nothing (a sliver
 of another ray family the maps did not see made the femur-like plan's last straight plunge).
 
@@ -641,9 +641,10 @@ class _Entries:
         if not top_q > z + Z_TOL_MM:
             _lift(w, lv, cur, q, z, safe, None if self.cfg.kind == "plunge" else top_q)
             return []
-        if self.clear is not None and self.clear(q[0], q[1], z, top_q + GAP_MM):
+        if self.clear is not None and self.clear(q[0], q[1], z, safe):
             # the maps bound the material (grown by a ray spacing); the stock itself says the tool comes
-            # down at q through air: no helix or ramp needed
+            # down at q through air (the whole column up to the safe height: wherever the lift's rapid
+            # stops and its feed starts): no helix or ramp needed
             _lift(w, lv, cur, q, z, safe, top_q)
             self.n_in_air += 1
             return []

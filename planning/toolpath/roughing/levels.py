@@ -648,7 +648,6 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     ent.exact = live is not None
     if live is not None:
         ent.gap = min(GAP_MM, live.clearance_mm + ENTRY_GAP_EXTRA_MM)
-    if live is not None:
         touch = live.column_clear(w, FEED_CLEAR_MM)
         ent.clear = lambda x, y, z, top: touch(x, y, z, top) <= z + Z_TOL_MM
     if live is not None and live.clearance_mm > 0:

@@ -12,6 +12,8 @@ Per case the whole plan (``run_plan``: paths, posts, verification on), then per 
   cutter may still cut the block's lower edge with its tip below it);
 * what the guard had to repair in the roughing (rapids into material replaced by a way over, CL points
   cut out for travel, rounds) and the pieces the roughing left for lack of an entry (``n_pieces_left``);
+* the area's LinuxCNC program read by LinuxCNC's own interpreter (``rs274``, :func:`rs274_check`): the
+  moves it reads and how many leave the machine's travel (none when ``rs274`` is not installed);
 
 and per case the verdict, the offence counts, the simulated machining time, the plan's seconds.
 
@@ -109,6 +111,29 @@ def below_stock(programs: dict, result, points, faces=None) -> dict:
     return out
 
 
+def rs274_check(programs: dict, result) -> dict:
+    """Per area: (moves ``rs274`` reads in its LinuxCNC program, moves beyond the profile's travel:
+    :func:`planning.simulate.program.check_travel`); empty when ``rs274`` is not installed."""
+    from planning.orientations.kinematics import load_profile
+    from planning.simulate.program import check_travel
+    from planning.simulate.rs274 import rs274_available, run_rs274
+    from planning.simulate.verify import tool_shapes
+
+    if not rs274_available():
+        return {}
+    p = result.parameters
+    profile = load_profile(p.machine.profile)
+    tools = tool_shapes(p, p.tool.assembly())
+    place = np.asarray(result.visibility.placement_mm, float)
+    out = {}
+    for area in result.machining_order:
+        name = f"area_{area}.linuxcnc.nc"
+        if name in programs:
+            m = run_rs274(programs[name], program=name, area=area, profile=profile, placement_mm=place, tools=tools)
+            out[area] = (int(m.n_moves), len(check_travel(m, profile)))
+    return out
+
+
 def plan_case(name: str, root: Path) -> dict:
     from planning.inputs import Cloud
     from planning.pipeline import run_plan
@@ -124,6 +149,7 @@ def plan_case(name: str, root: Path) -> dict:
     v = r.verification
     setups = {st.id: st for st in r.setups}
     below = below_stock(out.extra["programs"], r, cloud.points)
+    rs274 = rs274_check(out.extra["programs"], r)
     rows = []
     for a in (v.areas if v is not None else []):
         ops = {o.operation: o for o in a.operations}
@@ -152,6 +178,7 @@ def plan_case(name: str, root: Path) -> dict:
             "finished_share": None if v is None or v.deviation is None else v.deviation.finished_share,
             "machining_h": None if v is None else round(v.machining_time_s / 3600, 2),
             "paths_s": {t.stage: t.seconds for t in r.timings}.get("paths"),
+            "rs274": {str(a): list(v) for a, v in rs274.items()},
             "areas": rows}
 
 
@@ -165,12 +192,15 @@ def table(results: list[dict]) -> str:
                          f"{x['plunges']} | {x['below_stock_mm']} ({x['below_stock_air_mm']}) | {x['roughing_min']} | {x['removed_cm3']} | "
                          f"{x['guard_rapids']} / {x['guard_dropped']} / {x['guard_rounds']} | {x['pieces_left']} |")
     lines += ["", "| case | verdict | offences (travel, rapids, holder, fixture) | gouged | finished | "
-              "simulated machining h | paths s | plan s |", "|---|---|---|---|---|---|---|---|"]
+              "simulated machining h | paths s | plan s | rs274: moves read / beyond travel, per area |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for res in results:
         o = res["offences"] or {}
         lines.append(f"| {res['case']} | {res['status']} | {o.get('travel_excursions')}, {o.get('rapids_into_material')}, "
                      f"{o.get('holder_collisions')}, {o.get('fixture_collisions')} | {res['gouged']} | "
-                     f"{res['finished_share']} | {res['machining_h']} | {res['paths_s']} | {res['seconds']} |")
+                     f"{res['finished_share']} | {res['machining_h']} | {res['paths_s']} | {res['seconds']} | "
+                     + (", ".join(f"{a}: {n} / {x}" for a, (n, x) in res["rs274"].items()) or "rs274 not installed")
+                     + " |")
     return "\n".join(lines)
 
 

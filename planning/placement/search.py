@@ -60,6 +60,7 @@ import numpy as np
 
 from planning.geometry.collision import cloud_collision_free
 from planning.placement.poses import Pose, apply_pose, candidate_poses, turn
+from planning.progress import Throttled
 from planning.setups import coverage_upper_bound
 from planning.visibility import cone_visibility, global_visibility
 
@@ -67,6 +68,9 @@ __all__ = ["MAX_CONFIRM", "Tried", "PlacementSearch", "full_yaw", "search_placem
 
 #: At most this many screened-feasible candidates are confirmed with the plan's own stages.
 MAX_CONFIRM = 3
+#: The search's progress (its own lines and those of the stages it runs) is passed on at most once per
+#: this many seconds (:class:`planning.progress.Throttled`; a candidate's start always).
+PROGRESS_EVERY_S = 0.1
 
 _FEASIBLE = ("optimal", "feasible")
 
@@ -149,12 +153,15 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
     ``profile``, ``tool``: the machine profile and tool assembly of the plan; ``zone_mask`` (n,) bool:
     the functional zones' mask (scanned frame) or None; ``poses``: the candidates (default
     :func:`candidate_poses` with the profile's yaw rule); ``skip_identity``: leave the as-scanned pose
-    out (the plan has just evaluated it); ``progress(fraction, message)``: "candidate i of m".
+    out (the plan has just evaluated it); ``progress(fraction, message)``: "candidate i of m" and, from
+    inside each candidate, its fixture check, collision test and set-up search (the fraction never goes back).
     """
     from planning import pipeline as pl   # the plan's own stage functions (lazy: the pipeline imports us)
 
     t0 = time.perf_counter()
-    say = progress or (lambda fraction, message="": None)
+    # one throttle for the whole search: the fraction never goes back (the set-up search's own
+    # fractions do, between its phases), and the per-axis reports of the collision tests are thinned
+    say = Throttled(progress, PROGRESS_EVERY_S)
     pts = np.asarray(points, dtype=np.float64)
     nrm = np.asarray(normals, dtype=np.float64)
     sidx = np.asarray(sample_index, dtype=np.int64)
@@ -170,21 +177,31 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
     tried: list[Tried] = []
     survivors: list[Tried] = []        # screened feasible (the placed clouds are turned again to confirm)
 
-    def setups(visible: np.ndarray, normals: np.ndarray):
+    def setups(visible: np.ndarray, normals: np.ndarray, progress=None):
         return pl._setups(pl.selection_matrix(visible, ori.axes, normals, config),
-                          zm if zm is not None else np.zeros(n, bool), config, None)
+                          zm if zm is not None else np.zeros(n, bool), config, progress)
+
+    def within(lo: float, hi: float, what: str):
+        """progress(fraction, message) of one step mapped onto [lo, hi] of the search, ``what: message``."""
+        part = say.part(lo, hi)
+        return lambda f, msg="": part(f, f"{what}: {msg}" if msg else what)
 
     for j, (i, pose) in enumerate(listed):
-        say(j / max(m, 1) * 0.8, f"candidate {j + 1} of {m}: {pose.label}")
+        # candidate j's share of the search, [lo, lo + w]: the bound (fixtures) its first tenth, the
+        # screening collision test up to 0.4, its set-up search the rest
+        lo, w = 0.8 * j / max(m, 1), 0.8 / max(m, 1)
+        what = f"candidate {j + 1} of {m}: {pose.label}"
+        say(lo, what, force=True)
         c0 = time.perf_counter()
         P = apply_pose(pts, pose)
         N = turn(nrm, pose.rotation)
         cone = cone_visibility(N, ori.axes, vp.cone_deg)
         g0 = global_visibility(P, sidx, N, ori.axes, ori.angles_deg, cone, tool=tool, profile=profile,
                                fixtures_params=config.fixtures, check_global=vp.global_, check_travel=vp.travel,
-                               obstacles=vp.obstacles, base_dir=base_dir, check_cloud=False)
+                               obstacles=vp.obstacles, base_dir=base_dir, check_cloud=False,
+                               progress=within(lo, lo + 0.1 * w, what))
         if not vp.global_:
-            sel = setups(g0.visible, N)
+            sel = setups(g0.visible, N, within(lo + 0.1 * w, lo + w, f"{what}: set-ups"))
             t = _from_selection(i, pose, "confirmed", sel, exact=True)
             t.seconds = time.perf_counter() - c0
             tried.append(t)
@@ -197,9 +214,11 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
             tried.append(Tried(i, pose, "bound", False, coverage_bound=b.bound / n, seconds=time.perf_counter() - c0))
             continue
         forbidden = g0.forbidden_mm
+        screen = within(lo + 0.1 * w, lo + 0.4 * w, what)
         ok = cloud_collision_free(P[sidx], np.arange(n), N, ori.axes, tool, candidates=g0.visible,
-                                  obstacles=forbidden if forbidden.size else None)
-        sel = setups(g0.visible & ok, N)
+                                  obstacles=forbidden if forbidden.size else None,
+                                  progress=lambda d, t, say=screen: say(d / max(t, 1), f"screening collisions, axis {d}/{t}"))
+        sel = setups(g0.visible & ok, N, within(lo + 0.4 * w, lo + w, f"{what}: set-ups"))
         t = _from_selection(i, pose, "screened", sel, exact=False)
         t.seconds = time.perf_counter() - c0
         tried.append(t)
@@ -209,19 +228,24 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
     winner = None
     visibility = selection = None
     order = sorted(survivors, key=Tried.key)
+    n_confirm = max(min(len(order), max_confirm), 1)
     for r, t in enumerate(order[:max(0, max_confirm)]):
-        say(0.8 + 0.2 * r / max(min(len(order), max_confirm), 1), f"confirming candidate {t.index}: {t.pose.label}")
+        # confirmation r's share, [lo, lo + w]: the plan's visibility stage its first half, set-ups the rest
+        lo, w = 0.8 + 0.2 * r / n_confirm, 0.2 / n_confirm
+        what = f"confirming candidate {t.index}: {t.pose.label}"
+        say(lo, what, force=True)
         c0 = time.perf_counter()
         P, N = apply_pose(pts, t.pose), turn(nrm, t.pose.rotation)
-        cone, gv = pl._visibility(P, pl._Normals(sidx, N, None), ori, config, tool, profile, base_dir, None)
-        sel = setups(gv.visible, N)
+        cone, gv = pl._visibility(P, pl._Normals(sidx, N, None), ori, config, tool, profile, base_dir,
+                                  within(lo, lo + 0.5 * w, what))
+        sel = setups(gv.visible, N, within(lo + 0.5 * w, lo + w, f"{what}: set-ups"))
         c = _from_selection(t.index, t.pose, "confirmed", sel, exact=True)
         c.seconds = t.seconds + time.perf_counter() - c0
         tried[[x.index for x in tried].index(t.index)] = c
         if c.feasible:
             winner, visibility, selection = c, (cone, gv), sel
             break
-    say(1.0, "placement chosen" if winner else "no placement reaches the coverage")
+    say(1.0, "placement chosen" if winner else "no placement reaches the coverage", force=True)
     res = PlacementSearch(winner=winner, tried=tried, n_sampled=n, required=required,
                           seconds=time.perf_counter() - t0, visibility=visibility, selection=selection)
     res.message = _message(res, sp.coverage, sp.max_setups, len(order), max_confirm)

@@ -104,6 +104,11 @@ _NEAR_CEILING = 0.005
 # (every pair evaluated exactly from the Gram matrix, a few milliseconds), while the LP costs 0.5-2 s
 # on range-scan matrices (18k classes x 133 axes: range half sphere R 100 mm, issue 32)
 _MIN_PRICE_R = 3
+# progress from inside a search: the children of the nodes down to this depth (the root 0) tell where
+# the search is, the root's always, the deeper ones at most every _PROGRESS_EVERY_S seconds (a root
+# child of a least-overlap search on a range scan took up to 0.7 s, issue 34)
+_PROGRESS_DEPTH = 2
+_PROGRESS_EVERY_S = 0.1
 
 
 class _Search:
@@ -155,6 +160,8 @@ class _Search:
         self.frames: list = []
         self.nodes = 0
         self.progress = progress
+        self._path: list = []             # (child, children) at each depth down to _PROGRESS_DEPTH
+        self._reported = -math.inf        # when progress was last called (s, perf_counter)
         self.timeout_bound = None
         self.max_nodes = max_nodes
 
@@ -331,8 +338,8 @@ class _Search:
             for t, j in enumerate(order):
                 frame[1] = t
                 self._check_time()
-                if depth == 0 and self.progress is not None:
-                    self.progress(t / order.size)
+                if self.progress is not None and depth <= _PROGRESS_DEPTH:
+                    self._report(depth, t, order.size)
                 j = int(j)
                 after = np.flatnonzero(allowed[j])
                 if self._dominated(k1[j], k2[j], S + [int(cand[j])], cand[after], r - 1):
@@ -344,6 +351,24 @@ class _Search:
                     self._node(child, r - 1)
         finally:
             self.frames.pop()
+
+    def _report(self, depth, t, size):
+        """Progress: the share of the root's children done, refined by the child's place at each depth
+        down to :data:`_PROGRESS_DEPTH` (``t`` of ``size`` at ``depth``), so that a root child that
+        takes seconds still moves it; the root's children always, deeper ones at most every
+        :data:`_PROGRESS_EVERY_S`. Never backwards within one search (a deeper share stays below the
+        next sibling's)."""
+        del self._path[depth:]
+        self._path.append((t, size))
+        now = time.perf_counter()
+        if depth > 0 and now - self._reported < _PROGRESS_EVERY_S:
+            return
+        self._reported = now
+        f, scale = 0.0, 1.0
+        for ti, si in self._path:
+            f += scale * ti / si
+            scale /= si
+        self.progress(f)
 
     def _price_bounds(self, node, allowed, r):
         """Price bound (planning.setups.lagrange) of each child j of a node with r axes to add: the
@@ -584,6 +609,8 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
     then).  The least-overlap search gets the prices for k* where the required coverage lies within
     ``_NEAR_CEILING`` of greedy's and of the price bound (see there)."""
     req = prob.required
+    if progress:
+        progress(0.0, "greedy axes and local exchanges")
     heur = _heuristics(prob, K)
     kmax = min(K, prob.m)
     prices = bound = None
@@ -629,8 +656,9 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
         if k == kmax and kmax_found is not None:
             kstar, found = k, kmax_found
             break
+        enough = _progress_fn(progress, 0.3 * (k - 1) / kmax, 0.3 * k / kmax, f"is {k} set-up(s) enough?")
         s = _Search(prob, k, "cover", req, deadline, stop_at_first=True, prices=prices,
-                    max_nodes=None if prices is not None else _PROBE_NODES)
+                    max_nodes=None if prices is not None else _PROBE_NODES, progress=enough)
         try:
             try:
                 s.run()
@@ -639,7 +667,7 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
                 price_r = k
                 if _price_bound(prob, prices, k) < req:
                     continue  # proven at the root: no k axes reach the coverage
-                s = _Search(prob, k, "cover", req, deadline, stop_at_first=True, prices=prices)
+                s = _Search(prob, k, "cover", req, deadline, stop_at_first=True, prices=prices, progress=enough)
                 s.run()
         except _Timeout:
             return _timeout_fallback(prob, heur, k, kmax)

@@ -55,6 +55,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from planning.errors import ParameterError
+from planning.progress import Throttled
 from planning.setups.bruteforce import brute_force_setups
 from planning.setups.cpsat import _solve_cpsat
 from planning.setups.heuristics import _heuristics
@@ -136,18 +137,21 @@ def select_setups(visibility, *, coverage=0.95, max_setups=5, min_points=1, zone
     if solver == "brute_force":
         return brute_force_setups(V, coverage=coverage, max_setups=K, min_points=min_points, zone_mask=zone)
     deadline = t0 + float(time_limit_s)
-    if progress:
+    if progress is not None:
+        progress = Throttled(progress, 0.0)     # every report passed on, the fraction never going back
         progress(0.0, "merging identical visibility rows")
     name = "cpsat" if solver == "cpsat" else "branch_and_bound"
     with _single_threaded_blas():
         prob = _Problem(V, zone, min_points, required)
+        if progress is not None:
+            progress(0.0, f"{prob.C} classes of identical rows over {prob.n_axes_kept} axes")
         if name == "cpsat":
             out = _solve_cpsat(prob, K, deadline, progress)
         else:
             out = _solve_bnb(prob, K, deadline, progress)
         covered, overlap = prob.evaluate(out.sel)
-    if progress:
-        progress(1.0, "set-ups chosen")
+    if progress is not None:
+        progress(1.0, "set-ups chosen", force=True)
     return _make_result(
         status=out.status, sel_orig=prob.axes[out.sel] if out.sel else [], covered=covered,
         overlap=overlap, n=prob.n, required=required, K=K, coverage_target=cov_target,

@@ -39,10 +39,12 @@ numpy code in the tests), whatever the thread count.
 
 from __future__ import annotations
 
+import time
 from typing import NamedTuple
 
 import numpy as np
 
+from planning.progress import Progress
 from planning.simulate import gouge_kernels as _k
 from planning.simulate.motion import FEED, ProgramMotion, ToolShape
 
@@ -63,6 +65,13 @@ POINT_CELL_MM = 8.0
 CHUNKS_PER_THREAD = 4
 #: Points per kernel call (the stamps number the points twice in an int32).
 MAX_POINTS = 1 << 29
+#: With a ``progress`` callback the points go to the kernels in batches (the grid order cut in
+#: consecutive runs; a point's depth does not depend on its batch), a report after each: at least this
+#: many batches where there are enough points for them (each at least a block per chunk) ...
+PROGRESS_BATCHES = 16
+#: ... and each sized from the rate of the one before to take about this long (s), so that a long
+#: confirmation speaks several times a second whatever the scan and the machine.
+PROGRESS_BATCH_S = 0.25
 
 
 class _Layer(NamedTuple):
@@ -105,19 +114,34 @@ def _grid(lo: np.ndarray, hi: np.ndarray, cell: float, n_pieces: int) -> tuple[n
         cell *= 2.0
 
 
-def penetration_mm(points: np.ndarray, motions: list[ProgramMotion], tools: dict[int, ToolShape]) -> np.ndarray:
+def penetration_mm(points: np.ndarray, motions: list[ProgramMotion], tools: dict[int, ToolShape],
+                   progress: Progress | None = None) -> np.ndarray:
     """(n,) how deep each of ``points`` (n,3, part frame, mm) lies inside the cutting part of a tool
     on any FEED move of ``motions`` (module docstring; ``tools`` by T number); ``-inf`` where no
-    move's tool reaches it (<= 0: not cut) and at points with a non-finite coordinate."""
+    move's tool reaches it (<= 0: not cut) and at points with a non-finite coordinate.
+
+    ``progress(fraction of the points measured, message)``: called once the moves are binned and then
+    after every batch of points (:data:`PROGRESS_BATCHES`, :data:`PROGRESS_BATCH_S`), the fraction
+    rising to 1.0; the result is the same with or without it."""
     import numba
 
     pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
     if pts.shape[0] > MAX_POINTS:                        # the kernels' stamps are int32, 2 per point
-        return np.concatenate([penetration_mm(pts[a:a + MAX_POINTS], motions, tools)
-                               for a in range(0, pts.shape[0], MAX_POINTS)])
+        n_all = pts.shape[0]
+
+        def part(a):
+            if progress is None:
+                return None
+            b = min(n_all, a + MAX_POINTS)
+            return lambda f, msg: progress((a + f * (b - a)) / n_all, msg)
+
+        return np.concatenate([penetration_mm(pts[a:a + MAX_POINTS], motions, tools, part(a))
+                               for a in range(0, n_all, MAX_POINTS)])
     out = np.full(pts.shape[0], -np.inf)
     finite = np.flatnonzero(np.isfinite(pts).all(axis=1))
     if finite.size == 0:
+        if progress is not None:
+            progress(1.0, "no finite point to measure")
         return out
     # the feed moves of each tool (T number), all tools in one array
     S, E, A, groups = [], [], [], []
@@ -137,6 +161,8 @@ def penetration_mm(points: np.ndarray, motions: list[ProgramMotion], tools: dict
         groups.append((shape, n_moves, s.shape[0]))
         n_moves += s.shape[0]
     if not groups:
+        if progress is not None:
+            progress(1.0, "no feed move to measure against")
         return out
     S, E, A = (np.ascontiguousarray(np.concatenate(x)) for x in (S, E, A))
     # the layers (module docstring): per tool the ball and the side of its flutes, or the cylinder
@@ -191,21 +217,42 @@ def penetration_mm(points: np.ndarray, motions: list[ProgramMotion], tools: dict
     pdims = np.floor(ext / pcell).astype(np.int64) + 1
     ijk = np.clip(np.floor((np.clip(pts[finite], plo, plo + ext) - plo) / pcell), 0, pdims - 1).astype(np.int64)
     order = finite[np.argsort((ijk[:, 0] * pdims[1] + ijk[:, 1]) * pdims[2] + ijk[:, 2], kind="stable")]
-    nblock = -(-order.size // _k.BLOCK)
-    nchunk = max(1, min(nblock, CHUNKS_PER_THREAD * numba.get_num_threads()))
+    order = order.astype(np.int64)
+    max_chunks = CHUNKS_PER_THREAD * numba.get_num_threads()
 
     def per_layer(values, dtype=np.float64):
         return np.ascontiguousarray(values, dtype=dtype)
 
-    _k.penetration(pts, order.astype(np.int64), int(nchunk), S, E, A,
-                   per_layer([ly.mode for ly in layers], np.int64), per_layer([ly.radius for ly in layers]),
-                   per_layer([ly.length for ly in layers]), per_layer([ly.search for ly in layers]),
-                   per_layer([ly.rho for ly in layers]),
-                   per_layer([n_moves if ly.mode == _k.SIDE else 0 for ly in layers], np.int64),     # stamp offsets
-                   per_layer([half[ly.moves].max() for ly in layers]), per_layer([ly.floor for ly in layers]),
-                   per_layer([g[0] for g in grids]), per_layer([g[1] for g in grids]),
-                   per_layer([g[2] for g in grids], np.int64), per_layer(lcoff, np.int64), cstart, pcen, pball, phalf,
-                   powner, np.linspace(0.0, 1.0, SAMPLES), out)
+    args = (S, E, A,
+            per_layer([ly.mode for ly in layers], np.int64), per_layer([ly.radius for ly in layers]),
+            per_layer([ly.length for ly in layers]), per_layer([ly.search for ly in layers]),
+            per_layer([ly.rho for ly in layers]),
+            per_layer([n_moves if ly.mode == _k.SIDE else 0 for ly in layers], np.int64),     # stamp offsets
+            per_layer([half[ly.moves].max() for ly in layers]), per_layer([ly.floor for ly in layers]),
+            per_layer([g[0] for g in grids]), per_layer([g[1] for g in grids]),
+            per_layer([g[2] for g in grids], np.int64), per_layer(lcoff, np.int64), cstart, pcen, pball, phalf,
+            powner, np.linspace(0.0, 1.0, SAMPLES), out)
+
+    def run(batch: np.ndarray) -> None:
+        nchunk = max(1, min(-(-batch.size // _k.BLOCK), max_chunks))
+        _k.penetration(pts, batch, int(nchunk), *args)
+
+    total = order.size
+    if progress is None:
+        run(order)
+        return out
+    progress(0.0, f"exact gouge depth: {total:,} points against {n_moves:,} feed moves ({sum(sizes):,} pieces binned)")
+    least = max_chunks * _k.BLOCK                        # every chunk a block
+    most = max(least, -(-total // PROGRESS_BATCHES))
+    size, done = least, 0
+    while done < total:
+        batch = order[done:done + size]
+        t = time.perf_counter()
+        run(batch)
+        dt = time.perf_counter() - t
+        done += batch.size
+        progress(done / total, f"exact gouge depth: points {done:,} of {total:,} measured")
+        size = int(min(most, max(least, batch.size * PROGRESS_BATCH_S / max(dt, 1e-6))))
     return out
 
 

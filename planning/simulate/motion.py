@@ -65,6 +65,10 @@ class ProgramMotion:
     machine_mm: np.ndarray
     rotary_deg: np.ndarray
     notes: list[str] = field(default_factory=list)
+    #: (n_lines,) per program line (0-based) the F word in force, and whether G93 (inverse time) is;
+    #: None where the reader does not give them (the moves then run at the tools' nominal feeds)
+    line_feed: np.ndarray | None = None
+    line_inverse_time: np.ndarray | None = None
 
     @property
     def n_moves(self) -> int:

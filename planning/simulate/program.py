@@ -215,6 +215,23 @@ def _tokenise(text: str, dialect: str, program: str) -> _Text:
                  motion=motion, plane=plane, control=np.unique(line[~simple]))
 
 
+def _line_feeds(T: _Text) -> np.ndarray:
+    """(n_lines,) the modal F word in force on each line (NaN before the first): what a feed move of
+    that line runs at (mm/min, or 1 / its time in minutes under G93)."""
+    return _ffill(T.feed[:, None], [math.nan])[:, 0]
+
+
+def _line_inverse_time(T: _Text) -> np.ndarray:
+    """(n_lines,) bool: G93 (inverse-time feed) in force on each line (G94 restores mm/min)."""
+    is_g = T.letter == ord("G")
+    g10 = np.rint(T.value * 10.0)
+    mode = np.full(T.n_lines, np.nan)
+    for code, val in ((930, 1.0), (940, 0.0)):
+        m = is_g & (g10 == code)
+        mode[T.line[m]] = val
+    return _ffill(mode[:, None], [0.0])[:, 0] > 0.5
+
+
 def _ffill(rows: np.ndarray, init) -> np.ndarray:
     """Modal fill: each NaN of ``rows`` (k,d) takes the last value above it, the first ones ``init`` (d,)."""
     full = np.vstack([np.asarray(init, dtype=np.float64).reshape(1, -1), rows])
@@ -442,7 +459,8 @@ class _Reader:
                              end_mm=np.ascontiguousarray(cols[4], dtype=np.float64),
                              axis=np.ascontiguousarray(cols[5], dtype=np.float64),
                              machine_mm=np.ascontiguousarray(cols[6], dtype=np.float64),
-                             rotary_deg=np.ascontiguousarray(cols[7], dtype=np.float64), notes=list(self.notes))
+                             rotary_deg=np.ascontiguousarray(cols[7], dtype=np.float64), notes=list(self.notes),
+                             line_feed=_line_feeds(self.t), line_inverse_time=_line_inverse_time(self.t))
 
     # ---- plain motion (whole arrays)
 

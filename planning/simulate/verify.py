@@ -103,19 +103,48 @@ def tool_shapes(config, tool: ToolAssembly) -> dict:
                                                       config.tool.stickout_mm)}
 
 
-def _feed_for(config, tool_number: int) -> float:
-    post = config.post
-    return post.roughing_feed_mm_min if tool_number == post.roughing_tool_number else post.feed_mm_min
+def move_minutes(motion: ProgramMotion, config) -> np.ndarray:
+    """(P,) minutes each move of ``motion`` takes as the control runs it, without acceleration: a rapid at
+    ``post.rapid_mm_min``; a feed move at the F word in force on its program line (mm/min), or under G93
+    (inverse time) the line's 1/F minutes shared among the chords the reader split it into, by length.
+    Where the reader gave no F (``line_feed`` None or NaN) a feed move runs at its tool's nominal feed
+    (``post.feed_mm_min``, ``post.roughing_feed_mm_min`` for the roughing tool)."""
+    length = np.linalg.norm(motion.end_mm - motion.start_mm, axis=1)
+    out = np.zeros(length.shape[0])
+    if not length.size:
+        return out
+    rapid = motion.kind == RAPID
+    out[rapid] = length[rapid] / config.post.rapid_mm_min
+    feed = ~rapid
+    nominal = np.where(motion.tool == config.post.roughing_tool_number, config.post.roughing_feed_mm_min,
+                       config.post.feed_mm_min).astype(np.float64)
+    if motion.line_feed is None:
+        out[feed] = length[feed] / np.maximum(nominal[feed], 1e-9)
+        return out
+    row = np.clip(motion.line - 1, 0, motion.line_feed.shape[0] - 1)
+    f = motion.line_feed[row]
+    inverse = np.zeros(length.shape[0], dtype=bool) if motion.line_inverse_time is None else \
+        motion.line_inverse_time[row]
+    known = feed & np.isfinite(f) & (f > 0)
+    per_mm = feed & known & ~inverse
+    out[per_mm] = length[per_mm] / f[per_mm]
+    inv = feed & known & inverse
+    if inv.any():                            # one program line's time, shared among its chords
+        line_len = np.bincount(row[inv], weights=length[inv], minlength=motion.line_feed.shape[0])
+        share = np.where(line_len[row[inv]] > 0, length[inv] / np.maximum(line_len[row[inv]], 1e-300), 0.0)
+        first = np.zeros(inv.sum(), dtype=bool)        # a zero-length line still takes its 1/F once
+        _, at = np.unique(row[inv], return_index=True)
+        first[at] = True
+        share = np.where(line_len[row[inv]] > 0, share, first.astype(np.float64))
+        out[inv] = share / f[inv]
+    rest = feed & ~known
+    out[rest] = length[rest] / np.maximum(nominal[rest], 1e-9)
+    return out
 
 
 def _machining_time_s(motion: ProgramMotion, config) -> float:
-    """Feed moves at the feed of their tool, rapids at ``post.rapid_mm_min`` (no acceleration), s."""
-    length = np.linalg.norm(motion.end_mm - motion.start_mm, axis=1)
-    rapid = motion.kind == RAPID
-    feeds = np.array([_feed_for(config, int(t)) for t in motion.tool]) if motion.n_moves else np.zeros(0)
-    t = float(length[rapid].sum()) / config.post.rapid_mm_min
-    t += float((length[~rapid] / np.maximum(feeds[~rapid], 1e-9)).sum())
-    return 60.0 * t
+    """The program's time as the control runs it (:func:`move_minutes`), s."""
+    return 60.0 * float(move_minutes(motion, config).sum())
 
 
 #: The chord tolerance the program reader splits arcs with (mm): a gouge is confirmed only deeper
@@ -143,11 +172,12 @@ AIR_MM3 = 1e-6
 def operation_figures(motion: ProgramMotion, removed_mm3: np.ndarray, config) -> list[OperationFigures]:
     """Per tool of ``motion`` (roughing first, then by T number): feed length, the part of it that removed no
     material (``removed_mm3`` per move below :data:`AIR_MM3`), rapid length, removed volume, machining time
-    (as :func:`_machining_time_s`) and straight plunges into material. Lengths mm, volumes mm^3, times s."""
+    (as :func:`move_minutes`: as the control runs them) and straight plunges into material. Lengths mm, volumes mm^3, times s."""
     out = []
     if motion.n_moves == 0:
         return out
     length = np.linalg.norm(motion.end_mm - motion.start_mm, axis=1)
+    minutes = move_minutes(motion, config)
     feed = motion.kind != RAPID
     rough = int(config.post.roughing_tool_number)
     tools = sorted({int(t) for t in np.unique(motion.tool)}, key=lambda t: (t != rough, t))
@@ -159,7 +189,7 @@ def operation_figures(motion: ProgramMotion, removed_mm3: np.ndarray, config) ->
         rapid_mm = float(length[mine & ~feed].sum())
         if feed_mm == 0.0 and rapid_mm == 0.0:     # T0 before the first tool change: nothing moves
             continue
-        time_s = 60.0 * (rapid_mm / config.post.rapid_mm_min + feed_mm / max(_feed_for(config, t), 1e-9))
+        time_s = 60.0 * float(minutes[mine].sum())
         out.append(OperationFigures(
             tool=t, operation="roughing" if t == rough else "finishing", feed_mm=round(feed_mm, 1),
             air_feed_mm=round(air_mm, 1), air_share=round(air_mm / feed_mm, 4) if feed_mm > 0 else 0.0,
@@ -206,6 +236,21 @@ def deviation_figures(dev: np.ndarray, limit_mm: float, gouge_mm: float,
         left_p50_mm=round(float(np.percentile(left, 50)), 4), left_p95_mm=round(float(np.percentile(left, 95)), 4),
         left_max_mm=round(float(left.max()), 4), gouge_max_mm=round(deepest, 4),
         n_gouged=int(gouged.sum()), n_suspected=int(suspected.sum()))
+
+
+def reported_deviation(dev: np.ndarray, dev_high: np.ndarray, exact: np.ndarray) -> np.ndarray:
+    """(N,) the deviation the plan reports and shows (mm, + material left, - cut below the scan), one
+    reading per point for the figures, the PLY, the PNG and the viewer alike: material left as read
+    (``dev``, interpolated); a cut only as far as the highest of the four rays reads it (``dev_high``: a
+    cut must show on all four; the interpolation dips between a sparse cloud's points); and where the
+    points read as cut were measured exactly (``exact``, depth inside a tool of a move that ran; NaN
+    where not measured), that depth: 0 when the point lies in no tool (the reading was an artefact)."""
+    out = np.asarray(dev, dtype=np.float64).copy()
+    neg = out < 0
+    out[neg] = np.minimum(np.maximum(out[neg], dev_high[neg]), 0.0)
+    m = np.isfinite(exact)
+    out[m] = np.where(exact[m] > 0, -exact[m], np.maximum(out[m], 0.0))
+    return out
 
 
 def _message(v: Verification) -> str:
@@ -354,8 +399,9 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
         from planning.simulate.gouge import penetration_mm
 
         say(len(names), 0.8, f"{suspect.size} points read below the scan: measured exactly")
-        exact[suspect] = penetration_mm(points[suspect], motions, tools)
+        exact[suspect] = penetration_mm(points[suspect], motions, tools, lambda f, m: say(len(names), 0.8 + 0.2 * f, m))
     exact_limit = fp.tolerance_mm + READER_CHORD_TOL_MM + 10.0 ** -config.post.decimals
+    dev = reported_deviation(dev, dev_high, exact)
     v.deviation = deviation_figures(dev, limit, gouge, dev_high, exact, exact_limit)
     for av in v.areas:
         mine = input_labels == av.area

@@ -1,8 +1,12 @@
 """The ``scanmill`` command line: plan a scan, write reference samples, print schemas and profiles, warm up.
 
-Exit status: 0 planned; 2 bad input or parameters (a message says what to fix); 3 planned but
+Exit status: 0 planned (and, when simulated, the programs verified safe and finishing at least
+``setups.coverage`` of the scan); 2 bad input or parameters (a message says what to fix); 3 planned but
 infeasible or incomplete (no ``setups.max_setups`` orientations reach ``setups.coverage``, or the
-search time limit ran out first; the best plan found is still written).
+search time limit ran out first; the best plan found is still written); 4 the verification failed (a
+program would harm the machine, the tool or the part); 5 status 'unfinished': the set-ups reach the
+coverage and the programs are safe, but they finish less than ``setups.coverage`` of the scan
+(plan.json ``figures``).
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ from pathlib import Path
 import scanmill
 from planning.errors import PlanningError
 
-EXIT_OK, EXIT_ERROR, EXIT_INFEASIBLE, EXIT_UNSAFE = 0, 2, 3, 4
+EXIT_OK, EXIT_ERROR, EXIT_INFEASIBLE, EXIT_UNSAFE, EXIT_UNFINISHED = 0, 2, 3, 4, 5
 
 
 class _Progress:
@@ -84,12 +88,11 @@ def _paths_table(result) -> str:
         if p.roughing is not None:
             left = (f" ({p.roughing.n_pieces_left} pieces, {p.roughing.left_length_mm / 1000:.1f} m, left to the "
                     f"levels below: no helix or ramp fits)" if p.roughing.n_pieces_left else "")
-            parts.append(f"roughing {p.roughing.n_levels} levels, {p.roughing.length_mm / 1000:.1f} m, "
-                         f"{p.roughing.machining_time_s / 60:.0f} min{left};")
+            parts.append(f"roughing {p.roughing.n_levels} levels, {p.roughing.length_mm / 1000:.1f} m{left};")
         if p.finishing is not None:
             f = p.finishing
             parts.append(f"finishing {f.n_passes} passes, {f.n_cl} moves ({f.n_arcs} arcs), "
-                         f"{f.length_mm / 1000:.1f} m, {f.machining_time_s / 60:.0f} min, min clearance "
+                         f"{f.length_mm / 1000:.1f} m, min clearance "
                          f"{f.min_clearance_mm:.4f} mm ({'gouge free' if f.gouge_free else 'GOUGES'});")
         parts.append(", ".join(list(p.programs.values()) + [m for m in (p.moves, p.moves_npz) if m]))
         out.append(" ".join(parts))
@@ -146,7 +149,8 @@ def cmd_plan(args) -> int:
             f"{r.input.facet_spacing_mm:g} mm apart)" if r.input.n_points_planned else "")
     print(f"sampled points {r.normals.n_sampled} of {planned}{mesh}; candidate axes "
           f"{r.orientations.n_machine_feasible} within machine travel; coverage {r.coverage:.1%}; "
-          f"overlap {r.overlap_points} points; integrated {r.n_integrated}")
+          f"overlap {r.overlap_points} sampled points; {r.n_integrated} sampled points seen by no chosen "
+          f"set-up attached to an area")
     if r.areas is not None:
         print(f"areas ({r.areas.method}): {r.areas.n_regions} regions, seams {r.areas.seam_mm:.0f} mm, "
               f"{r.areas.label_change_share:.1%} of neighbour pairs change area; regions (min) = regions "
@@ -161,9 +165,17 @@ def cmd_plan(args) -> int:
         print(f"warning: {w}")
     print("timings: " + ", ".join(f"{t.stage} {t.seconds:.2f} s" for t in r.timings))
     print(f"wrote {len(paths)} files into {args.out}: {', '.join(p.name for p in paths.values())}")
-    if r.status != "planned":
+    return exit_status(r)
+
+
+def exit_status(r) -> int:
+    """The exit status of a plan (module docstring): an unsafe verdict first, then infeasible or
+    incomplete, then unfinished."""
+    if r.verification is not None and r.verification.status == "failed":
+        return EXIT_UNSAFE
+    if r.status in ("infeasible", "incomplete"):
         return EXIT_INFEASIBLE
-    return EXIT_UNSAFE if r.verification is not None and r.verification.status == "failed" else EXIT_OK
+    return EXIT_UNFINISHED if r.status == "unfinished" else EXIT_OK
 
 
 def cmd_sample(args) -> int:

@@ -1,12 +1,12 @@
 """The machining summary of a plan, the same lines for ``scanmill plan`` and the ``make run`` demo.
 
 :func:`summary_lines` reads a plan.json document (a dict, as ``PlanResult.model_dump(mode="json")``
-or the service's ``GET /jobs/{id}/result`` gives it) and returns the lines to print: one row per
-area in machining order (roughing, finishing and total minutes), the total machining time (h:mm),
-the verification verdict with its message, and the share of the scan left unmachined. Fields a
-plan may lack (``machining_order``, ``unmachined``, ``path.finishing.unmachined_points``; any path,
-roughing or finishing that was not computed) are read with a default. Standard library only, so an
-HTTP client can use it.
+or the service's ``GET /jobs/{id}/result`` gives it) and returns the lines to print, every figure from
+plan.json ``figures`` (computed once by the planner, planning/report/figures.py): one row per area in
+machining order (roughing, finishing and total minutes; finished, left, unreached and not-covered input
+points), the machining time (h:mm, and whether simulated or estimated), the verification verdict with
+its message, and the shares of the whole scan. A plan.json without ``figures`` is summarised from its
+other fields, labelled as estimates. Standard library only, so an HTTP client can use it.
 """
 
 from __future__ import annotations
@@ -48,31 +48,85 @@ def _ordered_setups(plan: dict) -> list[dict]:
     return out
 
 
+def _count(v) -> str:
+    return "-" if v is None else f"{int(v):,}"
+
+
 def summary_lines(plan: dict) -> list[str]:
     """The machining summary of the plan.json document ``plan``, one string per line.
 
-    Rows: area, roughing and finishing machining time (min, one decimal; ``-`` when that path was
-    not computed), their total, and the points left unfinished by the area's finishing when the plan
-    reports them (``unmachined.per_area``, else ``path.finishing.unmachined_points``). Then
-    ``total machining time H:MM`` (the sum of the rows; the simulated time too when the programs
-    were simulated), per area and tool what the simulated machine does (feed length, its share in air,
-    plunges, volume removed, minutes; when the plan has ``verification.areas[].operations``), ``verification: STATUS - message`` (a failed verdict lists its offences one
-    per line), and the unmachined share: ``unmachined.share`` when the plan has it, else
-    1 - ``verification.deviation.finished_share`` (not finished within tolerance, simulation).
+    With plan.json ``figures`` (the plan's figures, computed once: planning/report/figures.py): one row per
+    area in machining order with its roughing, finishing and total minutes (simulated, or the paths'
+    estimate when the programs were not simulated: the header says which) and its input points by what
+    became of them (finished, left, unreached, not covered); then ``machining time H:MM``, per area and
+    tool what the simulated machine does (``verification.areas[].operations``), ``verification: STATUS -
+    message``, and one line with the shares of the whole scan. Without ``figures`` (a plan.json of an
+    older scanmill) the rows come from the paths' estimates and ``unmachined``, as that version printed.
     """
+    f = plan.get("figures") if isinstance(plan.get("figures"), dict) else None
+    if f is None:
+        return _legacy_lines(plan)
+    source = f.get("time_source", "none")
+    head = ["area", "roughing min", "finishing min", "total min", "finished", "left", "unreached", "not covered"]
+    rows = []
+    for a in f.get("areas") or []:
+        rows.append([str(a.get("area")), _minutes(a.get("roughing_time_s")), _minutes(a.get("finishing_time_s")),
+                     _minutes(a.get("machining_time_s")), _count(a.get("finished")), _count(a.get("left")),
+                     _count(a.get("unreached")), _count(a.get("not_covered"))])
+    widths = [max(len(r[c]) for r in [head] + rows) for c in range(len(head))]
+    what = {"simulated": "simulated: the programs as the control runs them",
+            "estimate": "ESTIMATE from the tool paths: the programs were not simulated"}.get(source, "no paths")
+    lines = [f"machining summary (areas in machining order; minutes {what}; points: input points):"]
+    lines.append("  " + "  ".join(h.rjust(w) if c else h.ljust(w) for c, (h, w) in enumerate(zip(head, widths))))
+    for r in rows:
+        lines.append("  " + "  ".join(v.rjust(w) if c else v.ljust(w) for c, (v, w) in enumerate(zip(r, widths))))
+    t = f.get("machining_time_s") or 0.0
+    lines.append(f"machining time {_hmm(t)} ({t / 60.0:.1f} min, {source})")
+    v = plan.get("verification") if isinstance(plan.get("verification"), dict) else None
+    lines += _operation_lines(v)
+    lines += _verdict_lines(v)
+    lines.append(figures_line(f))
+    return lines
+
+
+def figures_line(f: dict) -> str:
+    """One line: the shares of the scan's input points by class (plan.json ``figures``)."""
+    n = f.get("n_points") or 0
+    parts = []
+    if f.get("measured"):
+        parts.append(f"finished within tolerance {f.get('finished_share', 0.0):.1%}")
+        parts.append(f"reached but not within tolerance {f.get('left_share', 0.0):.1%}")
+    parts.append(f"reached by no kept finishing move {f.get('unreached_share', 0.0):.1%}")
+    parts.append(f"seen by no chosen set-up {f.get('not_covered_share', 0.0):.1%}")
+    target = f.get("target_coverage")
+    return (f"scan ({int(n):,} input points): " + ", ".join(parts)
+            + (f"; target {target:.0%}" if target is not None else "")
+            + ("" if f.get("measured") else " (not simulated: the finish was not measured)"))
+
+
+def _verdict_lines(v: dict | None) -> list[str]:
+    if v is None:
+        return ["verification: not run"]
+    status = v.get("status")
+    message = (v.get("message") or "").strip()
+    if status == "failed" and "; " in message:
+        return ["verification: FAILED"] + [f"  - {part}" for part in message.split("; ")]
+    return [f"verification: {str(status).upper()}" + (f" - {message}" if message else "")]
+
+
+def _legacy_lines(plan: dict) -> list[str]:
+    """The summary of a plan.json without ``figures`` (scanmill before issue 34)."""
     setups = _ordered_setups(plan)
     per_area = _get(plan, "unmachined", "per_area")
     per_area = {str(k): v for k, v in per_area.items()} if isinstance(per_area, dict) else None
 
     def unfinished(s, i):
-        """Points of the area no kept finishing move reaches: plan-level ``unmachined.per_area`` (areas
-        absent there have none), else the set-up's ``path.finishing.unmachined_points``, else None."""
         if per_area is not None:
             return per_area.get(str(s.get("id", i)), 0)
         return _get(s, "path", "finishing", "unmachined_points")
 
     show_left = per_area is not None or any(unfinished(s, i) is not None for i, s in enumerate(setups))
-    head = ["area", "roughing min", "finishing min", "total min"] + (["unfinished pts"] if show_left else [])
+    head = ["area", "roughing min", "finishing min", "total min"] + (["unreached pts"] if show_left else [])
     rows, total_s = [], 0.0
     for i, s in enumerate(setups):
         rough = _get(s, "path", "roughing", "machining_time_s")
@@ -85,41 +139,22 @@ def summary_lines(plan: dict) -> list[str]:
             row.append("-" if left is None else f"{int(left):,}")
         rows.append(row)
     widths = [max(len(r[c]) for r in [head] + rows) for c in range(len(head))]
-    lines = ["machining summary (areas in machining order):"]
+    lines = ["machining summary (areas in machining order; minutes: estimate from the tool paths):"]
     lines.append("  " + "  ".join(h.rjust(w) if c else h.ljust(w) for c, (h, w) in enumerate(zip(head, widths))))
     for r in rows:
         lines.append("  " + "  ".join(v.rjust(w) if c else v.ljust(w) for c, (v, w) in enumerate(zip(r, widths))))
-
     v = plan.get("verification") if isinstance(plan.get("verification"), dict) else None
-    status = (v or {}).get("status")
-    total = f"total machining time {_hmm(total_s)} ({total_s / 60.0:.1f} min)"
-    sim_s = (v or {}).get("machining_time_s")
-    if status in ("passed", "failed") and sim_s:
-        total += f"; simulated {_hmm(sim_s)}"
-    lines.append(total)
+    lines.append(f"machining time (estimate) {_hmm(total_s)} ({total_s / 60.0:.1f} min)")
     lines += _operation_lines(v)
-
-    if v is None:
-        lines.append("verification: not run")
-    else:
-        message = (v.get("message") or "").strip()
-        if status == "failed" and "; " in message:
-            lines.append("verification: FAILED")
-            lines += [f"  - {part}" for part in message.split("; ")]
-        else:
-            lines.append(f"verification: {str(status).upper()}" + (f" - {message}" if message else ""))
-
+    lines += _verdict_lines(v)
     un = plan.get("unmachined") if isinstance(plan.get("unmachined"), dict) else None
     finished = _get(v or {}, "deviation", "finished_share")
     if un is not None and un.get("share") is not None:
         n = un.get("n_points")
-        lines.append(f"unmachined: {un['share']:.1%} of the scan points"
+        lines.append(f"unreached: {un['share']:.1%} of the scan points"
                      + (f" ({int(n):,})" if n is not None else "") + " reached by no kept finishing move")
-    elif finished is not None:
-        lines.append(f"unmachined: {1.0 - finished:.1%} of the scan points not finished within tolerance "
-                     f"(simulation)")
-    else:
-        lines.append("unmachined: unknown (no finishing coverage in the plan and no simulation)")
+    if finished is not None:
+        lines.append(f"finished within tolerance: {finished:.1%} of the scan points (simulation)")
     return lines
 
 

@@ -56,8 +56,14 @@ class JobInput(_Model):
 class JobResultSummary(_Model):
     """The headline of a finished plan; the whole plan is at ``links.result``."""
 
-    status: str = Field(..., description="plan.json 'status': 'planned', 'infeasible' or 'incomplete'.", examples=["planned"])
+    status: str = Field(..., description="plan.json 'status': 'planned', 'unfinished', 'infeasible' or 'incomplete'.",
+                        examples=["planned"])
     message: str = Field(..., description="plan.json 'message': one sentence for the operator.")
+    finished_share: float | None = Field(
+        None, ge=0, le=1, description="plan.json 'figures.finished_share': the share of the scan's input points the "
+                                      "simulated programs finish within tolerance (null: not simulated).")
+    machining_time_s: float | None = Field(None, ge=0, description="plan.json 'figures.machining_time_s', s.")
+    time_source: str | None = Field(None, description="plan.json 'figures.time_source': 'simulated' or 'estimate'.")
     n_setups: int = Field(..., ge=0, description="Number of set-ups (fixed tool orientations).")
     coverage: float = Field(..., ge=0, le=1, description="Fraction of sampled points the set-ups see.")
     overlap_points: int = Field(..., ge=0, description="Sampled points seen by two or more chosen set-ups.")

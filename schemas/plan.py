@@ -158,7 +158,9 @@ class FinishingSummary(_Out):
         ..., description="CL points where the cutter above the ball, the shank or the holder meets a cloud point.")
     fixture_collisions: int = Field(
         ..., description="CL points where the tool assembly meets a fixture or the table.")
-    machining_time_s: float = Field(..., description="At the post's feeds and rapid rate, no acceleration, s.")
+    machining_time_s: float = Field(..., description="ESTIMATE from the tool path before posting: at the post's "
+                                                    "feeds and rapid rate, no acceleration, s (the time to plan "
+                                                    "on is figures.machining_time_s).")
     blocked_cl: dict[str, int] = Field(
         default_factory=dict, description="CL points cut out of the passes before reduction, per reason: 'cloud' "
                                           "(cutter above the ball, shank or holder meets the scan), 'stock' (shank or "
@@ -186,7 +188,8 @@ class RoughingSummary(_Out):
                          "stock allowance); null when no cloud point comes within a tool radius of the path.")
     stock_box_mm: tuple[tuple[float, float, float], tuple[float, float, float]] = Field(
         ..., description="Stock box (min corner, max corner) in the area frame, mm.")
-    machining_time_s: float
+    machining_time_s: float = Field(..., description="ESTIMATE from the tool path before posting, s (the time to "
+                                                     "plan on is figures.machining_time_s).")
     rest: bool = Field(False, description="Rest roughing: only the material the set-ups before left was cut.")
     allowance_left_mm: dict[str, float] | None = Field(
         None, description="The stock over the area's scan points when its finishing starts (after this roughing "
@@ -357,7 +360,7 @@ class OperationFigures(_Out):
     air_share: float = Field(..., description="air_feed_mm / feed_mm (0 without feed moves).")
     rapid_mm: float = Field(..., description="Length of the rapids (G0), mm.")
     removed_mm3: float = Field(..., description="Material these moves removed from the carried stock, mm^3.")
-    machining_time_s: float = Field(..., description="Feed moves at the tool's programmed feed, rapids at "
+    machining_time_s: float = Field(..., description="Feed moves at their program lines' F words, rapids at "
                                                      "post.rapid_mm_min, s.")
     plunges_into_material: int = Field(0, description="Feed moves within 10 degrees of straight down the tool "
                                                       "axis that removed material (roughing end mill only).")
@@ -370,7 +373,9 @@ class AreaVerification(_Out):
     program: str
     n_moves: int
     removed_mm3: float
-    machining_time_s: float = Field(..., description="Feed moves at the programmed feeds, rapids at post.rapid_mm_min, s.")
+    machining_time_s: float = Field(..., description="The program as the control runs it: feed moves at their "
+                                                    "lines' F words (G93 inverse time included), rapids at "
+                                                    "post.rapid_mm_min, no acceleration, s.")
     rapids_into_material: int
     holder_collisions: int
     fixture_collisions: int
@@ -421,6 +426,58 @@ class UnmachinedSummary(_Out):
     share: float = Field(..., description="n_points / input points.")
     per_area: dict[int, int] = Field(default_factory=dict, description="Unmachined points per area.")
     message: str = Field("", description="Why, in one sentence.")
+
+
+class AreaFigures(_Out):
+    """One area's share of :class:`PlanFigures`: its input points by what became of them, and its time."""
+
+    area: int = Field(..., description="Area (set-up) id.")
+    n_points: int = Field(..., description="Input points of the area (the scan's points labelled with it).")
+    finished: int | None = Field(None, description="Of those, finished within tolerance (simulation; null: not "
+                                                   "simulated).")
+    left: int | None = Field(None, description="Reached by a kept finishing move but not finished within "
+                                               "tolerance (material left or cut below; null: not simulated).")
+    unreached: int = Field(0, description="Not finished and reached by no kept finishing move (cut out for the "
+                                          "holder, the stock, a fixture or the travel).")
+    not_covered: int = Field(0, description="Not finished and seen by no chosen orientation (attached to the area "
+                                            "by distance; no finishing is planned for them on purpose).")
+    roughing_time_s: float | None = Field(None, description="Roughing machining time, s (see "
+                                                            "PlanFigures.time_source).")
+    finishing_time_s: float | None = Field(None, description="Finishing machining time, s.")
+    machining_time_s: float = Field(0.0, description="The area's whole program, s.")
+
+
+class PlanFigures(_Out):
+    """The plan's figures, computed once (planning/report/figures.py) and read by the CLI summary, the plan's
+    message, the service result, the pictures and the viewer. Every count is of INPUT points (the scan's
+    points, or the points laid on a mesh's facets), not of the sampled points the set-ups were chosen on;
+    each input point is in exactly one of finished, left, unreached, not_covered (checked in that order
+    after finished: a point both unreached and not covered counts as not covered)."""
+
+    counted_on: Literal["input points"] = "input points"
+    n_points: int = Field(..., description="Input points.")
+    measured: bool = Field(..., description="True when the finish was measured on the simulated stock "
+                                            "(simulate.enabled); else finished and left are null.")
+    finished: int | None = Field(None, description="Points within paths.finishing.tolerance_mm + scallop_mm (+ the "
+                                                   "measuring bound) of the simulated final surface.")
+    finished_share: float | None = Field(None, description="finished / n_points.")
+    left: int | None = Field(None, description="Points reached by a kept finishing move, not finished within "
+                                               "tolerance.")
+    left_share: float | None = None
+    unreached: int = Field(0, description="Points no kept finishing move reaches (not finished).")
+    unreached_share: float = 0.0
+    not_covered: int = Field(0, description="Points seen by no chosen orientation (not finished).")
+    not_covered_share: float = 0.0
+    target_coverage: float = Field(..., description="setups.coverage: the share the plan was asked to finish.")
+    machining_time_s: float = Field(0.0, description="Whole plan, s: the programs as the control runs them when "
+                                                     "simulated (each feed move at its program's F word, G93 "
+                                                     "inverse time included, rapids at post.rapid_mm_min, no "
+                                                     "acceleration), else the paths' estimate.")
+    time_source: Literal["simulated", "estimate", "none"] = Field(
+        "none", description="'simulated': machining_time_s from the posted programs as read back; 'estimate': from "
+                            "the tool paths before posting (no tool changes or moves to the machine's Z0); 'none': "
+                            "no paths.")
+    areas: list[AreaFigures] = Field(default_factory=list, description="Per area, in machining order.")
 
 
 Vec3Out = tuple[float, float, float]
@@ -493,10 +550,14 @@ class PlanResult(_Out):
 
     schema_version: Literal["1.0"] = SCHEMA_VERSION
     scanmill_version: str
-    status: Literal["planned", "infeasible", "incomplete"] = Field(
-        ..., description="'infeasible': the coverage cannot be reached with max_setups; 'incomplete': the search "
-                         "time limit ran out before the coverage was reached or ruled out. In both cases the best "
-                         "set-ups found are still reported and segmented.")
+    status: Literal["planned", "unfinished", "infeasible", "incomplete"] = Field(
+        ..., description="'planned': the set-ups reach setups.coverage and, when simulated, the programs finish at "
+                         "least that share of the scan (figures.finished_share); 'unfinished': the set-ups reach "
+                         "the coverage but the simulated programs finish less of the scan (CLI exit status 5); "
+                         "'infeasible': the coverage cannot be reached with max_setups; 'incomplete': the search "
+                         "time limit ran out before the coverage was reached or ruled out. In the last two the "
+                         "best set-ups found are still reported and segmented. Whether the programs are safe is "
+                         "verification.status.")
     message: str = Field(..., description="One sentence for the operator.")
     input: InputSummary
     parameters: PlanConfig
@@ -515,6 +576,9 @@ class PlanResult(_Out):
                                           "stock is carried in this order; the programs run in it).")
     unmachined: UnmachinedSummary | None = Field(
         None, description="Scan points that no kept finishing move reaches (cut out for collisions or travel).")
+    figures: PlanFigures | None = Field(
+        None, description="The plan's figures, once: finished, left, unreached, not covered (input points) and "
+                          "the machining time; every other report reads these.")
     placement: PlacementSummary | None = Field(
         None, description="How the part sits on the table (fixtures.placement) and, with 'auto', the placements tried.")
     paths_surface: PathsSurface | None = Field(

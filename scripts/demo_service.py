@@ -164,8 +164,7 @@ def run(args) -> int:
             path = s.get("path") or {}
             rough = path.get("roughing")
             if rough:
-                print(f"    roughing: {rough['n_levels']} levels, {rough['length_mm'] / 1000:.1f} m, "
-                      f"{rough['machining_time_s'] / 60:.0f} min")
+                print(f"    roughing: {rough['n_levels']} levels, {rough['length_mm'] / 1000:.1f} m")
             fin = path.get("finishing")
             if fin:
                 print(f"    finishing: {fin['n_passes']} passes, {fin['n_cl']} moves ({fin['n_arcs']} arcs), "
@@ -177,14 +176,29 @@ def run(args) -> int:
         for w in plan["warnings"]:
             print(f"  warning: {w}")
         print(f"results: {out_dir}/ ({', '.join(sorted(p.name for p in out_dir.iterdir()))})")
-        print(f"job: {url}/jobs/{job['id']} (kept in {Path(args.data_dir).resolve()})")
+        print(_kept_line(url, job["id"], Path(args.data_dir)))
         if (out_dir / "viewer.json").is_file():
             print(f"see it in 3D: {Path(sys.executable).parent / 'scanmill'} view {out_dir}   (or, with the service "
                   f"running, {url}/jobs/{job['id']}/viewer)")
-        return 0 if plan["status"] == "planned" else 3
+        # the exit status of `scanmill plan` (scanmill/cli.py): 4 unsafe, 3 infeasible, 5 unfinished
+        if (plan.get("verification") or {}).get("status") == "failed":
+            return 4
+        return {"planned": 0, "unfinished": 5}.get(plan["status"], 3)
     finally:
         _say(t0, "stopping the service")
         stop_server(proc)
+
+
+def _kept_line(url: str, job_id: str, data_dir: Path) -> str:
+    """Where the demo's jobs are kept, how much they take and how to remove them: each `make run` adds one."""
+    data = data_dir.resolve()
+    files = [f for f in data.rglob("*") if f.is_file()]
+    size_mb = sum(f.stat().st_size for f in files) / 1e6
+    jobs = data / "jobs"
+    n = sum(1 for d in jobs.iterdir() if d.is_dir()) if jobs.is_dir() else None
+    count = f"{n} job{'s' if n != 1 else ''}, " if n is not None else ""
+    return (f"job: {url}/jobs/{job_id} (kept in {data}: {count}{size_mb:.0f} MB; each `make run` adds one; "
+            f"remove them with `rm -rf {data}`)")
 
 
 def _print_verification(plan: dict) -> None:
@@ -197,7 +211,7 @@ def _print_verification(plan: dict) -> None:
     for a in v.get("areas", []):
         print(f"    {a['program']}: {a['travel_excursions']} beyond travel, {a['rapids_into_material']} rapids into "
               f"material, {a['holder_collisions']} holder contacts, {a['fixture_collisions']} fixture contacts, "
-              f"{a['machining_time_s'] / 60:.0f} min simulated")
+              f"{a['machining_time_s'] / 60:.1f} min simulated")
     if v["status"] == "failed":
         print("    do not run these programs as they are: see deviation.png and plan.json verification.worst")
 

@@ -104,7 +104,10 @@ def plan_summary(r: PlanResult) -> dict[str, Any]:
     return {"status": r.status, "message": r.message, "n_setups": len(r.setups),
             "coverage": float(r.coverage), "overlap_points": int(r.overlap_points),
             "verification": v.status if v is not None else None,
-            "verification_message": v.message if v is not None else None}
+            "verification_message": v.message if v is not None else None,
+            "finished_share": r.figures.finished_share if r.figures is not None else None,
+            "machining_time_s": r.figures.machining_time_s if r.figures is not None else None,
+            "time_source": r.figures.time_source if r.figures is not None else None}
 
 
 def read_job_cloud(path: str | os.PathLike, fmt: str | None, config: PlanConfig, max_points: int) -> Cloud:

@@ -7,11 +7,25 @@ import numpy as np
 import pytest
 
 from planning.inputs.cloud import read_cloud
-from scanmill.cli import EXIT_ERROR, EXIT_INFEASIBLE, EXIT_OK, EXIT_UNSAFE, main
+from scanmill.cli import EXIT_ERROR, EXIT_INFEASIBLE, EXIT_OK, EXIT_UNFINISHED, EXIT_UNSAFE, main
 from schemas.plan import plan_json_schema
 
 HS = ["--set", "normals.method=\"input\"", "--set", "setups.max_setups=2", "--set", "tool.diameter_mm=10",
       "--set", "paths.finishing.scallop_mm=0.2", "--set", "paths.roughing.step_down_mm=5"]
+
+
+def expected_exit(doc: dict) -> int:
+    """The exit status plan.json calls for (scanmill/cli.py): 4 unsafe, 3 infeasible or incomplete,
+    5 unfinished (the programs finish less than setups.coverage of the scan), else 0."""
+    if doc["verification"]["status"] == "failed":
+        return EXIT_UNSAFE
+    if doc["status"] in ("infeasible", "incomplete"):
+        return EXIT_INFEASIBLE
+    if doc["status"] == "unfinished":
+        assert doc["figures"]["finished_share"] < doc["parameters"]["setups"]["coverage"]
+        return EXIT_UNFINISHED
+    assert doc["figures"]["finished_share"] >= doc["parameters"]["setups"]["coverage"]
+    return EXIT_OK
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +69,7 @@ def test_plan_writes_the_contract(half_sphere_ply, tmp_path, capsys):
             assert (out / name).is_file()
     assert {"paths", "post"} <= {t["stage"] for t in doc["timings"]}
     # the verdict of the simulated machine sets the exit status and is printed
-    assert code == (EXIT_OK if doc["verification"]["status"] == "passed" else EXIT_UNSAFE)
+    assert code == expected_exit(doc)
     assert f"verification: {doc['verification']['status'].upper()}" in text.out
 
 
@@ -131,7 +145,7 @@ def test_plan_with_a_mesh_fixture_next_to_the_config(half_sphere_ply, tmp_path, 
     out = tmp_path / "plan"
     code = main(["plan", str(half_sphere_ply), "--config", str(cfg_dir / "config.json"), "--out", str(out), *HS])
     doc = json.loads((out / "plan.json").read_text())
-    assert code == (EXIT_OK if doc["verification"]["status"] == "passed" else EXIT_UNSAFE)
+    assert code == expected_exit(doc)
     assert "clamp" not in " ".join(doc["verification"]["notes"])      # the clamp was simulated as a solid
     assert doc["visibility"]["removed_total"]["fixture_collision"] > 0
     # a missing mesh is a clear error, and nothing is written

@@ -1,10 +1,11 @@
 """The machining summary (scanmill/summary.py) that `scanmill plan` and the `make run` demo print: rows per
-area in machining order, total time, verdict, unmachined share; from plan.json with or without its newer fields."""
+area in machining order, the machining time, verdict, the scan's shares; from plan.json ``figures`` (issue 34),
+and from an older plan.json without them (labelled as estimates)."""
 
 import copy
 import json
 
-from scanmill.cli import EXIT_INFEASIBLE, EXIT_OK, EXIT_UNSAFE, main
+from scanmill.cli import EXIT_INFEASIBLE, EXIT_OK, EXIT_UNFINISHED, EXIT_UNSAFE, main
 from scanmill.summary import format_summary, summary_lines
 
 
@@ -41,9 +42,10 @@ def test_rows_total_verdict_and_share_from_the_simulation():
     assert head == ["area", "roughing", "min", "finishing", "min", "total", "min"]
     assert rows == [["0", "10.0", "30.0", "40.0"], ["1", "-", "15.5", "15.5"]]     # roughing null: "-"
     text = "\n".join(lines)
-    assert "total machining time 0:56 (55.5 min); simulated 0:58" in text
+    assert "machining time (estimate) 0:56 (55.5 min)" in text
+    assert "simulated" not in text                                # one time, labelled: no second figure
     assert "verification: PASSED - no collision, rapid into material, travel excursion or gouge" in text
-    assert "unmachined: 6.2% of the scan points not finished within tolerance (simulation)" in text
+    assert "finished within tolerance: 93.8% of the scan points (simulation)" in text
     assert format_summary(OLD_PLAN) == text
     assert len(lines) == 7                                        # compact: title, header, 2 rows, 3 lines
 
@@ -55,13 +57,12 @@ def test_machining_order_and_new_unmachined_fields():
     plan["machining_order"] = [2, 0, 1]
     plan["unmachined"] = {"n_points": 1246, "share": 0.0123, "per_area": {"0": 12, "2": 1234}}
     head, rows = _rows(summary_lines(plan))
-    assert head[-2:] == ["unfinished", "pts"]
+    assert head[-2:] == ["unreached", "pts"]
     assert rows == [["2", "1.0", "66.7", "67.7", "1,234"], ["0", "10.0", "30.0", "40.0", "12"],
                     ["1", "-", "15.5", "15.5", "0"]]
     text = format_summary(plan)
-    assert "total machining time 2:03 (123.2 min)" in text
-    assert "unmachined: 1.2% of the scan points (1,246) reached by no kept finishing move" in text
-    assert "(simulation)" not in text                             # the plan's own figure wins
+    assert "machining time (estimate) 2:03 (123.2 min)" in text
+    assert "unreached: 1.2% of the scan points (1,246) reached by no kept finishing move" in text
     # the per-area counts of the plan-level figure win over the set-ups' own (absent: none)
     plan["unmachined"]["per_area"] = {"0": 5, "1": 7}
     _, rows = _rows(summary_lines(plan))
@@ -87,9 +88,9 @@ def test_skipped_verification_no_paths_and_failed_verdict():
     _, rows = _rows(lines)
     assert rows[-1] == ["2", "-", "-", "-"]
     text = "\n".join(lines)
-    assert "total machining time 0:56 (55.5 min)" in text and "simulated" not in text
+    assert "machining time (estimate) 0:56 (55.5 min)" in text and "simulated" not in text
     assert "verification: SKIPPED - simulate.enabled is false" in text
-    assert "unmachined: unknown" in text
+    assert "finished within tolerance" not in text
     plan["verification"] = None
     assert "verification: not run" in format_summary(plan)
     plan["verification"] = dict(OLD_PLAN["verification"], status="failed",
@@ -100,7 +101,7 @@ def test_skipped_verification_no_paths_and_failed_verdict():
 
 def test_empty_plan_does_not_break():
     text = format_summary({"setups": []})
-    assert "total machining time 0:00 (0.0 min)" in text and "verification: not run" in text
+    assert "machining time (estimate) 0:00 (0.0 min)" in text and "verification: not run" in text
 
 
 # A tiny plan through the command line, paths and simulation on: the half sphere with few points.
@@ -116,15 +117,35 @@ def test_cli_plan_prints_the_summary(tmp_path, capsys):
     out = tmp_path / "plan"
     code = main(["plan", str(ply), "--out", str(out), *TINY])
     text = capsys.readouterr().out
-    assert code in (EXIT_OK, EXIT_UNSAFE, EXIT_INFEASIBLE)
     doc = json.loads((out / "plan.json").read_text())
+    assert code == {"planned": EXIT_OK, "unfinished": EXIT_UNFINISHED}.get(doc["status"], EXIT_INFEASIBLE) or \
+        (code == EXIT_UNSAFE and doc["verification"]["status"] == "failed")
     for line in summary_lines(doc):                                # the same lines, from the written plan.json
         assert line in text
-    assert "machining summary (areas in machining order):" in text
-    assert "total machining time" in text and "unmachined:" in text
+    assert "machining summary (areas in machining order; minutes simulated" in text
+    f = doc["figures"]
     _, rows = _rows(summary_lines(doc))
-    assert len(rows) == len(doc["setups"])
-    for row in rows:
-        s = next(s for s in doc["setups"] if str(s["id"]) == row[0])
-        assert row[2] == f"{s['path']['finishing']['machining_time_s'] / 60:.1f}"
+    assert len(rows) == len(doc["setups"]) == len(f["areas"])
+    sim = {a["area"]: a for a in doc["verification"]["areas"]}
+    for row, fa in zip(rows, f["areas"]):
+        assert row[0] == str(fa["area"])
+        # the simulated minutes of the area's program, not the paths' estimate
+        assert row[3] == f"{sim[fa['area']]['machining_time_s'] / 60:.1f}"
+        assert [int(c.replace(",", "")) for c in row[4:8]] == [fa["finished"], fa["left"], fa["unreached"],
+                                                              fa["not_covered"]]
     assert f"verification: {doc['verification']['status'].upper()}" in text
+    assert text.count("machining time") == 1                       # one time, not an estimate beside it
+
+
+def test_make_run_says_where_its_jobs_are_kept_and_how_to_remove_them(tmp_path, monkeypatch):
+    import sys
+    from pathlib import Path
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "scripts"))
+    from demo_service import _kept_line
+    for j in ("a1", "b2"):
+        (tmp_path / "jobs" / j).mkdir(parents=True)
+        (tmp_path / "jobs" / j / "cloud.ply").write_bytes(b"x" * 1_500_000)
+    line = _kept_line("http://127.0.0.1:1", "b2", tmp_path)
+    assert f"kept in {tmp_path.resolve()}: 2 jobs, 3 MB" in line
+    assert f"rm -rf {tmp_path.resolve()}" in line and "each `make run` adds one" in line
+    assert "demo_service" in sys.modules

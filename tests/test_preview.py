@@ -179,12 +179,12 @@ def test_legend_gives_each_setups_machine_angles(tmp_path):
     fig = preview._build_figure(pts, labels, axes, integrated=integrated, angles=angles, dpi=40)
     texts = [t.get_text() for t in fig.legends[0].get_texts()]
     n2 = int(np.sum(labels == 2))
-    assert texts[2] == f"area 2: C -120.000° B 36.870°, axis (0.000, -0.600, 0.800), {n2:,} pts"
+    assert texts[2] == f"area 2: C -120.000° B 36.870°, axis (0.000, -0.600, 0.800), {n2:,} input pts"
     assert texts[1].startswith("area 1: B 90.000° C -90.000°, axis (1.000, 0.000, 0.000), ")
     assert texts[0].startswith("area 0: B 0.000° C 0.000°, axis")
     plain = preview._build_figure(pts, labels, axes, integrated=integrated, dpi=40)
     plain_texts = [t.get_text() for t in plain.legends[0].get_texts()]
-    assert plain_texts[2] == f"area 2: axis (0.000, -0.600, 0.800), {n2:,} pts"
+    assert plain_texts[2] == f"area 2: axis (0.000, -0.600, 0.800), {n2:,} input pts"
     assert not any("°" in t for t in plain_texts)
     render_preview(tmp_path / "a.png", pts, labels, axes, integrated=integrated, angles=angles,
                    dpi=40)
@@ -299,3 +299,20 @@ def test_the_point_nearest_the_viewer_wins_its_pixel(tmp_path, upper_first):
             point = (*corner, 10.0)
             assert color_near(rgb, fig, ax, view, point, colors[0], reach=0), (view.name, corner)
             assert not color_near(rgb, fig, ax, view, point, colors[1], reach=3), view.name
+
+
+def test_a_long_title_wraps_inside_the_picture():
+    """Issue 34: the plan's message as the title ran off both sides of preview.png."""
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(500, 3)) * 20
+    labels = (pts[:, 0] > 0).astype(int)
+    axes = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    message = ("no 5 set-ups reach 95 % coverage; the best 5 set-ups cover 93.9 %: fixtures.placement=auto reaches "
+               "it with the part principal axis 1 down, scan direction (+1.00, -0.04, +0.02) down: 5 set-ups cover "
+               "95.0 %; run: scanmill plan part.ply --out plan/ --set fixtures.placement=auto ") * 2
+    fig = preview._build_figure(pts, labels, axes, title=message, dpi=60)
+    fig.canvas.draw()
+    box = fig.texts[0].get_window_extent(fig.canvas.get_renderer())
+    assert box.x0 >= 0 and box.x1 <= fig.bbox.width and box.y1 <= fig.bbox.height
+    words = fig.texts[0].get_text().split()
+    assert words[:6] == message.split()[:6] and len(fig.texts[0].get_text().splitlines()) <= 4

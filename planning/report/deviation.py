@@ -13,18 +13,32 @@ from planning.report.files import atomic_path
 PNG_MAX_POINTS = 120_000
 
 
+#: The one colour convention for deviation (issue 34), used by the PLY, the PNG and the viewer
+#: (viewer.json ``deviation.colors``): green within the finishing limit, blue for material left
+#: (saturated at +10 x the limit), red for a cut below the scan (saturated at -10 x the limit),
+#: grey where not measured. RGB 0-255.
+DEVIATION_COLORS = {"within": (60, 170, 75), "left": (30, 80, 220), "cut": (220, 30, 30),
+                    "unmeasured": (128, 128, 128)}
+#: Where the ramps saturate, in limits.
+DEVIATION_SATURATION = 10.0
+
+
 def deviation_colors(dev: np.ndarray, limit_mm: float) -> np.ndarray:
-    """(N,3) uint8: blue where material is left (dev > 0), red where cut below the scan (dev < 0),
-    white within ``limit_mm``, saturated at 10 x ``limit_mm``; grey where not measured (NaN)."""
+    """(N,3) uint8 by :data:`DEVIATION_COLORS`: green within ``limit_mm`` on both sides; beyond it a
+    ramp from a light tint of the colour to blue where material is left (dev > 0) or red where cut
+    below the scan (dev < 0), saturated at :data:`DEVIATION_SATURATION` x ``limit_mm``; grey where
+    not measured (NaN)."""
     dev = np.asarray(dev, dtype=np.float64)
-    scale = max(10.0 * limit_mm, 1e-9)
-    t = np.clip(np.nan_to_num(dev, nan=0.0) / scale, -1.0, 1.0)
-    t = np.where(np.abs(dev) <= limit_mm, 0.0, t)
-    white = np.array([255.0, 255.0, 255.0])
-    blue, red = np.array([30.0, 80.0, 220.0]), np.array([220.0, 30.0, 30.0])
-    a = np.abs(t)[:, None]
-    col = np.where((t > 0)[:, None], (1 - a) * white + a * blue, (1 - a) * white + a * red)
-    col[~np.isfinite(dev)] = 128.0
+    limit = max(float(limit_mm), 1e-9)
+    d = np.nan_to_num(dev, nan=0.0)
+    # 0 at the limit, 1 at saturation
+    a = np.clip((np.abs(d) - limit) / (limit * (DEVIATION_SATURATION - 1.0)), 0.0, 1.0)[:, None]
+    light = np.array([235.0, 235.0, 235.0])
+    left, cut = (np.array(DEVIATION_COLORS[k], dtype=np.float64) for k in ("left", "cut"))
+    t = 0.25 + 0.75 * a                       # a point just beyond the limit is already tinted
+    col = np.where((d > 0)[:, None], (1 - t) * light + t * left, (1 - t) * light + t * cut)
+    col[np.abs(d) <= limit] = DEVIATION_COLORS["within"]
+    col[~np.isfinite(dev)] = DEVIATION_COLORS["unmeasured"]
     return np.rint(col).astype(np.uint8)
 
 
@@ -66,28 +80,32 @@ def render_deviation_png(path, points: np.ndarray, dev: np.ndarray, limit_mm: fl
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.colors import LinearSegmentedColormap, Normalize
+    from matplotlib.colors import ListedColormap, Normalize
 
     n = points.shape[0]
     idx = np.arange(n) if n <= PNG_MAX_POINTS else np.sort(
         np.random.default_rng(0).choice(n, PNG_MAX_POINTS, replace=False))
     p, d = points[idx], dev[idx]
-    span = max(10.0 * limit_mm, 1e-6)
-    cmap = LinearSegmentedColormap.from_list("dev", [(0.86, 0.12, 0.12), (1, 1, 1), (0.12, 0.31, 0.86)])
+    span = max(DEVIATION_SATURATION * limit_mm, 1e-6)
+    # the colour bar is the points' own colouring (deviation_colors) sampled over [-span, span]
+    cmap = ListedColormap(deviation_colors(np.linspace(-span, span, 401), limit_mm) / 255.0, name="deviation")
     norm = Normalize(vmin=-span, vmax=span)
+    rgb = deviation_colors(d, limit_mm) / 255.0
+    dot = float(np.clip(20_000.0 / max(idx.size, 1), 0.5, 6.0))     # a small scan's points stay visible
     fig, axes = plt.subplots(1, 3, figsize=(15, 5.4), constrained_layout=True)
     for ax, (h, v, name) in zip(axes, ((0, 1, "top (from +Z)"), (0, 2, "front (from -Y)"), (1, 2, "side (from +X)"))):
         order = np.argsort(p[:, 3 - h - v]) if name.startswith("top") else np.argsort(
             -p[:, 1] if name.startswith("front") else p[:, 0])
-        ax.scatter(p[order, h], p[order, v], c=np.nan_to_num(d[order], nan=0.0), cmap=cmap, norm=norm, s=0.5,
-                   linewidths=0)
+        ax.scatter(p[order, h], p[order, v], c=rgb[order], s=dot, linewidths=0)
         ax.set_aspect("equal")
         ax.set_title(name)
         ax.set_xlabel("XYZ"[h] + " (mm)")
         ax.set_ylabel("XYZ"[v] + " (mm)")
     bar = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes, shrink=0.8)
-    bar.set_label("deviation, mm (+ material left, - cut below the scan)")
-    fig.suptitle(title or "deviation of the simulated result from the scan")
+    bar.set_label("deviation, mm (+ material left, - cut below)")
+    fig.suptitle((title or "deviation of the simulated result from the scan")
+                 + f"\ngreen: within +-{limit_mm:.3g} mm; blue: material left; red: cut below the scan; "
+                   "grey: not measured")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)

@@ -95,7 +95,7 @@ def _write_unmachined(outcome: PlanOutcome, out: Path) -> dict[str, Path]:
                           if getattr(ap, "unmachined", None) is not None] or [np.zeros(0, np.int64)])
     path = out / outcome.result.artifacts.unmachined_png
     render_unmachined_png(path, outcome.points, idx,
-                          title=f"scan points no kept finishing move reaches (red): {u.n_points} ({u.share:.1%})")
+                          title=f"input points no kept finishing move reaches (red): {u.n_points:,} ({u.share:.1%})")
     return {"unmachined_png": path}
 
 
@@ -116,8 +116,11 @@ def _write_simulation(outcome: PlanOutcome, out: Path, say=lambda fraction, mess
     write_deviation_ply(paths["deviation_ply"], outcome.points, sim.deviation_mm, limit)
     say(0.6, names.deviation_png)
     paths["deviation_png"] = out / names.deviation_png
+    f = outcome.result.figures
+    head = (f"{f.finished_share:.1%} of {f.n_points:,} input points finished within +-{limit:.3g} mm"
+            if f is not None and f.finished_share is not None else "")
     render_deviation_png(paths["deviation_png"], outcome.points, sim.deviation_mm, limit,
-                         title=f"verification {v.status}: {v.message}"[:160])
+                         title=f"verification {v.status}" + (f": {head}" if head else ""))
     if sim.stock is not None and names.stock_ply:
         say(0.75, names.stock_ply)
         from planning.simulate.mesh import stock_mesh

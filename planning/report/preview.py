@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import colorsys
 import math
+import textwrap
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from numbers import Real
@@ -56,6 +57,8 @@ _BASE_COLORS = np.array([
 _GOLDEN = 0.618033988749895
 _ARROW_FRACTION = 0.6          # arrow length / largest side of the cloud's bounding box
 _SEED = 0                      # subsampling seed (deterministic previews)
+# the title: font size (pt), the widest character in em (DejaVu Sans, digits and capitals), most lines
+_TITLE_PT, _TITLE_EM, _TITLE_LINES = 12, 0.66, 4
 _INTEGRATED_SHADE = 0.55       # integrated leftovers: area colour darkened by this factor ...
 _INTEGRATED_GROW = 1           # ... and splatted this many pixels larger
 _MARGIN = 0.05                 # panel margin / largest projected side
@@ -183,14 +186,20 @@ def _build_figure(points, labels, axes, *, integrated=None, angles=None, max_poi
     scene = _Scene(pts, lab, ax_dirs, integ, rows, keep)
     fig = Figure(figsize=(12.0, 9.6), dpi=dpi)
     FigureCanvasAgg(fig)
+    # a long title (the plan's message) wraps instead of running off the picture; 4 lines at most
+    chars = int(fig.get_figwidth() * 72.0 / (_TITLE_EM * _TITLE_PT))        # characters that fit across
+    lines = textwrap.wrap(title or scene.default_title(), width=chars) or [""]
+    if len(lines) > _TITLE_LINES:
+        lines = lines[:_TITLE_LINES]
+        lines[-1] = lines[-1][:chars - 3].rstrip() + "..."
     try:
-        fig.subplots_adjust(left=0.05, right=0.97, top=0.93, bottom=_legend_bottom(scene),
-                            wspace=0.18, hspace=0.2)
+        fig.subplots_adjust(left=0.05, right=0.97, top=0.93 - 0.022 * (len(lines) - 1), bottom=_legend_bottom(scene),
+                            wspace=0.18, hspace=0.26)
         renderer = fig.canvas.get_renderer()
         for slot, view in enumerate(_VIEWS, start=1):
             _draw_panel(fig.add_subplot(2, 2, slot), scene, view, renderer)
         _add_legend(fig, scene)
-        fig.suptitle(title or scene.default_title(), fontsize=13)
+        fig.suptitle("\n".join(lines), fontsize=_TITLE_PT)
     except BaseException:
         fig.clear()
         raise
@@ -624,10 +633,10 @@ def _legend_entries(scene: _Scene) -> list[tuple[np.ndarray, str]]:
     """(RGB in [0, 1], text) of every legend entry."""
     entries = [(scene.colors[i] / 255.0, _setup_text(scene, i)) for i in range(scene.k)]
     if scene.counts[0]:
-        entries.append((UNCOVERED_COLOR / 255.0, f"not machined: {int(scene.counts[0]):,} pts"))
+        entries.append((UNCOVERED_COLOR / 255.0, f"not machined: {int(scene.counts[0]):,} input pts"))
     if scene.n_integrated:
         shade = scene.palette[3 if scene.k else 1, :3] / 255.0
-        text = f"integrated leftovers (darker, larger): {scene.n_integrated:,} pts"
+        text = f"seen by no chosen set-up, attached by distance (darker, larger): {scene.n_integrated:,} input pts"
         entries.append((shade, text))
     return entries
 
@@ -638,7 +647,7 @@ def _setup_text(scene: _Scene, i: int) -> str:
     angles = " ".join(f"{name} {round(value, 3) + 0.0:.3f}°" for name, value in rows.items())
     x, y, z = scene.axes[i]
     return (f"area {i}: {angles + ', ' if angles else ''}axis ({x:.3f}, {y:.3f}, {z:.3f}), "
-            f"{int(scene.counts[i + 1]):,} pts")
+            f"{int(scene.counts[i + 1]):,} input pts")
 
 
 def _legend_columns(scene: _Scene) -> int:

@@ -3,10 +3,17 @@
 circles), and the page, driven in a real headless Chromium, loads a finished half-sphere job with the
 job's key and refuses it without, draws a canvas holding every area's colour, shows the set-up table
 with the plan's machine angles, draws paths and the deviation map on request, and logs no JavaScript
-error; ``scanmill view`` serves the same page for a plan directory."""
+error; ``scanmill view`` serves the same page for a plan directory.
+
+Issue 34: the page opens with every area's finishing paths shown and the roughing paths off (a
+translucent toggle); its tables list the set-ups in plan.json's machining_order, with plan.json's
+``figures`` (times and input-point counts) formatted as the CLI summary formats them, equal to
+plan.json's; its deviation colours are planning/report/deviation.py's ``deviation_colors``.
+Until the pipeline fills ``figures``, the module's plan gets hand-made ones (:func:`hand_made_figures`)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import subprocess
@@ -26,8 +33,14 @@ from service_fixtures import (
 
 from planning.inputs import Cloud, samples
 from planning.pipeline import run_plan
+from planning.report.deviation import (
+    DEVIATION_COLORS,
+    DEVIATION_SATURATION,
+    deviation_colors,
+)
 from planning.report.plan_files import write_plan
 from planning.report.viewer_data import (
+    DEV_UNMEASURED,
     FLAG_INTEGRATED,
     FLAG_UNMACHINED,
     UNLABELLED,
@@ -37,10 +50,58 @@ from planning.report.viewer_data import (
     viewer_index,
 )
 from planning.toolpath.moves import ARC_CCW, ARC_CW, densify
+from scanmill.summary import (  # the CLI summary's own formats: the page's must equal them
+    _count,
+    _hmm,
+    _minutes,
+)
 from schemas.params import apply_overrides, parse_config
 
 LIGHT = ["normals.method=input", "setups.max_setups=2", "tool.diameter_mm=10", "paths.finishing.scallop_mm=0.2",
          "paths.roughing.step_down_mm=5"]
+
+
+def _deviation_limit(out) -> float:
+    fp = out.result.parameters.paths.finishing
+    return fp.tolerance_mm + fp.scallop_mm + (out.result.verification.measuring_bound_mm or 0.0)
+
+
+def hand_made_figures(out):
+    """plan.json ``figures`` (schemas.plan.PlanFigures) made here from the plan's own arrays, for a pipeline
+    that does not fill them yet: finished within the deviation limit, not covered (integrated), unreached
+    (no kept finishing move), left the rest; the set-ups' path times as an estimate; areas in machining
+    order. Plausible, not planning/report/figures.py's exact measure: the viewer shows what it is given."""
+    from schemas.plan import AreaFigures, PlanFigures
+
+    n = out.points.shape[0]
+    labels = np.asarray(out.input_labels)
+    dev = np.asarray(out.extra["simulation"].deviation_mm, float)
+    finished = np.abs(np.nan_to_num(dev, nan=np.inf)) <= _deviation_limit(out)
+    areas = out.extra["areas"]
+    not_covered = np.asarray(out.arrays["integrated"], bool)[areas.nearest_sample] & ~finished
+    unreached = np.zeros(n, bool)
+    for ap in out.extra["area_paths"]:
+        if ap.unmachined is not None:
+            unreached[ap.unmachined] = True
+    unreached &= ~finished & ~not_covered
+    left = ~(finished | not_covered | unreached)
+    by_id = {s.id: s for s in out.result.setups}
+    rows, total = [], 0.0
+    for a in out.result.machining_order:
+        mine, p = labels == a, by_id[a].path
+        rough = p.roughing.machining_time_s if p.roughing is not None else None
+        fin = p.finishing.machining_time_s if p.finishing is not None else None
+        both = (rough or 0.0) + (fin or 0.0)
+        total += both
+        rows.append(AreaFigures(area=a, n_points=int(mine.sum()), finished=int((finished & mine).sum()),
+                                left=int((left & mine).sum()), unreached=int((unreached & mine).sum()),
+                                not_covered=int((not_covered & mine).sum()), roughing_time_s=rough,
+                                finishing_time_s=fin, machining_time_s=both))
+    return PlanFigures(n_points=n, measured=True, finished=int(finished.sum()), finished_share=finished.mean(),
+                       left=int(left.sum()), left_share=left.mean(), unreached=int(unreached.sum()),
+                       unreached_share=unreached.mean(), not_covered=int(not_covered.sum()),
+                       not_covered_share=not_covered.mean(), target_coverage=out.result.parameters.setups.coverage,
+                       machining_time_s=total, time_source="estimate", areas=rows)
 
 
 @pytest.fixture(scope="module")
@@ -48,6 +109,8 @@ def plan(tmp_path_factory):
     s = samples.half_sphere()
     cloud = Cloud(points=s.points, normals=s.normals, source_format="generated")
     out = run_plan(cloud, parse_config(apply_overrides({}, LIGHT)), name="half_sphere")
+    if getattr(out.result, "figures", None) is None:          # until the pipeline fills them (issue 34)
+        out.result.figures = hand_made_figures(out)
     d = tmp_path_factory.mktemp("plan")
     write_plan(out, d)
     return out, d
@@ -84,11 +147,43 @@ def test_viewer_points_decode_to_the_plan(plan):
     nrm = out.arrays["normals"][areas.nearest_sample]
     assert np.all(np.abs(a["normal"] / 127.0 - nrm / np.linalg.norm(nrm, axis=1, keepdims=True)) <= 0.5 / 127 + 1e-9)
     dev = out.extra["simulation"].deviation_mm
-    assert np.all(np.abs(a["deviation"] / 1000.0 - np.clip(dev, -32.767, 32.767)) <= 0.0005 + 1e-9)
+    measured = np.isfinite(dev)
+    assert np.array_equal(a["deviation"] == DEV_UNMEASURED, ~measured)
+    assert np.all(np.abs(a["deviation"][measured] / 1000.0 - np.clip(dev[measured], -32.767, 32.767))
+                  <= 0.0005 + 1e-9)
     # the set-up rows carry the plan's machine angles
     for row, s in zip(index["setups"], out.result.setups):
         assert row["rotary_deg"] == s.rotary_deg and row["id"] == s.id
     assert index["verification"]["status"] == out.result.verification.status
+    # plan.json's figures and machining order, as they are
+    plan_json = json.loads((d / "plan.json").read_text())
+    assert plan_json["figures"] is not None and index["figures"] == plan_json["figures"]
+    assert index["machining_order"] == plan_json["machining_order"]
+
+
+def test_viewer_deviation_colours_are_the_one_convention(plan):
+    """viewer.json names deviation.py's colours and saturation, and its table is deviation_colors of
+    every micrometre up to the saturation: a point's colour through the table is deviation_colors of its
+    (micrometre) deviation, grey where not measured."""
+    out, d = plan
+    index = json.loads((d / "viewer.json").read_text())
+    dv = index["deviation"]
+    limit = _deviation_limit(out)
+    assert dv["limit_mm"] == pytest.approx(limit)
+    assert dv["saturation"] == DEVIATION_SATURATION
+    assert dv["colors"] == {k: list(v) for k, v in DEVIATION_COLORS.items()}
+    lut = _arrays(d, index, {"lut": dv["lut"]})["lut"]
+    first = dv["lut_first_um"]
+    assert first <= -DEVIATION_SATURATION * limit * 1000 + 1e-6 and lut.shape == (1 - 2 * first, 3)
+    um = np.arange(first, -first + 1)
+    assert np.array_equal(lut, deviation_colors(um / 1000.0, limit))
+    # each point through the table, as the page reads it (clamped at the ends)
+    dev_um = _arrays(d, index, index["points"]["arrays"])["deviation"].astype(int)
+    got = lut[np.clip(dev_um, first, -first) - first]
+    want = deviation_colors(np.where(dev_um == DEV_UNMEASURED, np.nan, dev_um / 1000.0), limit)
+    measured = dev_um != DEV_UNMEASURED
+    assert np.array_equal(got[measured], want[measured])
+    assert np.all(want[~measured] == DEVIATION_COLORS["unmeasured"])
 
 
 def test_viewer_paths_are_the_tool_tips_with_arcs_on_their_circles(plan):
@@ -211,11 +306,13 @@ def test_page_loads_the_job_with_its_key(server, job, browser):
     px = canvas_pixels(browser)
     for rgb in colours:
         assert _colour_pixels(px, rgb) >= 200, (rgb, _colour_pixels(px, rgb))
-    # the set-up table: one row per set-up with the plan's machine angles
+    # the set-up table: one row per set-up, in machining order, with the plan's machine angles
     rows = browser.find_elements("css selector", "#setups tbody tr")
     assert len(rows) == len(plan["setups"])
     names = plan["orientations"]["rotary_axes"]
-    for row, s in zip(rows, plan["setups"]):
+    by_id = {s["id"]: s for s in plan["setups"]}
+    assert [int(r.get_attribute("data-setup")) for r in rows] == plan["machining_order"]
+    for row, s in zip(rows, [by_id[a] for a in plan["machining_order"]]):
         assert row.find_element("css selector", ".rot0").text == f"{s['rotary_deg'][names[0]]:.3f}"
         assert row.find_element("css selector", ".rot1").text == f"{s['rotary_deg'][names[1]]:.3f}"
     head = browser.find_element("css selector", "#setups thead").text
@@ -229,24 +326,61 @@ def test_page_loads_the_job_with_its_key(server, job, browser):
     assert KEY_A not in server.log_text()
 
 
+def _checked(browser, selector: str) -> list[bool]:
+    return [e.is_selected() for e in browser.find_elements("css selector", selector)]
+
+
 def test_paths_and_deviation_map_draw_on_request(server, job, browser):
+    """Finishing paths shown from the start, roughing off; each switch redraws; the deviation colours are
+    deviation.py's (green within the limit, exact bytes when flat) and hide the paths until the area
+    colours bring them back."""
     job_id, _ = job
     browser.get(f"{server.url}/jobs/{job_id}/viewer")         # the key is kept for the tab's session
     state = wait_viewer(browser, paths=True)
     assert state["pathsReady"], state
+    assert _checked(browser, '.toggle-path[data-op="finishing"]') == [True, True]
+    assert _checked(browser, '.toggle-path[data-op="roughing"]') == [False, False]
+    assert _checked(browser, "#show-finishing, #show-roughing, #show-rapids") == [True, False, False]
     _click_and_draw(browser, "#show-axes")             # axes off: only scan and paths
     _click_and_draw(browser, "#shading")               # flat colours: exact bytes below
     before = canvas_pixels(browser)
-    _click_and_draw(browser, 'tr[data-setup="0"] .toggle-path[data-op="finishing"]')
+    _click_and_draw(browser, 'tr[data-setup="0"] .toggle-path[data-op="finishing"]')     # off
     after = canvas_pixels(browser)
     assert np.count_nonzero(np.any(after != before, axis=-1)) > 1000
+    _click_and_draw(browser, "#show-roughing")                                              # every area's on
+    rough = canvas_pixels(browser)
+    assert _checked(browser, '.toggle-path[data-op="roughing"]') == [True, True]
+    assert np.count_nonzero(np.any(rough != after, axis=-1)) > 1000
+    # the scan stays visible through the translucent roughing: most of its area-coloured pixels keep a
+    # colour close to their own
+    colours = browser.execute_script("return window.scanmillViewer.index.colors.areas")
+    near = sum(int(np.count_nonzero(np.all(np.abs(rough.astype(int) - c) <= 60, axis=-1))) for c in colours)
+    exact = sum(_colour_pixels(after, c) for c in colours)
+    assert near >= 0.8 * exact, (near, exact)
+    _click_and_draw(browser, "#show-roughing")
     _click_and_draw(browser, "#colour-deviation")
+    assert not any(_checked(browser, ".toggle-path, #show-finishing, #show-roughing"))     # the map uncovered
     dev = canvas_pixels(browser)
-    assert _colour_pixels(dev, (40, 170, 60)) > 200               # within tolerance: green
+    assert _colour_pixels(dev, DEVIATION_COLORS["within"]) > 200          # within tolerance: deviation.py's green
     assert browser.find_element("id", "colourbar").is_displayed()
-    ticks = browser.find_element("id", "colourbar-ticks").text
     limit = browser.execute_script("return window.scanmillViewer.index.deviation.limit_mm")
-    assert f"{limit:.3f}" in ticks
+    legend = browser.find_element("id", "colourbar-legend").text
+    assert f"{limit:.3f}" in legend and "blue: material left" in legend and "red: cut below the scan" in legend
+    ticks = browser.find_element("id", "colourbar-ticks").text
+    assert f"{DEVIATION_SATURATION * limit:.3f}" in ticks
+    # the page's colour of a deviation is deviation_colors' (whole micrometres: the data's resolution)
+    um = np.array([0, 1, int(limit * 1000), int(limit * 1000) + 1, -int(limit * 1000) - 1, int(3 * limit * 1000),
+                   -int(3 * limit * 1000), int(DEVIATION_SATURATION * limit * 1000) + 5000, -40000])
+    want = deviation_colors(np.append(um / 1000.0, np.nan), limit)
+    got = browser.execute_script("return arguments[0].map((d) => window.scanmillViewer.deviationColour(d))",
+                                 [*(um / 1000.0).tolist(), None])
+    assert np.array_equal(np.array(got), want), (got, want.tolist())
+    # back to the area colours: the path switches as they were
+    _click_and_draw(browser, 'input[name=colour][value=area]')
+    assert _checked(browser, 'tr[data-setup="0"] .toggle-path[data-op="finishing"]') == [False]
+    assert _checked(browser, 'tr[data-setup="1"] .toggle-path[data-op="finishing"]') == [True]
+    assert _checked(browser, '.toggle-path[data-op="roughing"], #show-roughing') == [False, False, False]
+    assert _checked(browser, "#show-finishing") == [True]
     assert js_errors(browser) == []
 
 
@@ -285,21 +419,31 @@ def test_viewer_page_headers_and_unknown_ids(server):
 
 # ------------------------------------------------------------------------------------ scanmill view
 
-def test_scanmill_view_serves_a_plan_directory(plan, browser, tmp_path):
-    _, d = plan
+@contextlib.contextmanager
+def _scanmill_view(d):
+    """``scanmill view d`` running: ``(base URL, key, printed address)``."""
     proc = subprocess.Popen([sys.executable, "-m", "scanmill.cli", "view", str(d)], cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     try:
         line = proc.stdout.readline()
         m = re.search(r"(http://127\.0\.0\.1:(\d+))/#key=(\S+)", line)
         assert m, line
-        base, key = m.group(1), m.group(3)
+        base = m.group(1)
         for _ in range(100):
             try:
                 if httpx.get(base + "/").status_code == 200:
                     break
             except httpx.TransportError:
                 time.sleep(0.1)
+        yield base, m.group(3), m.group(0)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
+def test_scanmill_view_serves_a_plan_directory(plan, browser, tmp_path):
+    _, d = plan
+    with _scanmill_view(d) as (base, key, address):
         refused = httpx.get(base + "/artifacts/viewer.json")
         assert refused.status_code == 401 and refused.json()["code"] == "unauthenticated"
         assert refused.headers["content-type"].startswith("application/problem+json")
@@ -308,14 +452,58 @@ def test_scanmill_view_serves_a_plan_directory(plan, browser, tmp_path):
         assert httpx.get(base + "/artifacts/area_0.linuxcnc.nc",
                          headers={"Authorization": f"Bearer {key}"}).status_code == 404      # only the page's data
         browser.execute_script("sessionStorage.clear()")
-        browser.get(m.group(0))
+        browser.get(address)
         state = wait_viewer(browser, paths=True)
         assert state["ready"] and state["pathsReady"], state
         assert "key=" not in browser.current_url                  # the fragment is dropped once read
         assert js_errors(browser) == []
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
+
+
+def _share(x) -> str:
+    """As scanmill/summary.py prints shares ('{:.1%}')."""
+    return "-" if x is None else f"{x:.1%}"
+
+
+def test_page_shows_plan_json_figures_in_machining_order(plan, browser):
+    """The time and point table is plan.json's ``figures``: a row per area in machining order (roughing,
+    finishing, total minutes; finished, left, unreached, not covered input points), the plan's totals and
+    shares below, formatted as the CLI summary formats them (Python's rounding, halves to even)."""
+    _, d = plan
+    pj = json.loads((d / "plan.json").read_text())
+    fig = pj["figures"]
+    with _scanmill_view(d) as (_, _, address):
+        browser.execute_script("sessionStorage.clear()")
+        browser.get(address)
+        state = wait_viewer(browser, paths=True)
+        assert state["pathsReady"], state
+        order = [int(r.get_attribute("data-setup")) for r in browser.find_elements("css selector", "#setups tbody tr")]
+        assert order == pj["machining_order"] == [a["area"] for a in fig["areas"]]
+        assert browser.find_element("id", "figures").is_displayed()
+        rows = browser.find_elements("css selector", "#figures tbody tr")
+        assert len(rows) == len(fig["areas"])
+        for k, (row, a) in enumerate(zip(rows, fig["areas"])):
+            cells = [c.text for c in row.find_elements("css selector", "td")]
+            assert cells == [str(k + 1), str(a["area"]), _minutes(a["roughing_time_s"]), _minutes(a["finishing_time_s"]),
+                             _minutes(a["machining_time_s"]), _count(a["finished"]), _count(a["left"]),
+                             _count(a["unreached"]), _count(a["not_covered"])], (cells, a)
+        total, shares = ([c.text for c in r.find_elements("css selector", "td")]
+                         for r in browser.find_elements("css selector", "#figures tfoot tr"))
+        assert total[4:] == [_minutes(fig["machining_time_s"]), _count(fig["finished"]), _count(fig["left"]),
+                             _count(fig["unreached"]), _count(fig["not_covered"])], total
+        assert shares[4:] == [_hmm(fig["machining_time_s"]), _share(fig["finished_share"]), _share(fig["left_share"]),
+                              _share(fig["unreached_share"]), _share(fig["not_covered_share"])], shares
+        assert browser.find_element("id", "figures-time").text == fig["time_source"]
+        note = browser.find_element("id", "figures-note").text
+        assert f"{fig['n_points']:,} input points" in note and fig["time_source"] in note
+        # the page's formatting is Python's, exact halves included (JavaScript's toFixed rounds them up)
+        seconds = [0.0, 15.0, 45.0, 75.0, 90.0, 150.0, 29.97, 8290.9, 5430.0, 3570.0, 1e6 + 0.3]
+        got = browser.execute_script("const f = window.scanmillViewer.format;"
+                                     "return arguments[0].map((s) => [f.minutes(s), f.hmm(s)])", seconds)
+        assert got == [[_minutes(x), _hmm(x)] for x in seconds]
+        shares_in = [0.0, 0.9645, 0.00125, 0.5, 1.0, 0.123456, 0.0005]
+        got = browser.execute_script("return arguments[0].map((x) => window.scanmillViewer.format.share(x))", shares_in)
+        assert got == [_share(x) for x in shares_in]
+        assert js_errors(browser) == []
 
 
 def test_scanmill_view_refuses_a_directory_without_a_plan(tmp_path):

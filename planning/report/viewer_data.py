@@ -18,13 +18,22 @@
     bit 1 unmachined (no kept finishing move reaches it);
   - ``normal`` (n, 3) ``i1``: the unit normal times 127 (the nearest sampled point's), for shading;
   - ``deviation`` (n,) ``<i2`` when the programs were simulated: the point's deviation from the
-    simulated final stock in micrometres, positive where material is left, clipped to +-32.767 mm.
+    simulated final stock in micrometres, positive where material is left, clipped to +-32.767 mm;
+    -32768 (:data:`DEV_UNMEASURED`) where it was not measured;
+  - the deviation colours (``deviation.lut``, (m, 3) ``u1``): :func:`planning.report.deviation.deviation_colors`
+    of every micrometre from ``deviation.lut_first_um`` to ``-lut_first_um`` (the saturation, beyond which
+    the colour no longer changes), so that the page paints each point with the colour the PLY and the PNG
+    give it (issue 34: one convention, ``deviation.colors`` and ``deviation.saturation`` by name).
 
 * ``viewer.paths.bin``: per area and operation (``finishing``, ``roughing``) the tool-tip path in
   the part frame, ``vertices`` (m, 3) ``<u2`` quantised on the paths' own box (safe heights
   included) and ``use`` (m,) ``u1``, the use of the move ending at each vertex (0 rapid, 1 cut,
   2 plunge, 3 retract, :mod:`planning.toolpath.moves`). Arcs are drawn as chords of at most
   ``arc_step_mm`` (display only: the NC programs keep the arcs).
+
+``viewer.json`` also carries plan.json's ``figures`` (issue 34: finished, left, unreached and not covered
+input points and the machining times, per area in machining order and in total) as they are, null
+for a plan without them, and ``machining_order``.
 
 The points come first in their own file so the page can draw the scan before the paths arrive.
 Quantised positions halve the bytes of float32 and the page hands them to the GPU as normalised
@@ -38,14 +47,21 @@ from pathlib import Path
 
 import numpy as np
 
+from planning.report.deviation import (
+    DEVIATION_COLORS,
+    DEVIATION_SATURATION,
+    deviation_colors,
+)
 from planning.report.files import atomic_path
 from planning.report.preview import UNCOVERED_COLOR, area_colors
 from planning.toolpath.moves import densify
 
 __all__ = [
+    "DEV_UNMEASURED",
     "VIEWER_FILES",
     "VIEWER_FORMAT",
     "VIEWER_FORMAT_VERSION",
+    "deviation_lut",
     "input_integrated",
     "viewer_index",
     "write_viewer_data",
@@ -59,6 +75,9 @@ VIEWER_FILES = ("viewer.json", "viewer.points.bin", "viewer.paths.bin")
 MAX_POINTS = 2_000_000
 UNLABELLED = 255
 FLAG_INTEGRATED, FLAG_UNMACHINED = 1, 2
+#: ``deviation`` of a point the simulation did not measure (NaN), micrometres.
+DEV_UNMEASURED = -32768
+_DEV_MAX_UM = 32767
 _Q = 65535.0
 _SEED = 0
 
@@ -162,6 +181,33 @@ def _setup_rows(result, colors: np.ndarray) -> list[dict]:
     return rows
 
 
+def _finite_or_none(x) -> float | None:
+    return float(x) if x is not None and np.isfinite(x) else None
+
+
+def deviation_lut(limit_mm: float, buffers: _Buffers) -> dict:
+    """The deviation colour convention for the page: ``colors`` and ``saturation`` by name
+    (:data:`planning.report.deviation.DEVIATION_COLORS`, :data:`DEVIATION_SATURATION`) and ``lut``, an
+    (m, 3) ``u1`` array in ``buffers``: :func:`deviation_colors` of each whole micrometre from
+    ``lut_first_um`` (minus the saturation, ``DEVIATION_SATURATION * limit_mm``, rounded up and at most
+    32.767 mm) to ``-lut_first_um``. The page reads a point's colour at ``clamp(d_um) - lut_first_um``:
+    the very colour the PLY and the PNG give the point's (micrometre-rounded) deviation."""
+    span = int(min(_DEV_MAX_UM, max(1, np.ceil(DEVIATION_SATURATION * limit_mm * 1000.0 - 1e-6))))
+    um = np.arange(-span, span + 1)
+    return {"saturation": float(DEVIATION_SATURATION),
+            "colors": {k: [int(c) for c in v] for k, v in DEVIATION_COLORS.items()},
+            "lut_first_um": int(-span), "lut": buffers.add(deviation_colors(um / 1000.0, limit_mm)),
+            "unmeasured_um": DEV_UNMEASURED}
+
+
+def _figures(result) -> dict | None:
+    """plan.json's ``figures`` (:class:`schemas.plan.PlanFigures`) as JSON, None when the plan has none."""
+    fig = getattr(result, "figures", None)
+    if fig is None:
+        return None
+    return fig.model_dump(mode="json") if hasattr(fig, "model_dump") else dict(fig)
+
+
 def viewer_index(outcome, *, max_points: int = MAX_POINTS, arc_step_mm: float = 0.5
                  ) -> tuple[dict, _Buffers, _Buffers]:
     """The index document and the two buffers of a plan (see the module docstring)."""
@@ -186,12 +232,17 @@ def viewer_index(outcome, *, max_points: int = MAX_POINTS, arc_step_mm: float = 
     sim = outcome.extra.get("simulation")
     deviation = None
     if sim is not None and getattr(sim, "deviation_mm", None) is not None:
-        dev_um = np.clip(np.rint(np.asarray(sim.deviation_mm, float)[keep] * 1000.0), -32767, 32767)
-        arrays["deviation"] = points_buf.add(np.nan_to_num(dev_um).astype(np.int16))
+        dev_mm = np.asarray(sim.deviation_mm, float)
+        dev_um = np.clip(np.rint(np.nan_to_num(dev_mm[keep]) * 1000.0), -_DEV_MAX_UM, _DEV_MAX_UM)
+        arrays["deviation"] = points_buf.add(np.where(np.isfinite(dev_mm[keep]), dev_um, DEV_UNMEASURED
+                                                      ).astype(np.int16))
         fp = result.parameters.paths.finishing
         v = result.verification
-        deviation = {"limit_mm": fp.tolerance_mm + fp.scallop_mm + ((v.measuring_bound_mm or 0.0) if v else 0.0),
-                     "min_mm": float(np.nanmin(sim.deviation_mm)), "max_mm": float(np.nanmax(sim.deviation_mm))}
+        limit = fp.tolerance_mm + fp.scallop_mm + ((v.measuring_bound_mm or 0.0) if v else 0.0)
+        deviation = {"limit_mm": limit,
+                     "min_mm": _finite_or_none(np.nanmin(dev_mm) if np.isfinite(dev_mm).any() else None),
+                     "max_mm": _finite_or_none(np.nanmax(dev_mm) if np.isfinite(dev_mm).any() else None),
+                     **deviation_lut(limit, points_buf)}
 
     paths = []
     verts, uses, owners = [], [], []
@@ -224,6 +275,9 @@ def viewer_index(outcome, *, max_points: int = MAX_POINTS, arc_step_mm: float = 
         "offences": ([{"kind": o.kind, "program": o.program, "line": o.line, "position_mm": list(o.position_mm),
                        "amount": o.amount, "detail": o.detail} for o in v.worst] if v is not None else []),
         "deviation": deviation,
+        # plan.json's figures as they are (issue 34): the page's time and point table reads only these
+        "figures": _figures(result),
+        "machining_order": list(result.machining_order or []),
         "rotary_axes": list(result.orientations.rotary_axes) if getattr(result, "orientations", None) else None,
         "colors": {"areas": colors.tolist(), "uncovered": UNCOVERED_COLOR.tolist()},
         "setups": _setup_rows(result, colors),

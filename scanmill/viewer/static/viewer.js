@@ -1,6 +1,8 @@
-// scanmill plan viewer (issue 20): the scan coloured by area, the set-ups' tool axes and machine angles,
-// the integrated and unmachined points, every area's finishing and roughing paths, the verification's
-// deviation map. Data: viewer.json (index) + viewer.points.bin + viewer.paths.bin (planning/report/viewer_data.py),
+// scanmill plan viewer (issue 20, issue 34): the scan coloured by area, the set-ups' tool axes and machine
+// angles in machining order with their times and point counts (plan.json figures), the integrated and
+// unmachined points, every area's finishing paths (shown) and roughing paths (a toggle, translucent), the
+// verification's deviation map in the colours of planning/report/deviation.py.
+// Data: viewer.json (index) + viewer.points.bin + viewer.paths.bin (planning/report/viewer_data.py),
 // fetched from data-artifacts with the API key as an Authorization: Bearer header (never in a URL).
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
@@ -158,10 +160,9 @@ function colourPoints(idx, arrays) {
   const rgb = cloud.geometry.attributes.color.array;
   const pal = idx.colors.areas, unc = idx.colors.uncovered;
   if (mode === 'deviation' && deviation) {
-    const lut = deviationLut(idx.deviation.limit_mm);
     for (let i = 0; i < n; i++) {
-      const j = lutIndex(deviation[i] / 1000, idx.deviation.limit_mm) * 3;
-      rgb[3 * i] = lut[j]; rgb[3 * i + 1] = lut[j + 1]; rgb[3 * i + 2] = lut[j + 2];
+      const c = deviationColour(deviation[i]);
+      rgb[3 * i] = c[0]; rgb[3 * i + 1] = c[1]; rgb[3 * i + 2] = c[2];
     }
   } else {
     for (let i = 0; i < n; i++) {
@@ -179,41 +180,68 @@ function colourPoints(idx, arrays) {
   requestRender();
 }
 
-// deviation colours: blue below -limit (cut too deep), green within +-limit, yellow to red above
-// (material left) up to 10 x limit; 256 steps over [-10 limit, 10 limit]
-const DEV_STEPS = 256;
-function lutIndex(d, limit) {
-  const t = Math.max(-1, Math.min(1, d / (10 * limit)));
-  return Math.round((t + 1) / 2 * (DEV_STEPS - 1));
-}
-let lutCache = null;
-function deviationLut(limit) {
-  if (lutCache && lutCache.limit === limit) return lutCache.lut;
-  const lut = new Uint8Array(DEV_STEPS * 3);
-  for (let s = 0; s < DEV_STEPS; s++) {
-    const d = (s / (DEV_STEPS - 1) * 2 - 1) * 10 * limit;
-    let c;
-    if (Math.abs(d) <= limit) c = [40, 170, 60];
-    else if (d < 0) { const t = Math.min(1, (-d - limit) / (9 * limit)); c = [30, 120 - 90 * t, 230]; }
-    else { const t = Math.min(1, (d - limit) / (9 * limit)); c = [240, 220 - 200 * t, 30]; }
-    lut.set(c.map(Math.round), 3 * s);
+// deviation colours, the one convention of planning/report/deviation.py (DEVIATION_COLORS): green within
+// the limit, a ramp to blue where material is left (d > 0), to red where cut below the scan (d < 0),
+// saturated at deviation.saturation x the limit, grey where not measured. viewer.json carries the
+// convention's own colours of every micrometre up to the saturation (deviation.lut, made by
+// deviation_colors), so a point here has the colour it has in deviation.ply and deviation.png.
+const DEV_DEFAULT_COLOURS = { within: [60, 170, 75], left: [30, 80, 220], cut: [220, 30, 30], unmeasured: [128, 128, 128] };
+let devLut = null;         // { first: lut_first_um, rgb: Uint8Array (m * 3), unmeasured, colours }
+
+function setupDeviation(idx, buffers) {
+  const d = idx.deviation;
+  const colours = d.colors || DEV_DEFAULT_COLOURS;
+  const unmeasured = d.unmeasured_um === undefined ? -32768 : d.unmeasured_um;
+  if (d.lut) {
+    devLut = { first: d.lut_first_um, rgb: view(buffers, d.lut), unmeasured, colours };
+    return;
   }
-  lutCache = { limit, lut };
-  return lut;
+  // a viewer.json written before issue 34 has no table: the same convention from the names, a linear
+  // ramp from a light tint to the saturated colour (close to, not exactly, deviation_colors)
+  const sat = d.saturation || 10, limit = d.limit_mm, span = Math.max(1, Math.ceil(sat * limit * 1000));
+  const rgb = new Uint8Array((2 * span + 1) * 3);
+  for (let k = -span; k <= span; k++) {
+    const mm = k / 1000;
+    let c = colours.within;
+    if (Math.abs(mm) > limit) {
+      const a = Math.min(1, (Math.abs(mm) - limit) / (limit * (sat - 1))), t = 0.25 + 0.75 * a;
+      const to = mm > 0 ? colours.left : colours.cut;
+      c = to.map((v) => (1 - t) * 235 + t * v);
+    }
+    rgb.set(c.map(Math.round), 3 * (k + span));
+  }
+  devLut = { first: -span, rgb, unmeasured, colours };
 }
 
+// [r, g, b] of a deviation in micrometres (viewer.points.bin's int16)
+function deviationColour(um) {
+  if (um === devLut.unmeasured || !Number.isFinite(um)) return devLut.colours.unmeasured;
+  const m = devLut.rgb.length / 3;
+  const j = Math.max(0, Math.min(m - 1, Math.round(um) - devLut.first)) * 3;
+  return [devLut.rgb[j], devLut.rgb[j + 1], devLut.rgb[j + 2]];
+}
+state.deviationColour = (mm) => (devLut ? deviationColour(mm === null ? NaN : mm * 1000) : null);
+
 function drawColourBar(idx) {
-  const limit = idx.deviation.limit_mm;
-  const lut = deviationLut(limit);
+  const limit = idx.deviation.limit_mm, sat = idx.deviation.saturation || 10;
+  const span = -devLut.first;                  // micrometres, the saturation
   const cv = $('colourbar-canvas'), g = cv.getContext('2d');
   for (let x = 0; x < cv.width; x++) {
-    const j = Math.round(x / (cv.width - 1) * (DEV_STEPS - 1)) * 3;
-    g.fillStyle = `rgb(${lut[j]},${lut[j + 1]},${lut[j + 2]})`;
+    const c = deviationColour(Math.round((x / (cv.width - 1) * 2 - 1) * span));
+    g.fillStyle = `rgb(${c[0]},${c[1]},${c[2]})`;
     g.fillRect(x, 0, 1, cv.height);
   }
-  const ticks = [-10, -1, 0, 1, 10].map((m) => (m * limit).toFixed(3));
+  // ticks at their places on the (linear) bar; the green band, +-limit, is named in the legend
+  const ticks = [-sat, -sat / 2, 0, sat / 2, sat].map((m) => (m * limit).toFixed(3));
   ticks[0] = '&le;' + ticks[0]; ticks[4] = '&ge;' + ticks[4];
   $('colourbar-ticks').innerHTML = ticks.map((t) => `<span>${t}</span>`).join('');
+  const sw = (c) => `<span class="swatch" style="background:rgb(${c.join(',')})"></span>`;
+  const col = devLut.colours;
+  $('colourbar-legend').innerHTML =
+    `Deviation of the scan from the simulated result, mm: ${sw(col.within)}green within &plusmn;${limit.toFixed(3)} ` +
+    `(the finishing limit); ${sw(col.left)}blue: material left (+); ${sw(col.cut)}red: cut below the scan (&minus;); ` +
+    `saturated at ${sat} &times; the limit; ${sw(col.unmeasured)}grey: not measured. ` +
+    'The same colours as deviation.ply and deviation.png.';
 }
 
 // the scan's points: flat colours, or shaded by a headlight (the light comes from the eye: a point
@@ -260,12 +288,18 @@ function buildPoints(idx, buffers) {
   scene.add(cloud);
   colourPoints(idx, arrays);
   for (const id of ['show-unmachined', 'show-integrated']) $(id).onchange = () => colourPoints(idx, arrays);
-  for (const r of document.querySelectorAll('input[name=colour]')) r.onchange = () => colourPoints(idx, arrays);
+  for (const r of document.querySelectorAll('input[name=colour]')) {
+    r.onchange = () => { pathsForColour(); colourPoints(idx, arrays); };
+  }
   $('point-size').oninput = (e) => { m.uniforms.pointSize.value = Number(e.target.value); requestRender(); };
   $('shading').disabled = !arrays.normal;
   $('shading').checked = !!arrays.normal;
   $('shading').onchange = (e) => { m.uniforms.shade.value = e.target.checked; requestRender(); };
-  if (arrays.deviation && idx.deviation) { $('colour-deviation').disabled = false; drawColourBar(idx); }
+  if (arrays.deviation && idx.deviation) {
+    setupDeviation(idx, buffers);
+    $('colour-deviation').disabled = false;
+    drawColourBar(idx);
+  }
 }
 
 // the camera sees the whole scan and every tool axis with its label: a sphere about the box centre
@@ -306,23 +340,110 @@ function buildAxes(idx, centre, size) {
 
 const fmt = (v, d) => (v === null || v === undefined) ? '' : Number(v).toFixed(d);
 
+// Figures as the CLI summary (scanmill/summary.py) prints them, Python's rounding included (exact halves to
+// even, where JavaScript's toFixed rounds them up): minutes to one decimal ('{:.1f}' of s / 60), '-' for
+// none; the total as H:MM (round(s / 60)); counts with thousands commas ('{:,}'); shares as '{:.1%}'.
+function pyFixed(x, d) {
+  if (!Number.isFinite(x)) return String(x);
+  const sign = (x < 0 || Object.is(x, -0)) ? '-' : '', a = Math.abs(x), p = 10 ** d;
+  const s = a * 2 ** (d + 1);                  // an exact decimal half is odd / 2^(d+1) (exact scaling)
+  if (Number.isInteger(s) && s % 2 === 1 && s < 2 ** 52) {
+    const lo = Math.floor(a * p);              // exact here: a * 10^d = odd * 5^d / 2
+    return sign + ((lo % 2 === 0 ? lo : lo + 1) / p).toFixed(d);
+  }
+  return sign + a.toFixed(d);
+}
+function pyRound(x) {                        // Python's round(): halves to even
+  const f = Math.floor(x), diff = x - f;
+  if (diff === 0.5) return f % 2 === 0 ? f : f + 1;
+  return Math.round(x);
+}
+const figFmt = {
+  minutes: (s) => (s === null || s === undefined) ? '-' : pyFixed(s / 60, 1),
+  hmm: (s) => { const m = pyRound(s / 60); return `${Math.floor(m / 60)}:${String(m % 60).padStart(2, '0')}`; },
+  count: (n) => (n === null || n === undefined) ? '-' : Number(n).toLocaleString('en'),
+  share: (x, d = 1) => (x === null || x === undefined) ? '-' : pyFixed(x * 100, d) + '%',
+};
+state.format = figFmt;
+
+// the set-ups in plan.json's machining_order (those it leaves out after them, in plan order)
+function orderedSetups(idx) {
+  const byId = new Map(idx.setups.map((s) => [s.id, s]));
+  const order = (idx.machining_order && idx.machining_order.length) ? idx.machining_order
+    : idx.setups.filter((s) => s.order !== null && s.order !== undefined).sort((a, b) => a.order - b.order).map((s) => s.id);
+  const out = [], seen = new Set();
+  for (const id of order) if (byId.has(id) && !seen.has(id)) { out.push(byId.get(id)); seen.add(id); }
+  for (const s of idx.setups) if (!seen.has(s.id)) out.push(s);
+  return out;
+}
+
+const swatch = (c) => `<span class="swatch" style="background:rgb(${c.join(',')})"></span>`;
+
 function fillTable(idx) {
   const rot = idx.rotary_axes || ['tilt', 'rotary'];
   $('rot0').textContent = rot[0] + ' (deg)';
   $('rot1').textContent = rot[1] + ' (deg)';
   const body = document.querySelector('#setups tbody');
-  for (const s of idx.setups) {
+  orderedSetups(idx).forEach((s, k) => {
     const tr = document.createElement('tr');
     tr.dataset.setup = s.id;
-    tr.innerHTML = `<td><span class="swatch" style="background:rgb(${s.color.join(',')})"></span>${s.id}</td>` +
+    tr.innerHTML = `<td class="order">${k + 1}</td><td>${swatch(s.color)}${s.id}</td>` +
       `<td class="rot0">${fmt(s.rotary_deg[rot[0]], 3)}</td><td class="rot1">${fmt(s.rotary_deg[rot[1]], 3)}</td>` +
       `<td>${fmt(s.phi_deg, 1)}</td><td>${fmt(s.theta_deg, 1)}</td>` +
       `<td>${s.n_input_points.toLocaleString('en')}</td><td>${s.finishing_mode || ''}</td>` +
       `<td><input type="checkbox" class="toggle-scan" checked title="scan points of this area"></td>` +
-      `<td><input type="checkbox" class="toggle-path" data-op="finishing" disabled title="finishing path"></td>` +
+      `<td><input type="checkbox" class="toggle-path" data-op="finishing" disabled checked title="finishing path"></td>` +
       `<td><input type="checkbox" class="toggle-path" data-op="roughing" disabled title="roughing path"></td>`;
     body.appendChild(tr);
+  });
+  fillFigures(idx);
+}
+
+// plan.json's figures (issue 34), nothing recomputed: per area in machining order its roughing, finishing and
+// total minutes and its input points finished / left / unreached / not covered; the plan's totals below
+function fillFigures(idx) {
+  const f = idx.figures;
+  if (!f) {
+    $('figures-note').textContent = 'This plan has no figures (times and finished points): it was planned ' +
+      'before they existed; plan it again to see them.';
+    return;
   }
+  const colour = new Map(idx.setups.map((s) => [s.id, s.color]));
+  const body = document.querySelector('#figures tbody');
+  const cells = (vals, cls) => vals.map((v, i) => `<td class="${cls[i]}">${v}</td>`).join('');
+  const cls = ['order', 'area', 'rough', 'finish', 'total', 'finished', 'left', 'unreached', 'not-covered'];
+  (f.areas || []).forEach((a, k) => {
+    const tr = document.createElement('tr');
+    tr.dataset.area = a.area;
+    const c = colour.get(a.area);
+    tr.innerHTML = cells([k + 1, (c ? swatch(c) : '') + a.area, figFmt.minutes(a.roughing_time_s),
+      figFmt.minutes(a.finishing_time_s), figFmt.minutes(a.machining_time_s), figFmt.count(a.finished),
+      figFmt.count(a.left), figFmt.count(a.unreached), figFmt.count(a.not_covered)], cls);
+    body.appendChild(tr);
+  });
+  const foot = document.querySelector('#figures tfoot');
+  const tr = document.createElement('tr');
+  tr.className = 'total';
+  tr.innerHTML = cells(['', 'plan', '', '', figFmt.minutes(f.machining_time_s), figFmt.count(f.finished),
+    figFmt.count(f.left), figFmt.count(f.unreached), figFmt.count(f.not_covered)], cls);
+  foot.appendChild(tr);
+  const shares = document.createElement('tr');
+  shares.className = 'shares';
+  shares.innerHTML = cells(['', 'share', '', '', figFmt.hmm(f.machining_time_s), figFmt.share(f.finished_share),
+    figFmt.share(f.left_share), figFmt.share(f.unreached_share), figFmt.share(f.not_covered_share)], cls);
+  foot.appendChild(shares);
+  const source = { simulated: 'simulated: the posted programs as the control runs them (feeds, rapids, no acceleration)',
+                   estimate: 'estimate: from the tool paths before posting (no tool changes), not simulated',
+                   none: 'none: no paths' }[f.time_source] || f.time_source;
+  $('figures-time').textContent = f.time_source === 'none' ? 'no' : f.time_source;
+  $('figures').hidden = false;
+  $('figures-note').innerHTML = '';
+  $('figures-note').append(
+    `Times in minutes, ${source}; total ${figFmt.hmm(f.machining_time_s)} (h:mm). ` +
+    `Counts are of the ${figFmt.count(f.n_points)} input points (the scan's points, not the sampled ones), each in ` +
+    'one column: finished within tolerance' + (f.measured ? '' : ' (not simulated: unknown)') + '; left (reached by a ' +
+    'finishing move, not finished); unreached (no kept finishing move reaches it); not covered (seen by no chosen ' +
+    `set-up). Target: ${figFmt.share(f.target_coverage, 0)} finished.`);
 }
 
 // per-area scan toggles: the points of the areas left on are drawn through an index (all points
@@ -347,6 +468,40 @@ function wireScanToggles(idx) {
 }
 
 // ------------------------------------------------------------------------------------------- paths
+// finishing paths in the area's colour, shown from the start; roughing paths (off at the start) darker;
+// both translucent and without depth writes, so the shaded scan stays visible under the passes and
+// through the roughing levels; rapids grey, off. The deviation colours hide the paths (they would cover
+// the map) and the area colours bring back the switches as they were.
+const FINISHING_OPACITY = 0.3, ROUGHING_OPACITY = 0.15;
+const pathObjects = [];         // { item, cb, cutLines, rapidLines }
+let savedPathSwitches = null;   // the path switches' states while the deviation colours hide them
+
+function pathSwitches() {
+  return [...document.querySelectorAll('.toggle-path:not(:disabled), #show-finishing, #show-roughing')];
+}
+
+function pathsForColour() {
+  const deviation = document.querySelector('input[name=colour]:checked').value === 'deviation';
+  if (deviation && !savedPathSwitches) {
+    savedPathSwitches = new Map(pathSwitches().map((c) => [c, c.checked]));
+    for (const c of savedPathSwitches.keys()) c.checked = false;
+  } else if (!deviation && savedPathSwitches) {
+    for (const [c, on] of savedPathSwitches) c.checked = on;
+    savedPathSwitches = null;
+  }
+  applyPaths();
+}
+
+function applyPaths() {
+  const rapids = $('show-rapids').checked;
+  for (const p of pathObjects) {
+    const on = p.cb ? p.cb.checked : false;
+    p.cutLines.visible = on;
+    p.rapidLines.visible = on && rapids;
+  }
+  requestRender();
+}
+
 function buildPaths(idx, buffers) {
   const box = idx.paths.box;
   for (const item of idx.paths.items) {
@@ -360,22 +515,40 @@ function buildPaths(idx, buffers) {
     }
     const s = idx.setups.find((x) => x.id === item.area);
     const c = s ? s.color : [0, 0, 0];
-    const shade = item.operation === 'roughing' ? 0.5 : 1.0;
+    const roughing = item.operation === 'roughing';
+    const shade = roughing ? 0.5 : 1.0;
     const colour = new THREE.Color(c[0] * shade / 255, c[1] * shade / 255, c[2] * shade / 255);
     const gc = new THREE.BufferGeometry(), gr = new THREE.BufferGeometry();
     gc.setAttribute('position', attr); gc.setIndex(new THREE.BufferAttribute(cuts, 1));
     gr.setAttribute('position', attr); gr.setIndex(new THREE.BufferAttribute(rapids, 1));
-    const cutLines = new THREE.LineSegments(gc, new THREE.LineBasicMaterial({ color: colour }));
-    const rapidLines = new THREE.LineSegments(gr, new THREE.LineBasicMaterial({ color: 0x9e9e9e }));
+    const translucent = { transparent: true, opacity: roughing ? ROUGHING_OPACITY : FINISHING_OPACITY, depthWrite: false };
+    const cutLines = new THREE.LineSegments(gc, new THREE.LineBasicMaterial({ color: colour, ...translucent }));
+    const rapidLines = new THREE.LineSegments(gr, new THREE.LineBasicMaterial({ color: 0x9e9e9e, ...translucent }));
+    cutLines.renderOrder = rapidLines.renderOrder = roughing ? 3 : 2;   // after the opaque scan
     for (const o of [cutLines, rapidLines]) { placeQuantised(o, box.min_mm, box.max_mm); o.visible = false; o.frustumCulled = false; scene.add(o); }
     const cb = document.querySelector(`tr[data-setup="${item.area}"] .toggle-path[data-op="${item.operation}"]`);
     if (cb) {
       cb.disabled = false;
-      const apply = () => { cutLines.visible = cb.checked; rapidLines.visible = cb.checked && $('show-rapids').checked; requestRender(); };
-      cb.onchange = apply;
-      $('show-rapids').addEventListener('change', apply);
+      const all = roughing ? $('show-roughing') : $('show-finishing');
+      if (savedPathSwitches) {       // the deviation colours were chosen while the paths loaded
+        savedPathSwitches.set(cb, savedPathSwitches.get(all));
+        cb.checked = false;
+      } else cb.checked = all.checked;
+      cb.onchange = applyPaths;
     }
+    pathObjects.push({ item, cb, cutLines, rapidLines });
   }
+  // the switches of every area at once
+  for (const [id, op] of [['show-finishing', 'finishing'], ['show-roughing', 'roughing']]) {
+    $(id).onchange = (e) => {
+      for (const p of pathObjects) if (p.cb && p.item.operation === op) p.cb.checked = e.target.checked;
+      applyPaths();
+    };
+  }
+  $('show-rapids').onchange = applyPaths;
+  // a table switch without a path (an area whose operation has no moves) stays off and disabled
+  for (const cb of document.querySelectorAll('.toggle-path:disabled')) cb.checked = false;
+  applyPaths();
 }
 
 // ---------------------------------------------------------------------------------------- offences
@@ -432,8 +605,9 @@ async function main() {
   state.firstFrameMs = performance.now();     // since the navigation started (the page's time origin)
   state.ready = true;
   const shown = idx.points.n_shown, total = idx.points.n_total;
-  $('counts').textContent = `${shown.toLocaleString('en')} of ${total.toLocaleString('en')} points shown; ` +
-    `${idx.points.n_integrated.toLocaleString('en')} integrated, ${idx.points.n_unmachined.toLocaleString('en')} unmachined`;
+  $('counts').textContent = `${shown.toLocaleString('en')} of ${total.toLocaleString('en')} input points shown; ` +
+    `${idx.points.n_integrated.toLocaleString('en')} integrated (darker), ` +
+    `${idx.points.n_unmachined.toLocaleString('en')} unmachined (red: no kept finishing move reaches them)`;
   setStatus('Drawn in ' + (state.firstFrameMs / 1000).toFixed(2) + ' s; loading the tool paths...');
   if (idx.paths.items.length) {
     buffers['viewer.paths.bin'] = await get('viewer.paths.bin');

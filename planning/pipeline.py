@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import scanmill
+from planning.advice import advise
 from planning.areas import Areas, assign_areas
 from planning.errors import InputError, ParameterError
 from planning.inputs import Cloud
@@ -419,13 +420,15 @@ def _plan_arrays(nrm: _Normals, ori: _Orientations, vis: np.ndarray, selected: n
 
 
 def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
-             progress: Progress | None = None, base_dir=None) -> PlanOutcome:
+             progress: Progress | None = None, base_dir=None, command_line=None) -> PlanOutcome:
     """Plan the 3+2 machining of ``cloud`` (points in mm) with ``config`` (Makki 2010 §2-3).
 
     Returns the ``plan.json`` model and the ``plan.npz`` arrays: ``sample_index`` (n,),
     ``normals`` (n,3), ``candidate_axes`` (m,3) (machine-feasible axes), ``visibility`` (n,m),
     ``selected`` (k,), ``labels`` (n,), ``integrated`` (n,), plus ``input_labels`` (N,).
     ``base_dir``: where relative fixture mesh paths are looked up (the configuration's folder).
+    ``command_line``: the ``scanmill plan`` command (argv, program first) that runs this plan, or None
+    (a service job, the Python API): an infeasible plan's advice gives it back with the change to make.
     """
     run = _Run(progress)
     run.warnings += list(getattr(cloud, "warnings", ()))     # what reading changed (an image scaled down, ...)
@@ -456,6 +459,9 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     sel = run.stage("setups", lambda p: _setups(finish_vis, zmask, config, p))
     run.warnings += _setups_warnings(sel, vis.summary, config)
     placed = placement_hint(run, placed, sel, ori, config, profile, tool, base_dir, zmask)
+    advice, sel = advise(run, sel, points=points, nrm=nrm, ori=ori, config=config, profile=profile,   # issue 34
+                         visible=finish_vis, zmask=zmask, placement=placed.summary, base_dir=base_dir,
+                         command_line=command_line)
     selected = np.asarray(sel.selected, dtype=np.int64)
     sel_axes = ori.axes[selected]
     label_cone = (config.visibility.cone_deg if config.paths.finishing.mode != "5axis"
@@ -501,6 +507,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     elif cloud.faces is not None:
         result.input.n_faces = int(cloud.faces.shape[0])
     placement_result(result, placed)
+    result.advice = advice
     result.machining_order = order
     result.unmachined = _unmachined(area_paths, points.shape[0])
     if result.unmachined is not None and result.unmachined.n_points:

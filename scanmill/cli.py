@@ -138,7 +138,8 @@ def cmd_plan(args) -> int:
         cloud = read_input(args.input, config.input, fmt=args.format)
     progress("read", 1.0, f"{cloud.points.shape[0]} points ({cloud.source_format})")
     base_dir = Path(args.config).resolve().parent if getattr(args, "config", None) else Path.cwd()
-    outcome = run_plan(cloud, config, name=Path(args.input).name, progress=progress, base_dir=base_dir)
+    outcome = run_plan(cloud, config, name=Path(args.input).name, progress=progress, base_dir=base_dir,
+                       command_line=getattr(args, "command_line", None))
     progress("write", 0.0, str(args.out))
     paths = write_plan(outcome, args.out, progress=lambda f, m: progress("write", f, m))
     progress("write", 1.0, "done")
@@ -341,6 +342,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    # the command line as the user ran it: the advice of an infeasible plan prints it with its change
+    args.command_line = [sys.argv[0]] + sys.argv[1:] if argv is None else ["scanmill"] + list(argv)
     try:
         return args.func(args)
     except PlanningError as exc:

@@ -545,6 +545,52 @@ class PathsSurface(_Out):
     reason: str = ""
 
 
+class AdviceTry(_Out):
+    """One change the planner tried on an infeasible plan (planning/advice.py): the visibility and set-up
+    stages run again with it, on the same sampled points and normals (paths are not run)."""
+
+    parameter: str = Field(..., description="The parameter changed, as `--set` names it (e.g. "
+                                            "'fixtures.fixture_height_mm').")
+    value: bool | int | float | str | list[float] = Field(
+        ..., description="Its value in the try, as `--set` takes it, in the parameter's own unit (mm for *_mm, "
+                         "degrees for *_deg, a count for setups.max_setups).")
+    assignment: str = Field(..., description="The `--set` argument: parameter=value.")
+    feasible: bool = Field(..., description="True when the set-up selection reached setups.coverage with at most "
+                                            "setups.max_setups set-ups (of the try) with it.")
+    coverage: float | None = Field(None, description="Fraction (0-1) of the sampled points the try's best selection "
+                                                     "covers; null when the try gave no selection.")
+    k: int | None = Field(None, description="Set-ups of that selection (a count).")
+    seconds: float = Field(..., ge=0, description="Wall time of the try, s (the placement try: the placement "
+                                                  "search the as-scanned hint ran, not counted in the budget).")
+    note: str = Field("", description="What else the operator should know of this try (the placement found, a "
+                                      "selection stopped by its time limit).")
+
+
+class Advice(_Out):
+    """What the planner tried after an infeasible set-up selection, in the fixed order of
+    planning/advice.py, and the first change that reaches setups.coverage (null without one)."""
+
+    target_coverage: float = Field(..., description="setups.coverage the tries had to reach, a fraction (0-1).")
+    budget_s: float = Field(..., description="Time allowed for the tries, s (planning.advice.ADVICE_BUDGET_S); no try "
+                                             "starts after it is spent, nor one running the visibility stage when "
+                                             "less is left than the plan's own visibility stage took.")
+    seconds: float = Field(..., ge=0, description="Wall time of the tries together, s.")
+    tries: list[AdviceTry] = Field(default_factory=list, description="The tries, in the order run; they stop at "
+                                                                     "the first feasible one.")
+    not_tried: list[str] = Field(default_factory=list, description="Changes of the order left out, each "
+                                                                   "'parameter=value (why)'.")
+    budget_spent: bool = Field(False, description="True when the time budget ran out before every change was tried.")
+    chosen: int | None = Field(None, description="Index in tries of the first change that reaches the coverage; "
+                                                 "null when none does.")
+    closest: int | None = Field(None, description="When none does: index in tries of the try with the highest "
+                                                  "coverage (first of equals).")
+    command: str | None = Field(None, description="The command line to plan with the chosen change: the `scanmill "
+                                                  "plan` command as given, the same --set replaced, plus the change; "
+                                                  "null outside the command line (set the parameter in the job's "
+                                                  "parameters instead).")
+    message: str = Field("", description="The sentence the plan's message carries.")
+
+
 class PlanResult(_Out):
     """Everything ``scanmill plan`` and a finished job report about a plan."""
 
@@ -581,6 +627,9 @@ class PlanResult(_Out):
                           "the machining time; every other report reads these.")
     placement: PlacementSummary | None = Field(
         None, description="How the part sits on the table (fixtures.placement) and, with 'auto', the placements tried.")
+    advice: Advice | None = Field(
+        None, description="An infeasible plan: the cheap changes tried on its visibility and set-up stages and the first "
+                          "that reaches setups.coverage (planning/advice.py); null otherwise.")
     paths_surface: PathsSurface | None = Field(
         None, description="What the finishing ball rested on and the gouge clearance was measured to (null without "
                           "finishing paths).")

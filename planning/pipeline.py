@@ -489,7 +489,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     if area_paths:
         programs, path_summaries = run.stage("post", lambda p: post_areas(
             area_paths, setups_axes=sel_axes, rotary_deg=ori.angles_deg[selected], profile=profile,
-            placement_mm=gv.placement_mm, gauge_length_mm=tool.gauge_length_mm, config=config))
+            placement_mm=gv.placement_mm, gauge_length_mm=tool.gauge_length_mm, config=config, progress=p))
     simulation = _simulation(cloud, config, nrm, areas, programs, order, profile, tool, gv, blank, run,
                              area_paths=area_paths, carried=carried if area_paths else None)
 

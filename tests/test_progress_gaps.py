@@ -155,3 +155,26 @@ def test_the_set_up_search_reports_from_below_the_root_and_never_goes_back(monke
     (lo0, en0, sel0), (lo2, en2, sel2) = seen[0], seen[ss._PROGRESS_DEPTH]
     assert sel0 == sel2                                   # the reports change nothing
     assert lo2 > 5 * lo0 and en2 > en0                    # the least-overlap and existence searches speak inside
+
+
+def test_the_post_reports_each_area_and_dialect():
+    """Issue 34 item 4: the post stage went from 'start' to 'done' with nothing between (2.3-2.7 s on the
+    femur-like plan)."""
+    from planning.inputs import samples
+    from planning.inputs.cloud import Cloud
+    from planning.pipeline import run_plan
+    from schemas.params import parse_config
+
+    s = samples.half_sphere(n_points=400)
+    calls = []
+    run_plan(Cloud(points=s.points, normals=s.normals, source_format="generated"),
+             parse_config({"normals": {"method": "input"}, "setups": {"max_setups": 2}, "tool": {"diameter_mm": 10},
+                           "paths": {"finishing": {"scallop_mm": 1.0}, "roughing": {"step_down_mm": 10}},
+                           "simulate": {"enabled": False}}),
+             progress=lambda stage, f, m: calls.append((stage, f, m)))
+    post = [(f, m) for st, f, m in calls if st == "post" and m.startswith("area ")]
+    fr = [f for f, _ in post]
+    assert fr == sorted(fr) and len(set(fr)) == len(fr) and 0.0 <= fr[0] and fr[-1] < 1.0
+    for area in (0, 1):
+        for what in ("iso.nc", "linuxcnc.nc", "moves files"):
+            assert any(m.startswith(f"area {area}: ") and m.endswith(what) for _, m in post), (area, what)

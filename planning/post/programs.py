@@ -84,17 +84,19 @@ def _operations(ap, config) -> list[Operation]:
     return ops
 
 
-def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, gauge_length_mm, config):
+def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, gauge_length_mm, config,
+               progress=None):
     """Programs ``{artifact name: text}`` (the NC programs as str, the moves files as bytes) and path
     summaries ``{area: AreaPathSummary}`` for every
     area in ``area_paths``; ``rotary_deg`` (k,2) (tilt, rotary) of each set-up; ``gauge_length_mm``:
-    tool tip to spindle gauge line of the finishing tool."""
+    tool tip to spindle gauge line of the finishing tool. ``progress(fraction, message)``, when given,
+    before each area's program in each dialect and its moves files."""
     post = config.post
     fp = config.paths.finishing
     R = config.tool.diameter_mm / 2.0
     files: dict[str, str | bytes] = {}
     summaries: dict[int, AreaPathSummary] = {}
-    for ap in area_paths:
+    for k_area, ap in enumerate(area_paths):
         i = ap.area
         ops = _operations(ap, config)
         five = _five_axis_operations(ap, config, gauge_length_mm)
@@ -105,12 +107,17 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
                                   decimals=post.decimals, rotary_sign=tuple(post.rotary_sign),
                                   safe_z_mm=float(ap.safe_z_mm - R),
                                   max_arc_radius_mm=float(post.max_arc_radius_mm))
-            for dialect in post.dialects:
+            n_steps = len(post.dialects) + 1
+            for d_i, dialect in enumerate(post.dialects):
                 name = f"area_{i}.{dialect}.nc"
+                if progress is not None:
+                    progress((k_area + d_i / n_steps) / len(area_paths), f"area {i}: {name}")
                 files[name] = _POSTS[dialect](ops, ap.frame, setup_id=i, area_id=i, tool_axis=setups_axes[i],
                                               rotary_deg=rotary_deg[i], profile=profile, placement_mm=placement_mm,
                                               gauge_length_mm=gauge_length_mm, options=options, five_axis=five)
                 names[dialect] = name
+            if progress is not None:
+                progress((k_area + (n_steps - 1) / n_steps) / len(area_paths), f"area {i}: moves files")
             text, doc = neutral_json_arrays(
                 ops, ap.frame, setup_id=i, area_id=i, tool_axis=setups_axes[i], rotary_deg=rotary_deg[i], profile=profile,
                 placement_mm=placement_mm, decimals=post.decimals) if ops else ("", None)

@@ -156,6 +156,8 @@ def run(args) -> int:
                 for chunk in resp.iter_bytes():
                     fh.write(chunk)
         plan = client.get(job["links"]["result"]).json()
+        # the job's own record (GET /jobs/{id}: status, times, the result headline) beside its artifacts
+        (out_dir / "job.json").write_text(json.dumps(job, indent=1))
         print(plan["message"])
         for s in plan["setups"]:
             rot = " ".join(f"{k}{v:+.1f}" for k, v in s["rotary_deg"].items())

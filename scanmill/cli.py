@@ -26,12 +26,15 @@ EXIT_OK, EXIT_ERROR, EXIT_INFEASIBLE, EXIT_UNSAFE, EXIT_UNFINISHED = 0, 2, 3, 4,
 
 class _Progress:
     """Prints one line per stage start/end and progress inside long stages, to stderr: a line when
-    the stage has moved on by a fifth, or when ``every_s`` (2 s) have passed since its last line
-    (so a long stage never goes silent for longer while it reports)."""
+    the stage has moved on by a fifth, or when the next report, expected as far off as this one came
+    after the one before, would come more than ``every_s`` (2 s) after the stage's last line (so a
+    stage that reports every 1.5 s prints every report, one that reports ten times a second a line
+    about every 2 s: the lines are never further apart than the reports or ``every_s``)."""
 
     def __init__(self, stream=None, quiet: bool = False, every_s: float = 2.0):
         self.stream, self.quiet, self.every_s = stream, quiet, float(every_s)
         self._last: dict[str, tuple[float, float]] = {}
+        self._call: dict[str, float] = {}
         self._t0 = time.perf_counter()
 
     def __call__(self, stage: str, fraction: float, message: str) -> None:
@@ -39,7 +42,9 @@ class _Progress:
             return
         now = time.perf_counter()
         last, last_t = self._last.get(stage, (-1.0, -float("inf")))
-        if 0.0 < fraction < 1.0 and fraction - last < 0.2 and now - last_t < self.every_s:
+        gap = now - self._call.get(stage, now)             # since this stage's previous report
+        self._call[stage] = now
+        if 0.0 < fraction < 1.0 and fraction - last < 0.2 and now - last_t + gap < self.every_s:
             return
         self._last[stage] = (fraction, now)
         elapsed = now - self._t0

@@ -47,6 +47,30 @@ def test_cli_prints_a_stage_line_per_fifth_or_every_two_seconds(monkeypatch):
     assert [ln.split()[-1] for ln in lines] == ["start", "b", "c", "done"]
 
 
+def test_cli_lines_are_never_further_apart_than_the_reports_or_two_seconds(monkeypatch):
+    """Issue 34 item 4: with reports every 1.5 s and 'a line 2 s after the last one', every other report
+    was held back and the lines came 3 s apart. The next report is expected as far off as the last gap."""
+    out = io.StringIO()
+    clock = [0.0]
+    monkeypatch.setattr("scanmill.cli.time.perf_counter", lambda: clock[0])
+    p = _Progress(stream=out)
+    p("write", 0.0, "start")
+    for k in range(1, 9):                       # small steps 1.5 s apart
+        clock[0] = 1.5 * k
+        p("write", 0.01 * k, f"s{k}")
+    assert [ln.split()[-1] for ln in out.getvalue().splitlines()] == ["start"] + [f"s{k}" for k in range(1, 9)]
+    out.truncate(0)
+    out.seek(0)
+    t: list[float] = []
+    for k in range(1, 101):                     # ten reports a second for 10 s: a line about every 2 s
+        clock[0] = 20.0 + 0.1 * k
+        p("paths", 0.001 * k, f"r{k}")
+        if out.getvalue().count("\n") > len(t):
+            t.append(clock[0])
+    gaps = [b - a for a, b in zip(t, t[1:])]
+    assert 4 <= len(t) <= 7 and all(1.5 <= g <= 2.0 + 1e-9 for g in gaps), (t, gaps)
+
+
 def test_region_finishing_reports_each_region_by_its_share_of_the_points():
     from planning.toolpath.area_paths import _region_finishing
     from planning.toolpath.verify import BinnedCloud

@@ -516,14 +516,17 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
         result.artifacts.deviation_ply, result.artifacts.deviation_png = "deviation.ply", "deviation.png"
     if simulation.stock is not None:
         result.artifacts.stock_ply = "stock.ply"
-    apply_figures(result, input_labels=areas.input_labels, not_covered=areas.integrated[areas.nearest_sample],
-                  unreached=np.concatenate([np.zeros(0, np.int64)] + [np.asarray(ap.unmachined, np.int64)
-                                           for ap in area_paths if getattr(ap, "unmachined", None) is not None]),
-                  deviation_mm=simulation.deviation_mm, config=config)
+    classes = apply_figures(result, input_labels=areas.input_labels,
+                            not_covered=areas.integrated[areas.nearest_sample],
+                            unreached=np.concatenate([np.zeros(0, np.int64)] + [
+                                np.asarray(ap.unmachined, np.int64) for ap in area_paths
+                                if getattr(ap, "unmachined", None) is not None]),
+                            deviation_mm=simulation.deviation_mm, config=config)
     return PlanOutcome(result=result, arrays=_plan_arrays(nrm, ori, gv.visible, selected, areas, area_paths),
                        points=points, input_labels=areas.input_labels, selected_axes=sel_axes,
                        extra={"programs": programs, "area_paths": area_paths, "areas": areas,
-                              "simulation": simulation, "verify_again": getattr(simulation, "again", None)})
+                              "simulation": simulation, "verify_again": getattr(simulation, "again", None),
+                              "point_classes": classes})
 
 
 def _simulated_operations(area_paths, carried) -> dict | None:

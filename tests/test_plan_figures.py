@@ -20,7 +20,14 @@ from plyfile import PlyData
 from planning.inputs import samples
 from planning.inputs.cloud import Cloud
 from planning.pipeline import run_plan
-from planning.report.figures import FINISHED, LEFT, NOT_COVERED, UNREACHED, apply_figures, point_classes
+from planning.report.figures import (
+    FINISHED,
+    LEFT,
+    NOT_COVERED,
+    UNREACHED,
+    apply_figures,
+    point_classes,
+)
 from planning.report.plan_files import write_plan
 from scanmill.cli import EXIT_OK, EXIT_UNFINISHED, exit_status
 from scanmill.summary import summary_lines
@@ -133,3 +140,26 @@ def test_a_plan_finishing_less_than_the_coverage_says_so(planned):
     apply_figures(better, input_labels=outcome.input_labels, not_covered=np.zeros(n, bool),
                   unreached=np.zeros(0, np.int64), deviation_mm=np.zeros(n), config=config)
     assert better.status == "planned" and exit_status(better) == EXIT_OK
+
+
+def test_the_unmachined_picture_and_the_preview_count_the_plans_classes(planned, tmp_path, monkeypatch):
+    """unmachined.png said 2.4 % 'no kept finishing move reaches' beside figures.unreached 0.7 % (the rest
+    of those points end finished or seen by no set-up); the preview's legend counted every point attached
+    by distance beside figures.not_covered. Both now say the plan's class and its count."""
+    from planning.report import deviation, plan_files
+
+    outcome, _, _ = planned
+    f = outcome.result.figures
+    seen = {}
+    monkeypatch.setattr(deviation, "render_unmachined_png",
+                        lambda path, pts, idx, title="": seen.update(idx=np.asarray(idx), title=title))
+    real = plan_files.render_preview
+    monkeypatch.setattr(plan_files, "render_preview",
+                        lambda *a, **k: (seen.update(label=k.get("integrated_label")), real(*a, **k))[1])
+    outcome.result.artifacts.unmachined_png = "unmachined.png"
+    assert outcome.result.unmachined is not None and outcome.result.unmachined.n_points > 0   # some to draw
+    write_plan(outcome, tmp_path / "again")
+    assert seen["idx"].size == f.unreached
+    assert np.all(outcome.extra["point_classes"][seen["idx"]] == UNREACHED)
+    assert f"unreached (red): {f.unreached:,} input points ({f.unreached_share:.1%})" in seen["title"]
+    assert seen["label"] is not None and f"{f.not_covered:,} of them not finished" in seen["label"]

@@ -28,7 +28,7 @@ import numpy as np
 
 from schemas.plan import AreaFigures, PlanFigures
 
-__all__ = ["plan_figures", "point_classes", "FINISHED", "NOT_COVERED", "UNREACHED", "LEFT"]
+__all__ = ["FINISHED", "LEFT", "NOT_COVERED", "UNREACHED", "plan_figures", "point_classes"]
 
 #: Point classes of :func:`point_classes`.
 FINISHED, NOT_COVERED, UNREACHED, LEFT = 0, 1, 2, 3
@@ -123,10 +123,11 @@ def finishing_limit_mm(config, verification) -> float | None:
 
 
 def apply_figures(result, *, input_labels: np.ndarray, not_covered: np.ndarray, unreached: np.ndarray,
-                  deviation_mm: np.ndarray | None, config) -> None:
+                  deviation_mm: np.ndarray | None, config) -> np.ndarray:
     """Fill ``result.figures`` (a :class:`schemas.plan.PlanResult`), and let the plan's status and message
     speak for the part: a planned plan whose simulated programs finish less than ``setups.coverage`` of
-    the scan becomes 'unfinished'; the message leads with the finished share (:func:`headline`)."""
+    the scan becomes 'unfinished'; the message leads with the finished share (:func:`headline`).
+    Returns the (N,) point classes (:func:`point_classes`), for the pictures."""
     v = result.verification
     limit = finishing_limit_mm(config, v)
     measured = deviation_mm is not None and limit is not None
@@ -140,10 +141,11 @@ def apply_figures(result, *, input_labels: np.ndarray, not_covered: np.ndarray, 
     f = result.figures
     head = headline(f)
     if not head:
-        return
+        return classes
     if result.status == "planned" and f.finished_share < f.target_coverage:
         result.status = "unfinished"
         result.message = (f"only {head}: the programs finish less of the scan than setups.coverage; "
                           f"the set-ups: {result.message}")
     else:
         result.message = f"{head}; the set-ups: {result.message}"
+    return classes

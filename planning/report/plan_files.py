@@ -58,8 +58,14 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike, progress=None) 
               single=True)
 
     say(0.3, names.preview_png)
+    integ = input_integrated(outcome)
+    f = outcome.result.figures
+    note = None
+    if f is not None and integ is not None and f.measured:
+        note = (f"seen by no chosen set-up, attached by distance (darker, larger): {int(np.sum(integ)):,} input pts, "
+                f"{f.not_covered:,} of them not finished")
     render_preview(paths["preview_png"], outcome.points, labels, outcome.selected_axes,
-                   integrated=input_integrated(outcome),
+                   integrated=integ, integrated_label=note,
                    angles=[dict(s.rotary_deg) for s in outcome.result.setups],
                    title=f"{outcome.result.input.name or 'cloud'}: {outcome.result.message}")
 
@@ -87,21 +93,34 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike, progress=None) 
 def _write_unmachined(outcome: PlanOutcome, out: Path) -> dict[str, Path]:
     """``unmachined.png`` when the guard left scan points unmachined (issue 16)."""
     from planning.report.deviation import render_unmachined_png
+    from planning.report.figures import UNREACHED
 
     u = outcome.result.unmachined
     if u is None or u.n_points == 0 or not outcome.result.artifacts.unmachined_png:
         return {}
-    idx = np.concatenate([ap.unmachined for ap in outcome.extra.get("area_paths", [])
-                          if getattr(ap, "unmachined", None) is not None] or [np.zeros(0, np.int64)])
+    f, classes = outcome.result.figures, outcome.extra.get("point_classes")
     path = out / outcome.result.artifacts.unmachined_png
-    render_unmachined_png(path, outcome.points, idx,
-                          title=f"input points no kept finishing move reaches (red): {u.n_points:,} ({u.share:.1%})")
+    if f is not None and classes is not None:
+        # the plan's own class (figures.unreached): not finished, seen by a chosen set-up, reached by no
+        # kept finishing move; the points no move reaches that end finished or not covered are counted there
+        idx = np.flatnonzero(classes == UNREACHED)
+        title = (f"unreached (red): {f.unreached:,} input points ({f.unreached_share:.1%}) no kept finishing move "
+                 f"reaches and not finished within tolerance; {u.n_points:,} no kept move reaches in all")
+    else:
+        idx = np.concatenate([ap.unmachined for ap in outcome.extra.get("area_paths", [])
+                              if getattr(ap, "unmachined", None) is not None] or [np.zeros(0, np.int64)])
+        title = f"input points no kept finishing move reaches (red): {u.n_points:,} ({u.share:.1%})"
+    render_unmachined_png(path, outcome.points, idx, title=title)
     return {"unmachined_png": path}
 
 
 def _write_simulation(outcome: PlanOutcome, out: Path, say=lambda fraction, message="": None) -> dict[str, Path]:
     """The verification's artifacts (deviation PLY and PNG, final stock mesh) when it ran."""
-    from planning.report.deviation import render_deviation_png, write_deviation_ply, write_mesh_ply
+    from planning.report.deviation import (
+        render_deviation_png,
+        write_deviation_ply,
+        write_mesh_ply,
+    )
 
     sim = outcome.extra.get("simulation")
     names = outcome.result.artifacts

@@ -158,7 +158,7 @@ def point_colors(labels, k: int) -> np.ndarray:
 def render_preview(path, points, labels, axes, *, integrated=None,
                    angles: Sequence[Mapping[str, float]] | None = None,
                    max_points: int | None = None, title: str | None = None,
-                   dpi: int = 110) -> None:
+                   dpi: int = 110, integrated_label: str | None = None) -> None:
     """Render a PNG preview of the segmentation to ``path`` (written atomically).
 
     ``points`` ``(N, 3)`` mm; ``labels`` ``(N,)`` ints in ``[-1, k)`` (-1 = not machined);
@@ -166,10 +166,11 @@ def render_preview(path, points, labels, axes, *, integrated=None,
     bool marks leftover points attached to an area; ``angles`` per set-up the machine's rotary
     positions in degrees by axis name, in the machine's order (e.g. ``{"B": 35.0, "C": -120.0}``),
     shown in the legend. Every point is drawn unless ``max_points`` caps them (fixed-seed random
-    subsample). Arrows are 0.6 x the largest bounding-box side long.
+    subsample). Arrows are 0.6 x the largest bounding-box side long. ``integrated_label``: the legend's
+    words for the integrated points (default: their count).
     """
     fig = _build_figure(points, labels, axes, integrated=integrated, angles=angles,
-                        max_points=max_points, title=title, dpi=dpi)
+                        max_points=max_points, title=title, dpi=dpi, integrated_label=integrated_label)
     try:
         with atomic_path(path) as tmp:
             fig.savefig(tmp, format="png", dpi=dpi)
@@ -178,12 +179,13 @@ def render_preview(path, points, labels, axes, *, integrated=None,
 
 
 def _build_figure(points, labels, axes, *, integrated=None, angles=None, max_points=None,
-                  title=None, dpi: int = 110) -> Figure:
+                  title=None, dpi: int = 110, integrated_label: str | None = None) -> Figure:
     """The preview's figure (Agg canvas attached), laid out and ready to save at ``dpi``."""
     pts, lab, ax_dirs, integ = _check_inputs(points, labels, axes, integrated)
     rows = _check_angles(angles, ax_dirs.shape[0])
     keep = _subsample(pts.shape[0], _check_max_points(max_points))
     scene = _Scene(pts, lab, ax_dirs, integ, rows, keep)
+    scene.integrated_label = integrated_label
     fig = Figure(figsize=(12.0, 9.6), dpi=dpi)
     FigureCanvasAgg(fig)
     # a long title (the plan's message) wraps instead of running off the picture; 4 lines at most
@@ -636,7 +638,8 @@ def _legend_entries(scene: _Scene) -> list[tuple[np.ndarray, str]]:
         entries.append((UNCOVERED_COLOR / 255.0, f"not machined: {int(scene.counts[0]):,} input pts"))
     if scene.n_integrated:
         shade = scene.palette[3 if scene.k else 1, :3] / 255.0
-        text = f"seen by no chosen set-up, attached by distance (darker, larger): {scene.n_integrated:,} input pts"
+        text = (getattr(scene, "integrated_label", None)
+                or f"seen by no chosen set-up, attached by distance (darker, larger): {scene.n_integrated:,} input pts")
         entries.append((shade, text))
     return entries
 

@@ -163,3 +163,16 @@ def test_the_unmachined_picture_and_the_preview_count_the_plans_classes(planned,
     assert np.all(outcome.extra["point_classes"][seen["idx"]] == UNREACHED)
     assert f"unreached (red): {f.unreached:,} input points ({f.unreached_share:.1%})" in seen["title"]
     assert seen["label"] is not None and f"{f.not_covered:,} of them not finished" in seen["label"]
+
+
+def test_the_deepest_cut_of_the_scan_is_the_deepest_of_its_areas(planned):
+    """The femur-like plan said per area gouge_max_mm 0.058-0.089 mm while its total said 0.0: the areas
+    without a point read as gouged took the rays' reading, the total only the exact depths."""
+    outcome, _, _ = planned
+    v = outcome.result.verification
+    per_area = [a.deviation.gouge_max_mm for a in v.areas]
+    assert v.deviation.gouge_max_mm == pytest.approx(max(per_area), abs=1e-4)
+    dev = outcome.extra["simulation"].deviation_mm
+    for a in v.areas:
+        mine = outcome.input_labels == a.area
+        assert a.deviation.gouge_max_mm == pytest.approx(max(0.0, -float(dev[mine].min())), abs=1e-4)

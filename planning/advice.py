@@ -25,8 +25,8 @@ parameters. The tries share a wall-clock budget of :data:`ADVICE_BUDGET_S` secon
 after it is spent, nor a try that runs the visibility stage when less is left than the plan's own
 visibility stage took (a try started may still end after the budget; each selection's time limit is
 capped to what is left); the changes not tried are listed, and the set-up-only tries (max_setups) still
-run. The time the placement search took is the hint's,
-outside the budget.
+run. The placement search is the hint's, run only when the tries come
+to the placement (a riser that reaches the coverage spares it), its time outside the budget.
 
 The command line: given the ``scanmill plan`` command that runs the plan (``run_plan(command_line=)``,
 which the CLI passes), the suggested command is that command as given, with any ``--set`` of the same
@@ -178,7 +178,9 @@ def try_changes(points: np.ndarray, nrm, ori, config: PlanConfig, profile, visib
     ``points`` (N,3) mm and ``nrm`` (the pipeline's ``_Normals``: sampled indices and unit normals) are the
     placed cloud the plan ran on; ``ori`` its orientations; ``visible`` (n,m) bool its selection matrix
     (what the max_setups tries select on); ``zmask`` (n,) bool its functional zones; ``placement`` the
-    plan's placement block after :func:`planning.placement.stage.placement_hint`. ``budget_s`` seconds of
+    plan's placement block after :func:`planning.placement.stage.placement_hint`, or a function that runs
+    that search and returns it (called only when the tries reach the placement: a riser that reaches the
+    coverage spares the search). ``budget_s`` seconds of
     wall time (``clock``) for the tries together; ``visibility_s``: what the plan's own visibility stage took,
     s, the expected cost of a try that runs it (such a try is not started when less of the budget is left;
     the set-up-only tries still run); ``progress(fraction, message)``. Coverages are fractions
@@ -195,6 +197,12 @@ def try_changes(points: np.ndarray, nrm, ori, config: PlanConfig, profile, visib
     for i, ch in enumerate(changes):
         frac = i / max(len(changes), 1)
         if ch.parameter == "fixtures.placement":
+            if callable(placement):
+                # the placement hint's search, run only now that the changes before it did not reach the
+                # coverage; its time is the hint's, outside the budget
+                p0 = clock()
+                placement = placement()
+                t0 += clock() - p0
             t = _placement_try(ch, placement)
             if t is None:
                 not_tried.append(f"{ch.assignment} (the placement hint did not search: too costly or the set-up "
@@ -299,6 +307,13 @@ def advise(run, sel, *, points: np.ndarray, nrm, ori, config: PlanConfig, profil
         return None, sel
     budget_s = ADVICE_BUDGET_S if budget_s is None else float(budget_s)
     visibility_s = next((t.seconds for t in reversed(run.timings) if t.stage == "visibility"), 0.0)
+    resolved: dict = {}
+    if callable(placement):
+        search = placement
+
+        def placement():                      # the same search, its answer kept
+            resolved["summary"] = search()
+            return resolved["summary"]
     advice = run.stage("setups", lambda p: try_changes(
         points, nrm, ori, config, profile, visible, zmask, placement=placement, base_dir=base_dir,
         budget_s=budget_s, visibility_s=visibility_s, progress=p))
@@ -306,7 +321,8 @@ def advise(run, sel, *, points: np.ndarray, nrm, ori, config: PlanConfig, profil
     if advice.chosen is not None and command_line:
         command = command_with([str(a) for a in command_line], Change(advice.tries[advice.chosen].parameter,
                                                                      advice.tries[advice.chosen].value))
-    hinted = placement is not None and placement.candidate is not None
+    summary = resolved.get("summary", None if callable(placement) else placement)
+    hinted = summary is not None and summary.candidate is not None
     words = _sentence(advice, command, hinted)
     advice = advice.model_copy(update={"command": None if command is None else shlex.join(command),
                                        "message": words[2:]})

@@ -458,10 +458,17 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     finish_vis = selection_matrix(gv.visible, ori.axes, nrm.normals, config)
     sel = run.stage("setups", lambda p: _setups(finish_vis, zmask, config, p))
     run.warnings += _setups_warnings(sel, vis.summary, config)
-    placed = placement_hint(run, placed, sel, ori, config, profile, tool, base_dir, zmask)
+    hinted = {}
+
+    def placement_search(sel=sel, placed=placed):
+        """The placement hint (another placement of the part?), searched when the advice's tries come to it."""
+        hinted["placed"] = placement_hint(run, placed, sel, ori, config, profile, tool, base_dir, zmask)
+        return hinted["placed"].summary
+
     advice, sel = advise(run, sel, points=points, nrm=nrm, ori=ori, config=config, profile=profile,   # issue 34
-                         visible=finish_vis, zmask=zmask, placement=placed.summary, base_dir=base_dir,
+                         visible=finish_vis, zmask=zmask, placement=placement_search, base_dir=base_dir,
                          command_line=command_line)
+    placed = hinted.get("placed", placed)
     selected = np.asarray(sel.selected, dtype=np.int64)
     sel_axes = ori.axes[selected]
     label_cone = (config.visibility.cone_deg if config.paths.finishing.mode != "5axis"

@@ -268,3 +268,15 @@ def _suggested_plans_feasibly(tmp_path, sets):
     assert second["coverage"] >= second["parameters"]["setups"]["coverage"]
     assert second["coverage"] == pytest.approx(chosen["coverage"], abs=1e-12)
     return chosen
+
+
+def test_a_riser_that_reaches_the_coverage_spares_the_placement_search():
+    """The range femur with defaults: the first try (a 100 mm riser) reaches 95 %, so the placement hint's
+    search (about 20 s, eight candidate placements) is not run; it is run when the tries come to it."""
+    s = make_sample("range_femur")
+    cloud = Cloud(points=s.points, normals=None, source_format="generated")
+    r = run_plan(cloud, _cfg(), name="rf.ply").result
+    assert r.status == "infeasible" and r.advice.tries[r.advice.chosen].assignment == "fixtures.fixture_height_mm=100"
+    assert len(r.advice.tries) == 1
+    assert "placement" not in [t.stage for t in r.timings] and r.placement.candidates == []
+    assert "fixtures.placement = auto reaches it" not in r.message

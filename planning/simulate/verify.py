@@ -224,19 +224,11 @@ def deviation_figures(dev: np.ndarray, limit_mm: float, gouge_mm: float,
                                 gouge_max_mm=0.0, n_gouged=0)
     left = np.maximum(d, 0.0)
     suspected = h < -gouge_mm
-    # the depth of each point's cut, as :func:`reported_deviation` shows it: a cut only as deep as the highest
-    # of the four rays reads it, and for the points read as gouged the exact depth where it was measured (so
-    # the whole scan's deepest cut is the deepest of its areas', and the picture's)
-    depth = np.maximum(0.0, -np.maximum(d, h))
-    gouged = suspected
-    if exact_depth is not None:
-        ex = np.asarray(exact_depth, dtype=np.float64)[ok]
-        gouged = suspected & (ex > exact_limit_mm)
-        measured = suspected & np.isfinite(ex)
-        depth = np.where(measured, np.maximum(ex, 0.0), np.where(suspected, -h, depth))
-    else:
-        depth = np.where(suspected, -h, depth)
-    deepest = float(depth.max(initial=0.0))
+    ex = np.full(d.shape, np.nan) if exact_depth is None else np.asarray(exact_depth, dtype=np.float64)[ok]
+    gouged = suspected if exact_depth is None else suspected & (ex > exact_limit_mm)
+    # the depth of each point's cut as the pictures show it (:func:`reported_deviation`), so the whole
+    # scan's deepest cut is the deepest of its areas'
+    deepest = float(max(0.0, -reported_deviation(d, h, ex).min()))
     return DeviationFigures(
         n_points=int(d.size), finished_share=round(float((np.abs(d) <= limit_mm).mean()), 6),
         left_p50_mm=round(float(np.percentile(left, 50)), 4), left_p95_mm=round(float(np.percentile(left, 95)), 4),

@@ -261,7 +261,7 @@ def _cover(k: int) -> str:
     return f"{k} set-up covers" if k == 1 else f"{k} set-ups cover"
 
 
-def _sentence(advice: Advice, command: list[str] | None, hinted: bool) -> str:
+def _sentence(advice: Advice, command: list[str] | None) -> str:
     """The words the plan's message gets for ``advice`` (empty when nothing was tried)."""
     if not advice.tries:
         return (f"; the {advice.budget_s:g} s for trying changes ran out before any was tried"
@@ -276,7 +276,9 @@ def _sentence(advice: Advice, command: list[str] | None, hinted: bool) -> str:
     if advice.chosen is not None:
         t = advice.tries[advice.chosen]
         ch = Change(t.parameter, t.value)
-        figures = ("the placement named at the end" if t.parameter == "fixtures.placement" and hinted
+        # a placement try reaches the coverage only where the hint's search found a winner, which the
+        # message names at its end
+        figures = ("the placement named at the end" if t.parameter == "fixtures.placement"
                    else f"{_cover(t.k)} {_pct(t.coverage)}")
         how = (f"run `{shlex.join(command)}`" if command is not None
                else f"set {ch.describe()} (command line: --set {ch.assignment})")
@@ -290,7 +292,7 @@ def _sentence(advice: Advice, command: list[str] | None, hinted: bool) -> str:
 
 
 def advise(run, sel, *, points: np.ndarray, nrm, ori, config: PlanConfig, profile, visible: np.ndarray,
-           zmask: np.ndarray, placement: PlacementSummary | None, base_dir=None, command_line=None,
+           zmask: np.ndarray, placement, base_dir=None, command_line=None,
            budget_s: float | None = None):
     """An infeasible plan's advice, tried (module docstring): returns ``(advice, sel)``.
 
@@ -307,13 +309,6 @@ def advise(run, sel, *, points: np.ndarray, nrm, ori, config: PlanConfig, profil
         return None, sel
     budget_s = ADVICE_BUDGET_S if budget_s is None else float(budget_s)
     visibility_s = next((t.seconds for t in reversed(run.timings) if t.stage == "visibility"), 0.0)
-    resolved: dict = {}
-    if callable(placement):
-        search = placement
-
-        def placement():                      # the same search, its answer kept
-            resolved["summary"] = search()
-            return resolved["summary"]
     advice = run.stage("setups", lambda p: try_changes(
         points, nrm, ori, config, profile, visible, zmask, placement=placement, base_dir=base_dir,
         budget_s=budget_s, visibility_s=visibility_s, progress=p))
@@ -321,9 +316,7 @@ def advise(run, sel, *, points: np.ndarray, nrm, ori, config: PlanConfig, profil
     if advice.chosen is not None and command_line:
         command = command_with([str(a) for a in command_line], Change(advice.tries[advice.chosen].parameter,
                                                                      advice.tries[advice.chosen].value))
-    summary = resolved.get("summary", None if callable(placement) else placement)
-    hinted = summary is not None and summary.candidate is not None
-    words = _sentence(advice, command, hinted)
+    words = _sentence(advice, command)
     advice = advice.model_copy(update={"command": None if command is None else shlex.join(command),
                                        "message": words[2:]})
     if not words:

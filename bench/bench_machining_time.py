@@ -22,72 +22,48 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 HERE = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE / "bench"))
 
+def rows_of(name: str, result, programs: dict) -> list[tuple]:
+    """``(name, area, estimate s, nominal-feed s, as-the-control s, plan.json figures s)`` per area of a plan
+    (``programs``: its LinuxCNC programs by name), in machining order."""
+    from bench_stock_first import linuxcnc_motions
+
+    from planning.simulate.verify import move_minutes
+
+    p = result.parameters
+    rows = []
+    for area, m in linuxcnc_motions(programs, result):
+        control = 60.0 * float(move_minutes(m, p).sum())
+        nominal = 60.0 * float(move_minutes(replace(m, line_feed=None, line_inverse_time=None), p).sum())
+        path = next(s.path for s in result.setups if s.id == area)
+        est = sum(op.machining_time_s for op in (path.roughing, path.finishing) if op is not None)
+        fig = next(a for a in result.figures.areas if a.area == area)
+        rows.append((name, area, est, nominal, control, fig.machining_time_s))
+    return rows
 
 def plan_dir_times(folder: Path) -> list[tuple]:
-    """The same figures for a plan already written (``scanmill plan ... --out folder``)."""
-    from planning.orientations.kinematics import load_profile
-    from planning.simulate.program import read_program
-    from planning.simulate.verify import move_minutes, tool_shapes
+    """The rows of a plan already written (``scanmill plan ... --out folder``)."""
     from schemas.plan import PlanResult
 
     r = PlanResult.model_validate_json((folder / "plan.json").read_text())
-    p = r.parameters
-    tools = tool_shapes(p, p.tool.assembly())
-    rows = []
-    for area in r.machining_order:
-        prog = folder / f"area_{area}.linuxcnc.nc"
-        if not prog.is_file():
-            continue
-        m = read_program(prog.read_text(), dialect="linuxcnc", program=prog.name, area=area,
-                         profile=load_profile(p.machine.profile),
-                         placement_mm=np.asarray(r.visibility.placement_mm, float), tools=tools)
-        control = 60.0 * float(move_minutes(m, p).sum())
-        nominal = 60.0 * float(move_minutes(replace(m, line_feed=None, line_inverse_time=None), p).sum())
-        path = next(s.path for s in r.setups if s.id == area)
-        est = sum(op.machining_time_s for op in (path.roughing, path.finishing) if op is not None)
-        fig = next(a for a in r.figures.areas if a.area == area)
-        rows.append((folder.name, area, est, nominal, control, fig.machining_time_s))
-    return rows
-
+    programs = {f.name: f.read_text() for f in folder.glob("area_*.linuxcnc.nc")}
+    return rows_of(folder.name, r, programs)
 
 def times(name: str) -> list[tuple]:
+    """The rows of a reference case, planned here."""
     from bench_stock_first import case_input
 
     from planning.inputs import Cloud
-    from planning.orientations.kinematics import load_profile
     from planning.pipeline import run_plan
-    from planning.simulate.program import read_program
-    from planning.simulate.verify import move_minutes, tool_shapes
     from schemas.params import apply_overrides, parse_config
 
     pts, nrm, faces, doc, sets = case_input(name, HERE)
     out = run_plan(Cloud(points=pts, normals=nrm, source_format="generated", faces=faces),
                    parse_config(apply_overrides(doc, sets)), name=name)
-    r, programs = out.result, out.extra["programs"]
-    p = r.parameters
-    tools = tool_shapes(p, p.tool.assembly())
-    rows = []
-    for area in r.machining_order:
-        prog = f"area_{area}.linuxcnc.nc"
-        if prog not in programs:
-            continue
-        m = read_program(programs[prog], dialect="linuxcnc", program=prog, area=area,
-                         profile=load_profile(p.machine.profile),
-                         placement_mm=np.asarray(r.visibility.placement_mm, float), tools=tools)
-        control = 60.0 * float(move_minutes(m, p).sum())
-        nominal = 60.0 * float(move_minutes(replace(m, line_feed=None, line_inverse_time=None), p).sum())
-        path = next(s.path for s in r.setups if s.id == area)
-        est = sum(op.machining_time_s for op in (path.roughing, path.finishing) if op is not None)
-        fig = next(a for a in r.figures.areas if a.area == area)
-        rows.append((name, area, est, nominal, control, fig.machining_time_s))
-    return rows
-
+    return rows_of(name, out.result, out.extra["programs"])
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -104,7 +80,6 @@ def main() -> int:
         tot = [sum(r[i] for r in rows) / 60 for i in (2, 3, 4, 5)]
         print(f"| {name} | all | {tot[0]:.1f} | {tot[1]:.1f} | {tot[2]:.1f} | {tot[3]:.1f} |", flush=True)
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -74,15 +74,30 @@ def case_input(name: str, root: Path):
     return s.points, s.normals, None, {}, sets
 
 
+def linuxcnc_motions(programs: dict, result):
+    """``(area, ProgramMotion)`` of each area's posted LinuxCNC program (``programs``: name -> text), in
+    machining order, read back as the verification reads it (:func:`planning.simulate.program.read_program`)."""
+    from planning.orientations.kinematics import load_profile
+    from planning.simulate.program import read_program
+    from planning.simulate.verify import tool_shapes
+
+    p = result.parameters
+    tools = tool_shapes(p, p.tool.assembly())
+    profile = load_profile(p.machine.profile)
+    for area in result.machining_order:
+        name = f"area_{area}.linuxcnc.nc"
+        if name in programs:
+            yield area, read_program(programs[name], dialect="linuxcnc", program=name, area=area, profile=profile,
+                                     placement_mm=np.asarray(result.visibility.placement_mm, float), tools=tools)
+
+
 def below_stock(programs: dict, result, points, faces=None) -> dict:
     """Per area: the roughing feed length (mm) with the tool tip under the stock box's bottom, all of it
     and the part that removed no material (in air), from the posted LinuxCNC programs read back
     (:func:`planning.simulate.program.read_program`) and run in machining order on a fresh stock
     (:func:`planning.simulate.run.run_moves`), as the verification runs them."""
-    from planning.orientations.kinematics import load_profile
     from planning.simulate import models as stock_models
     from planning.simulate.motion import FEED
-    from planning.simulate.program import read_program
     from planning.simulate.run import run_moves
     from planning.simulate.verify import stock_extent, tool_shapes
 
@@ -91,13 +106,7 @@ def below_stock(programs: dict, result, points, faces=None) -> dict:
     lo, hi = stock_extent(points, p.stock)
     models = stock_models.build_models(lo, hi, p, [], tools, resolution_mm=p.simulate.resolution_mm)
     out = {}
-    for area in result.machining_order:
-        name = f"area_{area}.linuxcnc.nc"
-        if name not in programs:
-            continue
-        m = read_program(programs[name], dialect="linuxcnc", program=name, area=area,
-                         profile=load_profile(p.machine.profile),
-                         placement_mm=np.asarray(result.visibility.placement_mm, float), tools=tools)
+    for area, m in linuxcnc_motions(programs, result):
         run = run_moves(models.stock, None, m, tools)
         rough = (m.tool == p.post.roughing_tool_number) & (m.kind == FEED)
         za, zb = m.start_mm[:, 2] - lo[2], m.end_mm[:, 2] - lo[2]

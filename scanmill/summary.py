@@ -48,6 +48,13 @@ def _ordered_setups(plan: dict) -> list[dict]:
     return out
 
 
+def _table(head: list[str], rows: list[list[str]]) -> list[str]:
+    """The header and the rows, indented two spaces, the first column left-aligned, the others right."""
+    widths = [max(len(r[c]) for r in [head] + rows) for c in range(len(head))]
+    return ["  " + "  ".join(v.rjust(w) if c else v.ljust(w) for c, (v, w) in enumerate(zip(r, widths)))
+            for r in [head] + rows]
+
+
 def _count(v) -> str:
     return "-" if v is None else f"{int(v):,}"
 
@@ -73,13 +80,10 @@ def summary_lines(plan: dict) -> list[str]:
         rows.append([str(a.get("area")), _minutes(a.get("roughing_time_s")), _minutes(a.get("finishing_time_s")),
                      _minutes(a.get("machining_time_s")), _count(a.get("finished")), _count(a.get("left")),
                      _count(a.get("unreached")), _count(a.get("not_covered"))])
-    widths = [max(len(r[c]) for r in [head] + rows) for c in range(len(head))]
     what = {"simulated": "simulated: the programs as the control runs them",
             "estimate": "ESTIMATE from the tool paths: the programs were not simulated"}.get(source, "no paths")
     lines = [f"machining summary (areas in machining order; minutes {what}; points: input points):"]
-    lines.append("  " + "  ".join(h.rjust(w) if c else h.ljust(w) for c, (h, w) in enumerate(zip(head, widths))))
-    for r in rows:
-        lines.append("  " + "  ".join(v.rjust(w) if c else v.ljust(w) for c, (v, w) in enumerate(zip(r, widths))))
+    lines += _table(head, rows)
     t = f.get("machining_time_s") or 0.0
     lines.append(f"machining time {_hmm(t)} ({t / 60.0:.1f} min, {source})")
     v = plan.get("verification") if isinstance(plan.get("verification"), dict) else None
@@ -138,11 +142,8 @@ def _legacy_lines(plan: dict) -> list[str]:
             left = unfinished(s, i)
             row.append("-" if left is None else f"{int(left):,}")
         rows.append(row)
-    widths = [max(len(r[c]) for r in [head] + rows) for c in range(len(head))]
     lines = ["machining summary (areas in machining order; minutes: estimate from the tool paths):"]
-    lines.append("  " + "  ".join(h.rjust(w) if c else h.ljust(w) for c, (h, w) in enumerate(zip(head, widths))))
-    for r in rows:
-        lines.append("  " + "  ".join(v.rjust(w) if c else v.ljust(w) for c, (v, w) in enumerate(zip(r, widths))))
+    lines += _table(head, rows)
     v = plan.get("verification") if isinstance(plan.get("verification"), dict) else None
     lines.append(f"machining time (estimate) {_hmm(total_s)} ({total_s / 60.0:.1f} min)")
     lines += _operation_lines(v)

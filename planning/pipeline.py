@@ -31,7 +31,7 @@ from planning.orientations import (
 )
 from planning.placement.stage import place, placement_hint, placement_result
 from planning.post.programs import post_areas
-from planning.report.figures import apply_figures
+from planning.report.figures import apply_figures, unreached_indices
 from planning.setups import SetupSelection, select_setups, zone_mask
 from planning.simulate.models import load_blank
 from planning.toolpath.area_paths import area_toolpaths
@@ -525,9 +525,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
         result.artifacts.stock_ply = "stock.ply"
     classes = apply_figures(result, input_labels=areas.input_labels,
                             not_covered=areas.integrated[areas.nearest_sample],
-                            unreached=np.concatenate([np.zeros(0, np.int64)] + [
-                                np.asarray(ap.unmachined, np.int64) for ap in area_paths
-                                if getattr(ap, "unmachined", None) is not None]),
+                            unreached=unreached_indices(area_paths),
                             deviation_mm=simulation.deviation_mm, config=config)
     return PlanOutcome(result=result, arrays=_plan_arrays(nrm, ori, gv.visible, selected, areas, area_paths),
                        points=points, input_labels=areas.input_labels, selected_axes=sel_axes,

@@ -28,10 +28,16 @@ import numpy as np
 
 from schemas.plan import AreaFigures, PlanFigures
 
-__all__ = ["FINISHED", "LEFT", "NOT_COVERED", "UNREACHED", "plan_figures", "point_classes"]
+__all__ = ["FINISHED", "LEFT", "NOT_COVERED", "UNREACHED", "plan_figures", "point_classes", "unreached_indices"]
 
 #: Point classes of :func:`point_classes`.
 FINISHED, NOT_COVERED, UNREACHED, LEFT = 0, 1, 2, 3
+
+
+def unreached_indices(area_paths) -> np.ndarray:
+    """The input point indices no kept finishing move of any area reaches (the areas' ``unmachined``)."""
+    return np.concatenate([np.zeros(0, np.int64)] + [np.asarray(ap.unmachined, np.int64) for ap in area_paths
+                                                     if getattr(ap, "unmachined", None) is not None])
 
 
 def point_classes(n_points: int, *, deviation_mm: np.ndarray | None, limit_mm: float | None,

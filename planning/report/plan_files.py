@@ -93,7 +93,7 @@ def write_plan(outcome: PlanOutcome, out_dir: str | os.PathLike, progress=None) 
 def _write_unmachined(outcome: PlanOutcome, out: Path) -> dict[str, Path]:
     """``unmachined.png`` when the guard left scan points unmachined (issue 16)."""
     from planning.report.deviation import render_unmachined_png
-    from planning.report.figures import UNREACHED
+    from planning.report.figures import UNREACHED, unreached_indices
 
     u = outcome.result.unmachined
     if u is None or u.n_points == 0 or not outcome.result.artifacts.unmachined_png:
@@ -107,8 +107,7 @@ def _write_unmachined(outcome: PlanOutcome, out: Path) -> dict[str, Path]:
         title = (f"unreached (red): {f.unreached:,} input points ({f.unreached_share:.1%}) no kept finishing move "
                  f"reaches and not finished within tolerance; {u.n_points:,} no kept move reaches in all")
     else:
-        idx = np.concatenate([ap.unmachined for ap in outcome.extra.get("area_paths", [])
-                              if getattr(ap, "unmachined", None) is not None] or [np.zeros(0, np.int64)])
+        idx = unreached_indices(outcome.extra.get("area_paths", []))
         title = f"input points no kept finishing move reaches (red): {u.n_points:,} ({u.share:.1%})"
     render_unmachined_png(path, outcome.points, idx, title=title)
     return {"unmachined_png": path}
@@ -127,9 +126,10 @@ def _write_simulation(outcome: PlanOutcome, out: Path, say=lambda fraction, mess
     paths: dict[str, Path] = {}
     if sim is None or sim.deviation_mm is None:
         return paths
-    fp = outcome.result.parameters.paths.finishing
+    from planning.report.figures import finishing_limit_mm
+
     v = outcome.result.verification
-    limit = fp.tolerance_mm + fp.scallop_mm + (v.measuring_bound_mm or 0.0)
+    limit = finishing_limit_mm(outcome.result.parameters, v)     # the limit the figures count by
     say(0.5, names.deviation_ply)
     paths["deviation_ply"] = out / names.deviation_ply
     write_deviation_ply(paths["deviation_ply"], outcome.points, sim.deviation_mm, limit)

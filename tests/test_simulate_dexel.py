@@ -474,3 +474,53 @@ def test_progress_of_simulate_moves_and_collide_ends_at_one_and_changes_nothing(
     calls.clear()
     d1 = collide(one, s, e, a, BALL3, "tool", progress=lambda f, m: calls.append(f))
     assert np.array_equal(d1, collide(one, s, e, a, BALL3, "tool")) and calls[-1] == 1.0
+
+
+# ------------------------------------------------------------------------------------------------ column rise
+
+@pytest.mark.parametrize("shape", [
+    ToolShape(number=2, kind="flat", radius_mm=4.0, corner_radius_mm=0.0, flute_length_mm=25.0,
+              pieces=((25.0, math.inf, 4.0),)),
+    ToolShape(number=1, kind="ball", radius_mm=3.0, corner_radius_mm=0.0, flute_length_mm=12.0,
+              pieces=((12.0, 40.0, 2.5), (40.0, math.inf, 10.0))),
+    ToolShape(number=3, kind="bull", radius_mm=5.0, corner_radius_mm=1.5, flute_length_mm=20.0,
+              pieces=((20.0, math.inf, 5.0),)),
+], ids=["flat", "ball_necked_holder", "bull"])
+def test_column_rise_is_where_the_swept_test_clears_within_its_tolerance(shape):
+    """dexel.column_rise against collide (the swept test, exact for a move's own sweep): on a grooved
+    box and a tilted axis, for tips in the material, beside it and in the air, the tool moved from the
+    height found up to the top meets nothing, and moved from 0.03 mm more than the tolerance below it
+    meets the material; -inf exactly where the whole column is clear."""
+    from planning.simulate.dexel import column_rise
+
+    rng = np.random.default_rng(7)
+    lo, hi = np.array([-20.0, -20.0, -10.0]), np.array([20.0, 20.0, 10.0])
+    stock = TriDexel.box(lo, hi, R_RES, domain_lo=lo - 12.0, domain_hi=hi + 12.0)
+    ax = np.array([0.2, 0.3, 0.93])
+    ax /= np.linalg.norm(ax)
+    groove = np.array([[-30.0, -2.0, 7.0], [30.0, -2.0, 7.0], [30.0, 6.0, 4.0]])
+    cut(stock, groove[:-1], groove[1:], np.tile(ax, (2, 1)), shape)
+    tips = rng.uniform(lo - 8.0, hi + 8.0, (300, 3))
+    length = 45.0 - tips @ ax
+    axes = np.tile(ax, (tips.shape[0], 1))
+    tol = 0.02
+    s = column_rise(stock, tips, ax, length, shape, grow_mm=0.5, tol_mm=tol)
+    whole = collide(stock, tips, tips + length[:, None] * ax, axes, shape, which="tool", grow_mm=0.5)
+    met = np.isfinite(s)
+    assert 50 < met.sum() < 290                      # both kinds of column occur
+    # -inf: the whole column clear; else the contact lies on it
+    assert np.all(whole[~met] == 0.0)
+    assert np.all((s[met] >= -tol - 1e-9) & (s[met] <= length[met] + 1e-9))
+    up = np.flatnonzero(met & (s < length - 0.1))
+    start = tips[up] + (np.maximum(s[up], 0.0) + 1e-6)[:, None] * ax
+    end = tips[up] + length[up, None] * ax
+    assert np.all(collide(stock, start, end, axes[up], shape, which="tool", grow_mm=0.5) == 0.0)
+    low = up[s[up] > tol + 0.03]
+    start = tips[low] + (s[low] - tol - 0.03)[:, None] * ax
+    end = tips[low] + length[low, None] * ax
+    assert np.all(collide(stock, start, end, axes[low], shape, which="tool", grow_mm=0.5) > 0.0)
+    assert low.size > 30
+    # the serial and the parallel kernels agree
+    one = np.array([column_rise(stock, tips[k:k + 1], ax, length[k], shape, grow_mm=0.5, tol_mm=tol)[0]
+                    for k in range(0, 300, 37)])
+    np.testing.assert_array_equal(one, s[::37])

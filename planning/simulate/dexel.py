@@ -583,6 +583,48 @@ def collide(model: TriDexel, start, end, axis, shape: ToolShape, which="holder",
     return _depth(dep, a)
 
 
+#: Queries of :func:`column_rise` below this many run on the calling thread's serial kernel.
+RISE_SERIAL = 8
+
+
+def column_rise(model: TriDexel, tips, axis, length_mm, shape: ToolShape, *, grow_mm: float = 0.0,
+                tol_mm: float = 0.02, bull_tol_mm: float | None = None) -> np.ndarray:
+    """(Q,) for tool tips ``tips`` (Q,3, part frame, mm) on a unit ``axis`` (3,) and lengths
+    ``length_mm`` (scalar or (Q,)): the highest position ``s`` in ``[0, length]`` (mm along the axis
+    from the tip) at which the whole tool (every piece, cutting or not), grown by ``grow_mm``
+    (radius and both ends), meets ``model``'s material; -inf where it meets none on the way.
+
+    So the tool moved straight up the axis from ``tip + s' axis`` to ``tip + length axis`` is clear
+    of the material for every ``s' > s``: the same question as :func:`collide` with ``which="tool"``
+    on those moves, answered in one pass over the rays of the column instead of a search of swept
+    tests. The tool is taken as its radius-monotone hull (each piece from its bottom up to the top
+    of the highest piece: a neck narrower than the tip counts as full width), so the answer is
+    never below the exact one on the model's rays and at most ``tol_mm`` above it
+    (:func:`planning.simulate.dexel_kernels.column_rise`)."""
+    p = np.ascontiguousarray(tips, dtype=np.float64).reshape(-1, 3)
+    Q = p.shape[0]
+    a = np.asarray(axis, dtype=np.float64).reshape(3)
+    nrm = float(np.linalg.norm(a))
+    if not nrm > 1e-9:
+        raise ValueError("the tool axis must be non-zero")
+    a = np.ascontiguousarray(a / nrm)
+    length = np.ascontiguousarray(np.broadcast_to(np.asarray(length_mm, dtype=np.float64), (Q,)))
+    if not (np.isfinite(p).all() and np.isfinite(length).all()):
+        raise ValueError("tips and lengths must be finite")
+    out = np.full(Q, -np.inf)
+    if Q == 0:
+        return out
+    tol = model.res / 4 if bull_tol_mm is None else bull_tol_mm
+    pk, pz0, pz1, pr, _ = tool_pieces(shape, tol)
+    # beyond this length along the axis from any tip the line has left the domain
+    reach = float(np.linalg.norm(model.hi - model.lo)) + float(np.abs(p - model.lo).max()) * 2.0 + 1.0
+    kern = K.column_rise if Q < RISE_SERIAL else K.column_rise_parallel
+    kern(model.lo, model.res, model.n, model.base, model.off, model.cnt, model.pool, p, a,
+         np.maximum(length, 0.0), pk, pz0, np.where(np.isfinite(pz1), pz1, 1e300), pr, float(grow_mm),
+         float(tol_mm), reach, out)
+    return out
+
+
 # -------------------------------------------------------------------------------- deviation
 
 def deviation_bound_mm(resolution_mm: float, radius_mm: float, delta_mm: float = 0.0) -> float:

@@ -1272,3 +1272,170 @@ def snap_vertices(verts, lo, res, n, base, off, cnt, pool, step):
             eps = 1e-3 * step * res
             out[q, f] = min(max(out[q, f], x0 + eps), x1 - eps)
     return out
+
+
+# ------------------------------------------------------------------------------------ column rise
+
+@njit(cache=True, inline="always")
+def _hull_bottom(rho, pk, pz0, pr, grow):
+    """The lowest height (mm along the tool axis from the tip) of the tool's pieces grown by ``grow``
+    at distance ``rho`` from the axis (the radius-monotone hull of the tool: every piece counts from
+    its bottom up); inf when no piece reaches that far out."""
+    best = _INF
+    for k in range(pk.shape[0]):
+        R = pr[k] + grow
+        if rho > R:
+            continue
+        if pk[k] == SPH:
+            z = pz0[k] - math.sqrt(max(0.0, R * R - rho * rho))
+        else:
+            z = pz0[k] - grow
+        if z < best:
+            best = z
+    return best
+
+
+@njit(cache=True)
+def _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz1, pr, grow, tol, reach):
+    """:func:`column_rise` for query ``q``."""
+    S = length[q]
+    w = np.empty(3)
+    rmax = 0.0
+    zbot = _INF
+    ztop = -_INF
+    for k in range(pk.shape[0]):
+        rmax = max(rmax, pr[k] + grow)
+        if pk[k] == SPH:
+            zbot = min(zbot, pz0[k] - pr[k] - grow)
+            ztop = max(ztop, pz0[k] + pr[k] + grow)
+        else:
+            zbot = min(zbot, pz0[k] - grow)
+            ztop = max(ztop, pz1[k] + grow)
+    # material touched by the sweep lies between zbot and S + ztop along the axis (from the tip)
+    zlim = min(S + ztop, reach)
+    # material met only below the tip (s < 0) is not on the way: start the maximum at 0
+    best = 0.0
+    met = False
+    stack_a = np.empty(64)
+    stack_b = np.empty(64)
+    for f in range(3):
+        ua = (f + 1) % 3
+        va = (f + 2) % 3
+        uf = ax[f]
+        a = 1.0 - uf * uf
+        e0u = tips[q, ua]
+        e0v = tips[q, va]
+        lo_u = min(e0u + zbot * ax[ua], e0u + zlim * ax[ua]) - rmax
+        hi_u = max(e0u + zbot * ax[ua], e0u + zlim * ax[ua]) + rmax
+        lo_v = min(e0v + zbot * ax[va], e0v + zlim * ax[va]) - rmax
+        hi_v = max(e0v + zbot * ax[va], e0v + zlim * ax[va]) + rmax
+        i0 = max(0, int(math.ceil((lo_u - lo[ua]) / res - 0.5)))
+        i1 = min(n[ua] - 1, int(math.floor((hi_u - lo[ua]) / res - 0.5)))
+        j0 = max(0, int(math.ceil((lo_v - lo[va]) / res - 0.5)))
+        j1 = min(n[va] - 1, int(math.floor((hi_v - lo[va]) / res - 0.5)))
+        for j in range(j0, j1 + 1):
+            for i in range(i0, i1 + 1):
+                r = base[f] + j * n[ua] + i
+                c = cnt[r]
+                if c == 0:
+                    continue
+                # the ray O + t e_f, O at 0 along f: w = O - P
+                w[f] = -tips[q, f]
+                w[ua] = lo[ua] + (i + 0.5) * res - e0u
+                w[va] = lo[va] + (j + 0.5) * res - e0v
+                zw = w[0] * ax[0] + w[1] * ax[1] + w[2] * ax[2]
+                b = w[f] - zw * uf
+                cc = w[0] * w[0] + w[1] * w[1] + w[2] * w[2] - zw * zw
+                # within rmax of the axis
+                if a <= 1e-12:
+                    if cc > rmax * rmax:
+                        continue
+                    ta, tb = -_INF, _INF
+                else:
+                    disc = b * b - a * (cc - rmax * rmax)
+                    if disc < 0.0:
+                        continue
+                    sq = math.sqrt(disc)
+                    ta, tb = (-b - sq) / a, (-b + sq) / a
+                # between zbot and zlim along the axis
+                if abs(uf) > 1e-12:
+                    t1 = (zbot - zw) / uf
+                    t2 = (zlim - zw) / uf
+                    ta = max(ta, min(t1, t2))
+                    tb = min(tb, max(t1, t2))
+                elif zw < zbot or zw > zlim:
+                    continue
+                if not ta < tb:
+                    continue
+                o = off[r]
+                k = _first_above(pool, o, c, ta)
+                while k < c and pool[o + k, 0] < tb:
+                    s0 = max(pool[o + k, 0], ta)
+                    s1 = min(pool[o + k, 1], tb)
+                    k += 1
+                    if not s0 < s1:
+                        continue
+                    stack_a[0] = s0
+                    stack_b[0] = s1
+                    top = 1
+                    while top > 0:
+                        top -= 1
+                        x0 = stack_a[top]
+                        x1 = stack_b[top]
+                        zl0 = zw + x0 * uf
+                        zl1 = zw + x1 * uf
+                        # the closest point of the piece to the axis (rho^2 = a t^2 + 2 b t + cc)
+                        tv = x0
+                        if a > 1e-12:
+                            tv = min(max(-b / a, x0), x1)
+                        rho_min = math.sqrt(max(0.0, a * tv * tv + 2.0 * b * tv + cc))
+                        hb = _hull_bottom(rho_min, pk, pz0, pr, grow)
+                        if hb == _INF:
+                            continue
+                        upper = max(zl0, zl1) - hb
+                        if upper < best or (upper == best and met):
+                            continue
+                        # lower: f at the ends and at the closest point
+                        lower = zw + tv * uf - hb
+                        for x in (x0, x1):
+                            rr = math.sqrt(max(0.0, a * x * x + 2.0 * b * x + cc))
+                            hx = _hull_bottom(rr, pk, pz0, pr, grow)
+                            if hx < _INF:
+                                lower = max(lower, zw + x * uf - hx)
+                        if upper - lower <= tol or top >= 62:
+                            best = upper
+                            met = True
+                        else:
+                            mid = 0.5 * (x0 + x1)
+                            stack_a[top] = x0
+                            stack_b[top] = mid
+                            stack_a[top + 1] = mid
+                            stack_b[top + 1] = x1
+                            top += 2
+                    if met and best >= S:
+                        return S
+    return best if met else -_INF
+
+
+@njit(cache=True)
+def column_rise(lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz1, pr, grow, tol, reach, out):
+    """Per query ``q`` the highest position ``s`` in ``[0, length[q]]`` (mm along the unit tool axis
+    ``ax`` from the tip ``tips[q]``) at which the tool's pieces (``pk``, ``pz0``, ``pz1``, ``pr`` as
+    :func:`planning.simulate.dexel.tool_pieces`), grown by ``grow``, meet the material on a ray; -inf
+    when no position does. The tool is taken as its radius-monotone hull (a piece counts from its
+    bottom up to the top of the highest one), so the answer is never below the exact one and at most
+    ``tol`` above it: along each interval of material the height ``s = z - bottom(rho)`` (``z`` along
+    the axis, ``rho`` off it) is bounded by the highest ``z`` less the bottom at the nearest point,
+    and halved until that bound is within ``tol`` of the value at the piece's ends and nearest
+    point. ``reach``: a length along the axis beyond which the domain holds nothing (bounds an
+    infinite holder)."""
+    for q in range(tips.shape[0]):
+        out[q] = _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz1, pr, grow, tol, reach)
+
+
+@njit(parallel=True, cache=True)
+def column_rise_parallel(lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz1, pr, grow, tol, reach,
+                         out):
+    """:func:`column_rise` over the queries on every thread."""
+    for q in prange(tips.shape[0]):
+        out[q] = _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz1, pr, grow, tol, reach)

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planning.progress import Progress, Throttled
-from planning.simulate.dexel import TriDexel, collide, simulate_moves
+from planning.simulate.dexel import TriDexel, collide, column_rise, simulate_moves
 from planning.simulate.kinematics import MachineModel, arc_chords
 from planning.simulate.motion import FEED as SIM_FEED
 from planning.simulate.motion import RAPID as SIM_RAPID
@@ -60,8 +60,8 @@ CHORD_TOL_MM = 0.005
 #: Largest axis turn of one simulated step of a 5-axis move (degrees; the program reader steps 1 degree).
 AXIS_STEP_DEG = 1.0
 
-#: Segments a column is split into at each refinement of :func:`column_clear_z`.
-COLUMN_SPLIT = 16
+#: How far above the exact height (mm, on the stock's rays) :func:`column_clear_z` may answer.
+COLUMN_TOL_MM = 0.02
 
 #: Slack on the travel limits (mm): a position this close to a limit counts as within it.
 TRAVEL_SLACK_MM = 1e-6
@@ -285,53 +285,22 @@ def column_clear_z(frame: AreaFrame, shape: ToolShape, stock: TriDexel, points_f
                    tip_offset_mm: float, clearance_mm: float, step_mm: float | None = None) -> np.ndarray:
     """(n,) for each reference point (area frame, n,3) the lowest height (reference point, frame z) at
     or above it from which the tool, moved straight up the tool axis to ``top_z``, never comes
-    within ``clearance_mm`` of the stock, to ``step_mm`` (default half the stock's ray spacing) above
-    the exact one. The whole tool is swept along the column (:func:`planning.simulate.dexel.collide`,
-    exact for a move's own sweep): the whole column first, then, where it meets material, the column
-    in :data:`COLUMN_SPLIT` segments and the highest one that meets material split again, until a
-    segment is no longer than the step. The height is the top of the last such segment (every
-    segment above it was swept clear)."""
+    within ``clearance_mm`` of the stock, to ``step_mm`` (default :data:`COLUMN_TOL_MM`) above the
+    exact one on the stock's rays: :func:`planning.simulate.dexel.column_rise`, the highest position
+    on the column at which the whole tool grown by the clearance meets material, in one pass over
+    the column's rays (the swept test of :func:`planning.simulate.dexel.collide` from the height
+    found up to ``top_z`` meets nothing). ``top_z`` where the tool meets material at the top."""
     p = np.asarray(points_frame, dtype=np.float64).reshape(-1, 3)
     if p.shape[0] == 0:
         return np.zeros(0)
-    step = 0.5 * stock.res if step_mm is None else float(step_mm)
-    off = np.array([0.0, 0.0, tip_offset_mm])
-    ax_part = frame.rotation[2]
-
-    def hits(idx, a, b):
-        """Whether the tool swept from a to b (frame z) above p[idx] meets the stock."""
-        s = p[idx].copy()
-        e = p[idx].copy()
-        s[:, 2], e[:, 2] = a, b
-        s, e = frame.to_part(s - off), frame.to_part(e - off)
-        return collide(stock, s, e, np.broadcast_to(ax_part, s.shape), shape, which="tool",
-                       grow_mm=clearance_mm) > 0
-
+    tol = COLUMN_TOL_MM if step_mm is None else float(step_mm)
     z = p[:, 2].copy()
-    lo = p[:, 2].copy()
-    hi = np.maximum(float(top_z), lo)
-    idx = np.flatnonzero(hits(np.arange(p.shape[0]), lo, hi))
-    a, b = lo[idx], hi[idx]
-    while idx.size:
-        done = b - a <= step
-        z[idx[done]] = b[done]                  # the highest segment that meets material: its top
-        idx, a, b = idx[~done], a[~done], b[~done]
-        seg = (b - a) / COLUMN_SPLIT
-        if not idx.size:
-            break
-        k = np.arange(COLUMN_SPLIT)
-        owner = np.repeat(np.arange(idx.size), COLUMN_SPLIT)
-        s0 = (a[:, None] + k[None, :] * seg[:, None]).ravel()
-        hit = hits(idx[owner], s0, s0 + seg[owner]).reshape(idx.size, COLUMN_SPLIT)
-        top_k = COLUMN_SPLIT - 1 - np.argmax(hit[:, ::-1], axis=1)
-        some = hit.any(axis=1)
-        # a column that met material as a whole meets it in one of its segments (the same sweep);
-        # should rounding say otherwise, its top stays the answer
-        z[idx[~some]] = (a + COLUMN_SPLIT * seg)[~some]
-        idx, a, seg, top_k = idx[some], a[some], seg[some], top_k[some]
-        a = a + top_k * seg
-        b = a + seg
-    return z
+    hi = np.maximum(float(top_z), z)
+    tips = frame.to_part(p - np.array([0.0, 0.0, tip_offset_mm]))
+    s = column_rise(stock, tips, frame.rotation[2], hi - z, shape, grow_mm=clearance_mm, tol_mm=tol)
+    met = np.isfinite(s) & (s >= 0.0)
+    # just above the highest contact (the kernels' own rounding), never above the top
+    return np.where(met, np.minimum(z + s + 1e-6, hi), z)
 
 
 def _rapids_over(tp: Toolpath, which: np.ndarray, safe_z_mm: float, pass_index, clear_above=None):

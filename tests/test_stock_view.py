@@ -15,7 +15,7 @@ from planning.simulate.dexel import TriDexel, cut, simulate_moves
 from planning.simulate.heightfield import stock_tops_in_frame
 from planning.simulate.motion import FEED, RAPID, ToolShape
 from planning.toolpath.frames import AreaFrame, area_frame
-from planning.toolpath.guard import part_moves
+from planning.toolpath.guard import COLUMN_TOL_MM, part_moves
 from planning.toolpath.roughing import roughing_paths
 from planning.toolpath.stock_view import StockView
 
@@ -104,6 +104,30 @@ def test_the_view_cuts_a_copy_as_the_simulation_does_and_clears_a_column_as_the_
         low = simulate_moves(view.stock.copy(), np.array([[x, y, z - 0.6]]), np.array([[x, y, 40.0]]),
                              np.array([[0.0, 0.0, 1.0]]), SHAPE, np.array([RAPID]), rapid_clearance_mm=0.5)
         assert low.rapid_depth_mm[0] > 0.0
+
+
+def test_a_column_is_clear_exactly_where_the_height_search_finds_it_clear():
+    """StockView.column_is_clear (one swept test per model) against column_clear_z (the height found):
+    on a tilted frame over a cut box with an obstacle beside it, for columns from inside the material,
+    beside the walls and in the air, clear is the same as a clear height at the start."""
+    lo, hi = np.array([-20.0, -20.0, -10.0]), np.array([20.0, 20.0, 10.0])
+    stock = _box(lo, hi)
+    rng = np.random.default_rng(3)
+    frame = _tilted_frame(rng.uniform(lo, hi, (200, 3)), axis=(0.2, 0.3, 0.93))
+    obstacles = _box([25.0, -5.0, -10.0], [30.0, 5.0, 15.0])
+    view = StockView(stock, frame, SHAPE, obstacles=obstacles)
+    a = frame.to_frame(np.array([[-25.0, -2.0, 5.0], [0.0, -2.0, 5.0], [0.0, 2.0, 5.0]]))
+    view.cut(a[:-1], a[1:], rapid=np.zeros(2, bool))
+    pts = frame.to_frame(rng.uniform(lo - 8.0, hi + 8.0, (300, 3)))
+    top = float(frame.to_frame(np.array([lo, hi]))[:, 2].max()) + 40.0
+    heights = view.column_clear_z(pts, top, 0.5)
+    clear = np.array([view.column_is_clear(p, top, 0.5) for p in pts])
+    assert 30 < clear.sum() < 270                     # both answers occur
+    # a column the swept test finds blocked has its clear height above the start; one it finds clear
+    # has it at the start, or within the height search's tolerance above it (the tool's hull)
+    assert np.all(heights[~clear] > pts[~clear, 2])
+    assert np.all(heights[clear] <= pts[clear, 2] + COLUMN_TOL_MM + 1e-6)
+    assert np.mean(heights[clear] <= pts[clear, 2] + 1e-9) > 0.95
 
 
 def _dome(n=5000, radius=22.0, seed=0):

@@ -68,6 +68,24 @@ class StockView:
                                              float(clearance_mm)))
         return z
 
+    def column_is_clear(self, point_frame, top_z: float, clearance_mm: float) -> bool:
+        """Whether the whole tool at the tip ``point_frame`` (frame x, y, z), grown by ``clearance_mm`` and
+        moved straight up to ``top_z``, meets none of the view's material nor the obstacles: one swept
+        test of the whole column each (:func:`planning.simulate.dexel.collide`), exact on the stock's
+        rays, where :meth:`column_clear_z` finds the height (to its tolerance above the exact one)."""
+        from planning.simulate.dexel import collide
+
+        p = np.asarray(point_frame, dtype=np.float64).reshape(3)
+        if not float(top_z) > p[2]:
+            top_z = float(p[2])
+        s = self.frame.to_part(p[None, :])
+        e = self.frame.to_part(np.array([[p[0], p[1], float(top_z)]]))
+        ax = self.frame.rotation[2][None, :]
+        for model in (self.stock, self.obstacles):
+            if model is not None and collide(model, s, e, ax, self.shape, which="tool", grow_mm=clearance_mm)[0] > 0:
+                return False
+        return True
+
     def rapid_clear_z(self, a_frame, b_frame, z: float, top_z: float, clearance_mm: float,
                       step_mm: float = 1.0) -> float:
         """The lowest height (frame z) of ``z``, ``z + step_mm``, ... (at most ``top_z``) at which a

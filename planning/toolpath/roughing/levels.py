@@ -545,6 +545,15 @@ class _LiveStock:
             return float(self.view.column_clear_z(np.array([[x, y, z]]), top, clearance_mm)[0])
         return clear
 
+    def column_is_clear(self, w, clearance_mm: float):
+        """``clear(x, y, z, top)`` -> bool: whether the tool at (x, y, z), moved straight up to ``top``,
+        keeps ``clearance_mm`` from the material (the view brought up to date with ``w``'s moves; one
+        swept test, :meth:`planning.toolpath.stock_view.StockView.column_is_clear`)."""
+        def clear(x, y, z, top):
+            self.sync(w)
+            return self.view.column_is_clear((x, y, z), top, clearance_mm)
+        return clear
+
     def rapid_clear(self, w, clearance_mm: float):
         """The writer's ``rapid_clear(a, b, z, top)``: the lowest height at or above z at which a rapid
         across from a to b keeps the tool ``clearance_mm`` from the material (the view, up to date)."""
@@ -648,8 +657,7 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     ent.exact = live is not None
     if live is not None:
         ent.gap = min(GAP_MM, live.clearance_mm + ENTRY_GAP_EXTRA_MM)
-        touch = live.column_clear(w, FEED_CLEAR_MM)
-        ent.clear = lambda x, y, z, top: touch(x, y, z, top) <= z + Z_TOL_MM
+        ent.clear = live.column_is_clear(w, FEED_CLEAR_MM)
     if live is not None and live.clearance_mm > 0:
         w.gap = ent.gap
         w.column_clear = live.column_clear(w, live.clearance_mm)

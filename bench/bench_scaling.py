@@ -7,8 +7,8 @@ a 150 mm riser, 85 % coverage, up to 5 set-ups), paths and verification on, then
 temporary folder.  Each size runs in a fresh process (``--one N``), so each peak memory is that
 size's own; the kernels come from the numba cache (run ``scanmill warmup`` or any plan first).
 
-Per size and stage it prints the seconds and the peak resident memory while the stage ran (RSS
-sampled every 20 ms by a thread); then, between consecutive sizes, each stage's growth exponent
+Per size and stage it prints the seconds and the peak resident memory while the stage ran (RSS of
+the process and its children, the finishing worker included, sampled every 20 ms by a thread); then, between consecutive sizes, each stage's growth exponent
 ``log(t2/t1) / log(n2/n1)`` (1.0 is linear; n log n reads about 1.05-1.1 over a doubling at these
 sizes). A stage whose exponent exceeds ``--flag-exponent`` (default 1.25) is marked ``*``. It also
 prints, per size, the longest wait between two progress reports of the same stage (issue 17 item 3:
@@ -49,7 +49,9 @@ def _config() -> dict:
 
 
 class _RssSampler:
-    """Peak RSS (MB) per stage: a thread samples /proc/self/statm every ``interval_s``."""
+    """Peak RSS (MB) per stage: a thread samples /proc/self/statm, and that of this process's
+    children (the finishing worker, planning/toolpath/finishing_worker.py), every ``interval_s``:
+    the sum, the memory the plan holds on the machine."""
 
     def __init__(self, interval_s: float = 0.02):
         self.stage = "read"
@@ -59,8 +61,21 @@ class _RssSampler:
         self._t = threading.Thread(target=self._loop, args=(interval_s,), daemon=True)
 
     def rss_mb(self) -> float:
-        with open("/proc/self/statm") as fh:
-            return int(fh.read().split()[1]) * self._page / 2**20
+        pids = ["self"]
+        try:
+            for task in os.listdir("/proc/self/task"):
+                with open(f"/proc/self/task/{task}/children") as fh:
+                    pids += fh.read().split()
+        except OSError:
+            pass
+        pages = 0
+        for pid in pids:
+            try:
+                with open(f"/proc/{pid}/statm") as fh:
+                    pages += int(fh.read().split()[1])
+            except (OSError, ValueError, IndexError):
+                pass             # a child that has just gone
+        return pages * self._page / 2**20
 
     def _loop(self, interval_s):
         while not self._stop.is_set():

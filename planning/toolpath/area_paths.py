@@ -50,6 +50,7 @@ from planning.geometry.triangles import TriangleDropSurface
 from planning.progress import Throttled
 from planning.toolpath.balldrop import DropSurface
 from planning.toolpath.finishing import FinishingPath, finishing_passes
+from planning.toolpath.finishing_worker import FinishingWorker, WorkerFailed, binned_cloud, region_passes
 from planning.toolpath.frames import AreaFrame, area_frame
 from planning.toolpath.guard import guard_toolpath
 from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath, concatenate
@@ -269,17 +270,32 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     areas in the order they were done.
     """
     fp = paths_params.finishing
-    R = float(tool.radius_mm)
-    tol = float(fp.tolerance_mm)
     forbidden = np.zeros((0, 3)) if forbidden is None else np.asarray(forbidden, dtype=np.float64).reshape(-1, 3)
     obstacles = np.concatenate([points, forbidden]) if forbidden.size else points
     regions = _check_regions(input_regions, input_labels)
-    reach = max([s.radius_mm for s in tool.segments] + [R])
     k = axes.shape[0]
-    out: list[AreaPaths] = []
     order = list(range(k)) if carried is None else list(carried.order)
-    pool = np.zeros(points.shape[0], dtype=bool)       # unmachined by a set-up before: handed on
     prog = _PathsProgress(progress, len(order))
+    # the finishing passes of each set-up in a second process while this one roughs it (finishing_worker)
+    worker = FinishingWorker.open(obstacles.shape[0]) if fp.enabled else None
+    try:
+        return _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, obstacles, max_slope_deg,
+                               regions, carried, faces, cone_deg, order, prog, worker)
+    finally:
+        if worker is not None:
+            worker.close()
+
+
+def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, obstacles, max_slope_deg, regions,
+                    carried, faces, cone_deg, order, prog, worker):
+    """The loop of :func:`area_toolpaths` over the areas in ``order`` (its arguments, the progress
+    ``prog`` and the finishing ``worker`` or None)."""
+    fp = paths_params.finishing
+    R = float(tool.radius_mm)
+    tol = float(fp.tolerance_mm)
+    reach = max([s.radius_mm for s in tool.segments] + [R])
+    out: list[AreaPaths] = []
+    pool = np.zeros(points.shape[0], dtype=bool)       # unmachined by a set-up before: handed on
     for n_done, i in enumerate(order):
         sec: dict[str, float] = {}
         t0 = time.perf_counter()
@@ -302,6 +318,13 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
         sec["frame"] = time.perf_counter() - t0
         ap = AreaPaths(area=i, frame=frame, safe_z_mm=safe, finishing=None, finishing_info=None, radius_mm=R,
                        tolerance_mm=tol)
+        masks, job = None, None
+        if fp.enabled:
+            masks = _region_masks(mine, regions, cloud_f.shape[0])
+            if extra.any():                    # the points set-ups before left that this one sees
+                masks.append(np.concatenate([extra, np.zeros(cloud_f.shape[0] - extra.shape[0], dtype=bool)]))
+            if worker is not None and worker.submit(cloud_f, masks, faces, fp, R, tol, safe, max_slope_deg):
+                job = worker                   # computed there while this process roughs
         _add_roughing(ap, cloud_f, area_f, top, paths_params, sec, roughing_window_reach_mm(paths_params, tool),
                       stock_f=stock_f, carried=carried, progress=prog.step("roughing"))
         if ap.roughing is not None and ap.roughing.n_moves == 0:
@@ -317,10 +340,7 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
             ap.allowance_left = carried.allowance_left(points[mine], carried.normals[mine])
         five = fp.area_modes.get(i, fp.mode) == "5axis"
         if fp.enabled:
-            masks = _region_masks(mine, regions, cloud_f.shape[0])
-            if extra.any():                    # the points set-ups before left that this one sees
-                masks.append(np.concatenate([extra, np.zeros(cloud_f.shape[0] - extra.shape[0], dtype=bool)]))
-            _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec, faces=faces,
+            _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec, faces=faces, job=job,
                            blocked=None if (carried is None or five) else
                            (lambda fin, prg: _cut_blocked(ap, fin, carried, obstacles, axes[i], tool, fixtures, area_f, fp,
                                                                progress=prg)),
@@ -579,23 +599,28 @@ class _FiveAxisArea:
 
 def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, max_slope_deg: float,
                    sec: dict, blocked=None, progress: _PathsProgress | None = None,
-                   faces: np.ndarray | None = None, five_axis: _FiveAxisArea | None = None) -> None:
+                   faces: np.ndarray | None = None, five_axis: _FiveAxisArea | None = None, job=None) -> None:
     """Step 4 and the gouge check of step 5 into ``ap``: finishing passes per region
-    (:func:`_region_finishing`), the blocked CL points cut out (``blocked``: (FinishingPath, progress) ->
-    FinishingPath, or None), arc fitting or CL reduction of the joined path, and the minimal
-    clearance of the final moves (capped at R)."""
+    (:func:`_region_finishing`; ``job``: the finishing worker computing the same passes,
+    :class:`planning.toolpath.finishing_worker.FinishingWorker`, or None), the blocked CL points cut out (``blocked``:
+    (FinishingPath, progress) -> FinishingPath, or None), arc fitting or CL reduction of the joined
+    path, and the minimal clearance of the final moves (capped at R)."""
     R, tol = ap.radius_mm, ap.tolerance_mm
     t0 = time.perf_counter()
     step = (lambda name: None) if progress is None else progress.step
     finishing_progress = step("finishing")
-    binned = BinnedCloud(cloud_f, R / 4.0)
-    triangles = None
-    if faces is not None and len(faces):
+    fin = None
+    if job is not None:
+        try:
+            fin = job.passes(finishing_progress)
+        except WorkerFailed as e:
+            _log.warning("finishing worker failed (%s): passes computed in this process", e)
+    if fin is None:
         # the ball rests on the triangles too, and every gouge check measures to them (surface.py)
-        triangles = TriangleDropSurface(cloud_f, faces, R)
-        binned.triangles = triangles
-    fin = _region_finishing(cloud_f, region_masks, binned, fp, R, tol, ap.safe_z_mm, max_slope_deg,
-                            progress=finishing_progress, triangles=triangles)
+        fin, binned = region_passes(cloud_f, region_masks, faces, fp, R, tol, ap.safe_z_mm, max_slope_deg,
+                                    progress=finishing_progress)
+    else:
+        binned = binned_cloud(cloud_f, faces, R)
     sec["finishing"] = time.perf_counter() - t0
     if blocked is not None:
         t0 = time.perf_counter()

@@ -1,0 +1,133 @@
+"""The finishing passes computed by a worker process while the main one roughs (issue 30 item 3,
+planning.toolpath.finishing_worker): the same paths as computed in the planning process, on a plate
+of two areas with rest roughing on the carried stock; a worker that dies is replaced by the passes
+computed here; the worker is not used where it cannot pay or is not allowed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import planning.toolpath.finishing_worker as W
+from planning.geometry.tool import ball_tool
+from planning.toolpath.area_paths import area_toolpaths
+from schemas.params import PathsParams
+
+R = 3.0
+
+
+def _scene():
+    X, Y = np.meshgrid(np.arange(-50, 50 + 1e-9, 0.5), np.arange(-20, 20 + 1e-9, 0.5), indexing="ij")
+    x, y = X.ravel(), Y.ravel()
+    z = 1.5 * np.sin(x / 4.0) * np.cos(y / 5.0)
+    pts = np.stack([x, y, z], 1)
+    labels = np.where(x < 0, 0, 1)
+    axes = np.array([[0.0, 0.0, 1.0], [0.2, 0.0, 0.98]])
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    tool = ball_tool(R, flute_length_mm=15.0, stickout_mm=25.0, holder=[(4.0, None, None)])
+    pp = PathsParams(finishing={"scallop_mm": 0.1, "tolerance_mm": 0.01})
+    return pts, labels, axes, tool, pp
+
+
+def _paths(**kw):
+    pts, labels, axes, tool, pp = _scene()
+    return area_toolpaths(pts, labels, axes, tool=tool, paths_params=pp, **kw)
+
+
+def _same(a, b):
+    assert [x.area for x in a] == [x.area for x in b]
+    for pa, pb in zip(a, b, strict=True):
+        for f in ("xyz_mm", "kind", "use"):
+            np.testing.assert_array_equal(getattr(pa.finishing, f), getattr(pb.finishing, f))
+        assert pa.finishing_info.n_passes == pb.finishing_info.n_passes
+        assert pa.min_clearance_mm == pb.min_clearance_mm
+
+
+@pytest.fixture
+def worker_on(monkeypatch):
+    """Whether the worker is used for this small cloud (on any machine) is ``MIN_POINTS``'s: 0 on,
+    10**12 off; the workers opened (None: not opened) are listed."""
+    monkeypatch.setattr(W, "MIN_POINTS", 10 ** 12)
+    monkeypatch.setattr(W, "_threads", lambda: 2)
+    opened = []
+    real_open = W.FinishingWorker.open.__func__
+
+    def spy(cls, n):
+        w = real_open(cls, n)
+        opened.append(w)
+        return w
+    monkeypatch.setattr(W.FinishingWorker, "open", classmethod(spy))
+    return opened
+
+
+def test_the_worker_computes_the_same_passes_as_the_planning_process(worker_on, monkeypatch):
+    here = _paths()
+    assert worker_on == [None]                              # off: the passes computed here
+    monkeypatch.setattr(W, "MIN_POINTS", 0)
+    calls = []
+    real = W.FinishingWorker.passes
+
+    def counted(self, progress=None):
+        calls.append(1)
+        return real(self, progress)
+    monkeypatch.setattr(W.FinishingWorker, "passes", counted)
+    there = _paths()
+    assert worker_on and worker_on[-1] is not None            # the worker ran ...
+    assert len(calls) == 2                                   # ... the passes of both areas
+    assert not worker_on[-1].usable                           # and is gone at the end
+    _same(here, there)
+
+
+def test_a_worker_that_dies_is_replaced_by_the_passes_computed_here(worker_on, monkeypatch, caplog):
+    here = _paths()
+    monkeypatch.setattr(W, "MIN_POINTS", 0)
+    real = W.FinishingWorker.submit
+
+    def submit_then_die(self, *a):
+        ok = real(self, *a)
+        if ok:
+            self._proc.kill()
+        return ok
+    monkeypatch.setattr(W.FinishingWorker, "submit", submit_then_die)
+    with caplog.at_level("WARNING"):
+        there = _paths()
+    assert worker_on[-1] is not None and not worker_on[-1].usable
+    assert "finishing worker failed" in caplog.text
+    _same(here, there)
+
+
+def test_no_worker_where_it_would_not_pay_or_is_not_allowed(monkeypatch):
+    monkeypatch.setattr(W, "_threads", lambda: 2)
+    assert W.FinishingWorker.open(W.MIN_POINTS - 1) is None
+    monkeypatch.setattr(W, "_threads", lambda: 1)
+    assert W.FinishingWorker.open(10 * W.MIN_POINTS) is None
+    monkeypatch.setattr(W, "_threads", lambda: 2)
+    monkeypatch.setenv("SCANMILL_FINISHING_WORKER", "0")
+    assert W.FinishingWorker.open(10 * W.MIN_POINTS) is None
+    monkeypatch.delenv("SCANMILL_FINISHING_WORKER")
+    w = W.FinishingWorker.open(10 * W.MIN_POINTS)
+    assert w is not None and w.usable
+    w.close()
+    assert not w.usable
+
+
+def test_the_workers_own_errors_are_raised_here_and_it_goes_on(monkeypatch):
+    """A region without a pass raises ParameterError in the worker; the planning process gets it as
+    its own, and the worker takes the next job."""
+    from planning.errors import ParameterError
+
+    monkeypatch.setattr(W, "_threads", lambda: 2)
+    pts, labels, axes, tool, pp = _scene()
+    w = W.FinishingWorker.open(10 * W.MIN_POINTS)
+    try:
+        fp = pp.finishing
+        assert w.submit(pts, [np.zeros(len(pts), dtype=bool)], None, fp, R, 0.01, 20.0, 80.0)
+        with pytest.raises(ParameterError):
+            w.passes()
+        assert w.usable
+        assert w.submit(pts, [labels == 0], None, fp, R, 0.01, 20.0, 80.0)
+        fin = w.passes()
+        here, _ = W.region_passes(pts, [labels == 0], None, fp, R, 0.01, 20.0, 80.0)
+        np.testing.assert_array_equal(fin.toolpath.xyz_mm, here.toolpath.xyz_mm)
+    finally:
+        w.close()

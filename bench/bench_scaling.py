@@ -8,8 +8,9 @@ temporary folder.  Each size runs in a fresh process (``--one N``), so each peak
 size's own; the kernels come from the numba cache (run ``scanmill warmup`` or any plan first).
 
 Per size and stage it prints the seconds and the peak resident memory while the stage ran (RSS of
-the process and its children, the finishing worker included, sampled every 20 ms by a thread); then, between consecutive sizes, each stage's growth exponent
-``log(t2/t1) / log(n2/n1)`` (1.0 is linear; n log n reads about 1.05-1.1 over a doubling at these
+the process and its children, the finishing worker included, sampled every 20 ms by a thread);
+then, between consecutive sizes, each stage's growth exponent ``log(t2/t1) / log(n2/n1)`` (1.0 is
+linear; n log n reads about 1.05-1.1 over a doubling at these
 sizes). A stage whose exponent exceeds ``--flag-exponent`` (default 1.25) is marked ``*``. It also
 prints, per size, the longest wait between two progress reports of the same stage (issue 17 item 3:
 every stage reports at least every 2 s of work).

@@ -80,6 +80,8 @@ THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NU
                "VECLIB_MAXIMUM_THREADS", "BLIS_NUM_THREADS", "NUMBA_NUM_THREADS")
 #: Modules the fork server imports once, so that every worker starts with them loaded.
 PRELOAD = ["numpy", "planning.inputs.cloud", "planning.pipeline", "planning.report.plan_files", "schemas.params"]
+#: What :func:`pin_thread_env` sets: the thread counts, and the finishing worker turned off.
+PINNED_VARS = (*THREAD_VARS, "SCANMILL_FINISHING_WORKER")
 
 #: Share of the whole job each stage stands for (for ``progress`` 0..1); rough, from the benchmarks.
 # Share of a job's time per stage, from the femur-like plan of `make run` (2026-11-25, plan.json timings:
@@ -120,10 +122,14 @@ def read_job_cloud(path: str | os.PathLike, fmt: str | None, config: PlanConfig,
 
 
 def pin_thread_env(threads: int, env: dict[str, str] | None = None) -> None:
-    """Set the BLAS/OpenMP thread-count variables (in ``os.environ`` by default)."""
+    """Set the BLAS/OpenMP thread-count variables (in ``os.environ`` by default), and keep a job's
+    finishing passes in its own process (``SCANMILL_FINISHING_WORKER=0``,
+    :mod:`planning.toolpath.finishing_worker`): a job keeps to its thread budget and to the memory
+    the admission estimated for one process."""
     target = os.environ if env is None else env
     for var in THREAD_VARS:
         target[var] = str(int(threads))
+    target["SCANMILL_FINISHING_WORKER"] = "0"
 
 
 # ---------------------------------------------------------------------------------------------

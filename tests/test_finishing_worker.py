@@ -47,6 +47,7 @@ def _same(a, b):
 def worker_on(monkeypatch):
     """Whether the worker is used for this small cloud (on any machine) is ``MIN_POINTS``'s: 0 on,
     10**12 off; the workers opened (None: not opened) are listed."""
+    monkeypatch.delenv("SCANMILL_FINISHING_WORKER", raising=False)
     monkeypatch.setattr(W, "MIN_POINTS", 10 ** 12)
     monkeypatch.setattr(W, "_threads", lambda: 2)
     opened = []
@@ -97,6 +98,7 @@ def test_a_worker_that_dies_is_replaced_by_the_passes_computed_here(worker_on, m
 
 
 def test_no_worker_where_it_would_not_pay_or_is_not_allowed(monkeypatch):
+    monkeypatch.delenv("SCANMILL_FINISHING_WORKER", raising=False)
     monkeypatch.setattr(W, "_threads", lambda: 2)
     assert W.FinishingWorker.open(W.MIN_POINTS - 1) is None
     monkeypatch.setattr(W, "_threads", lambda: 1)
@@ -105,6 +107,11 @@ def test_no_worker_where_it_would_not_pay_or_is_not_allowed(monkeypatch):
     monkeypatch.setenv("SCANMILL_FINISHING_WORKER", "0")
     assert W.FinishingWorker.open(10 * W.MIN_POINTS) is None
     monkeypatch.delenv("SCANMILL_FINISHING_WORKER")
+    # a service job's process: pinned off (service.workers.pin_thread_env)
+    from service.workers import pin_thread_env
+    env: dict = {}
+    pin_thread_env(2, env)
+    assert env["SCANMILL_FINISHING_WORKER"] == "0"
     w = W.FinishingWorker.open(10 * W.MIN_POINTS)
     assert w is not None and w.usable
     w.close()
@@ -116,6 +123,7 @@ def test_the_workers_own_errors_are_raised_here_and_it_goes_on(monkeypatch):
     its own, and the worker takes the next job."""
     from planning.errors import ParameterError
 
+    monkeypatch.delenv("SCANMILL_FINISHING_WORKER", raising=False)
     monkeypatch.setattr(W, "_threads", lambda: 2)
     pts, labels, axes, tool, pp = _scene()
     w = W.FinishingWorker.open(10 * W.MIN_POINTS)

@@ -100,8 +100,8 @@ def test_cli_plans_the_same_file_with_input_units_m(tmp_path, capsys):
 def app_client(tmp_path, monkeypatch):
     from service.app import create_app
     from service.settings import load_settings
-    from service.workers import THREAD_VARS
-    for var in THREAD_VARS:
+    from service.workers import PINNED_VARS
+    for var in PINNED_VARS:
         monkeypatch.setenv(var, os.environ.get(var, "1"))
     s = load_settings(env={}, data_dir=str(tmp_path / "data"), workers=1)
     with TestClient(create_app(s), client=("127.0.0.1", 50000), raise_server_exceptions=False) as c:

@@ -300,8 +300,8 @@ def in_process(tmp_path, monkeypatch):
     """Build the app in this process (``TestClient`` runs its lifespan); returns a factory."""
     from service.app import create_app
     from service.settings import load_settings
-    from service.workers import THREAD_VARS
-    for var in THREAD_VARS:                    # the runner pins these in os.environ: restore them afterwards
+    from service.workers import PINNED_VARS
+    for var in PINNED_VARS:                    # the runner pins these in os.environ: restore them afterwards
         monkeypatch.setenv(var, os.environ.get(var, "1"))
 
     def make(client=("127.0.0.1", 50000), **settings):

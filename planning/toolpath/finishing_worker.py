@@ -18,8 +18,9 @@ again) and exits when its input closes, so it does not outlive the plan.
 
 It is used only where it can pay and is allowed: at least two threads for this plan
 (``numba.get_num_threads()``), a cloud of at least :data:`MIN_POINTS` points, not turned off
-(``SCANMILL_FINISHING_WORKER=0`` in the environment), and not in a daemonic process (the service's job processes keep to their own thread and memory budget, so there the passes
-stay in the job's process). Any failure to start or run the worker falls back to computing the
+(``SCANMILL_FINISHING_WORKER=0`` in the environment: the service pins it in its job processes with
+their thread counts, :func:`service.workers.pin_thread_env`, so that a job keeps to its thread
+budget and to the memory admitted for one process), and not in a daemonic process. Any failure to start or run the worker falls back to computing the
 passes in this process; the worker's own errors (a region without a pass) are raised here as they
 would be.
 """

@@ -493,3 +493,35 @@ def test_post_wall_no_kept_cutting_cl_point_collides(post_wall_area):
     x, y = s.points[labels == 0][:, 0], s.points[labels == 0][:, 1]
     gap = (x > 6.0) & (x < 9.5) & (np.abs(y) < 25.0)
     assert gap.sum() > 50 and u[gap].mean() > 0.9
+
+
+def test_holder_in_stock_by_runs_equals_the_check_of_every_position():
+    """safety.holder_in_stock (runs of positions tested as one grown sweep first) against collide
+    on every position one by one: the same answer, on a wavy path of tips over a stock block with a
+    step, on a tilted axis, with positions whose holder meets the block and positions clear of it."""
+    from planning.simulate.dexel import collide
+    from planning.simulate.motion import ToolShape
+    from planning.toolpath.safety import holder_in_stock
+
+    stock = TriDexel.box([-30.0, -30.0, -20.0], [30.0, 30.0, 0.0], resolution_mm=0.5,
+                         domain_lo=[-45.0, -45.0, -25.0], domain_hi=[45.0, 45.0, 40.0])
+    step = TriDexel.box([-30.0, -30.0, 0.0], [0.0, 30.0, 6.0], resolution_mm=0.5,
+                        domain_lo=[-45.0, -45.0, -25.0], domain_hi=[45.0, 45.0, 40.0])
+    stock = stock.union(step)
+    shape = ToolShape(number=1, kind="ball", radius_mm=3.0, corner_radius_mm=0.0, flute_length_mm=10.0,
+                      pieces=((10.0, 30.0, 3.0), (30.0, math.inf, 12.0)))
+    ax = np.array([0.3, -0.2, 0.93])
+    ax /= np.linalg.norm(ax)
+    s = np.linspace(0.0, 1.0, 3001)
+    # a zigzag of passes over the block, dipping below the top and rising well above it
+    x = -35.0 + 70.0 * ((s * 12) % 1.0)
+    y = -35.0 + 70.0 * s
+    z = -12.0 + 20.0 * (0.5 + 0.5 * np.sin(9.0 * s * np.pi)) + 0.7 * np.sin(x / 3.0)
+    tips = np.stack([x, y, z], 1)
+    direct = collide(stock, tips, tips, np.tile(ax, (len(tips), 1)), shape, which="holder") > 0
+    got = holder_in_stock(stock, tips, ax, shape)
+    assert 200 < direct.sum() < len(tips) - 200            # both kinds of position
+    np.testing.assert_array_equal(got, direct)
+    # and with runs of other lengths, shorter than the input and not dividing it
+    for block in (1, 5, 64):
+        np.testing.assert_array_equal(holder_in_stock(stock, tips[:2999], ax, shape, block=block), direct[:2999])

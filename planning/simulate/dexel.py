@@ -557,13 +557,13 @@ def simulate_moves(stock: TriDexel, start, end, axis, shape: ToolShape, kind, *,
                    ray_visits=visits)
 
 
-def collide(model: TriDexel, start, end, axis, shape: ToolShape, which="holder", *, grow_mm: float = 0.0,
+def collide(model: TriDexel, start, end, axis, shape: ToolShape, which="holder", *, grow_mm=0.0,
             depth_cap_mm: float = DEPTH_CAP_MM, bull_tol_mm: float | None = None,
             progress: Progress | None = None) -> np.ndarray:
     """(P,) how far the swept tool is in ``model``'s material (the stock, or the obstacles: fixtures,
     riser, table), mm; 0 when clear (module docstring: "Collision depth"). ``which``: ``"holder"``
     (the non-cutting pieces only), ``"tool"`` (the whole tool), or a (P,) bool array (True: whole
-    tool). ``grow_mm`` enlarges the measured pieces (radius and both ends). Depths saturate at
+    tool). ``grow_mm`` (scalar or (P,)) enlarges the measured pieces (radius and both ends). Depths saturate at
     ``depth_cap_mm``. ``model`` is unchanged; only material inside its domain is seen.
     ``progress``: as :func:`simulate_moves`'."""
     s, e, a = _as_moves(start, end, axis)
@@ -578,7 +578,8 @@ def collide(model: TriDexel, start, end, axis, shape: ToolShape, which="holder",
             raise ValueError("which must be (P,)")
         modes = np.where(w, K.M_HOLDER | K.M_TOOL, K.M_HOLDER).astype(np.int64)
     tol = model.res / 4 if bull_tol_mm is None else bull_tol_mm
-    _, dep, _ = _run(model, s, e, a, tool_pieces(shape, tol), modes, np.full(P, float(grow_mm)), depth_cap_mm,
+    grow = np.array(np.broadcast_to(np.asarray(grow_mm, dtype=np.float64), (P,)))
+    _, dep, _ = _run(model, s, e, a, tool_pieces(shape, tol), modes, grow, depth_cap_mm,
                      progress=None if progress is None else Throttled(progress), what="collision checks")
     return _depth(dep, a)
 

@@ -495,13 +495,13 @@ def test_post_wall_no_kept_cutting_cl_point_collides(post_wall_area):
     assert gap.sum() > 50 and u[gap].mean() > 0.9
 
 
-def test_holder_in_stock_by_runs_equals_the_check_of_every_position():
-    """safety.holder_in_stock (runs of positions tested as one grown sweep first) against collide
-    on every position one by one: the same answer, on a wavy path of tips over a stock block with a
-    step, on a tilted axis, with positions whose holder meets the block and positions clear of it."""
-    from planning.simulate.dexel import collide
+def test_collides_by_runs_equals_collide_move_by_move():
+    """dexel.collides (runs of moves tested as one grown sweep first), as the finishing's check of the
+    holder in the stock and the guard's of the tool in the fixtures use it, against collide move by
+    move: the same answer, on a wavy path of tips over a stock block with a step, on a tilted axis,
+    for zero-length moves (positions) and for the moves between them, the holder and the whole tool."""
+    from planning.simulate.dexel import collide, collides
     from planning.simulate.motion import ToolShape
-    from planning.toolpath.safety import holder_in_stock
 
     stock = TriDexel.box([-30.0, -30.0, -20.0], [30.0, 30.0, 0.0], resolution_mm=0.5,
                          domain_lo=[-45.0, -45.0, -25.0], domain_hi=[45.0, 45.0, 40.0])
@@ -518,10 +518,20 @@ def test_holder_in_stock_by_runs_equals_the_check_of_every_position():
     y = -35.0 + 70.0 * s
     z = -12.0 + 20.0 * (0.5 + 0.5 * np.sin(9.0 * s * np.pi)) + 0.7 * np.sin(x / 3.0)
     tips = np.stack([x, y, z], 1)
-    direct = collide(stock, tips, tips, np.tile(ax, (len(tips), 1)), shape, which="holder") > 0
-    got = holder_in_stock(stock, tips, ax, shape)
+    axes = np.tile(ax, (len(tips), 1))
+    direct = collide(stock, tips, tips, axes, shape, which="holder") > 0
     assert 200 < direct.sum() < len(tips) - 200            # both kinds of position
-    np.testing.assert_array_equal(got, direct)
-    # and with runs of other lengths, shorter than the input and not dividing it
+    np.testing.assert_array_equal(collides(stock, tips, tips, axes, shape, which="holder"), direct)
+    # runs of other lengths, shorter than the input and not dividing it
     for block in (1, 5, 64):
-        np.testing.assert_array_equal(holder_in_stock(stock, tips[:2999], ax, shape, block=block), direct[:2999])
+        np.testing.assert_array_equal(collides(stock, tips[:2999], tips[:2999], axes[:2999], shape, "holder",
+                                               block=block), direct[:2999])
+    # the moves between the positions, the whole tool grown by 0.5 mm
+    moving = collide(stock, tips[:-1], tips[1:], axes[1:], shape, which="tool", grow_mm=0.5) > 0
+    assert 100 < moving.sum() < len(tips) - 100
+    np.testing.assert_array_equal(collides(stock, tips[:-1], tips[1:], axes[1:], shape, "tool", grow_mm=0.5), moving)
+    # a run whose moves turn the axis is tested move by move
+    turned = axes.copy()
+    turned[::7] = [0.0, 0.0, 1.0]
+    np.testing.assert_array_equal(collides(stock, tips, tips, turned, shape, "holder"),
+                                  collide(stock, tips, tips, turned, shape, which="holder") > 0)

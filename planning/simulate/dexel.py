@@ -584,6 +584,55 @@ def collide(model: TriDexel, start, end, axis, shape: ToolShape, which="holder",
     return _depth(dep, a)
 
 
+#: Moves per run of :func:`collides`' first test.
+RUN_MOVES = 16
+
+
+def collides(model: TriDexel, start, end, axis, shape: ToolShape, which: str = "holder", *, grow_mm: float = 0.0,
+             block: int = RUN_MOVES, progress: Progress | None = None) -> np.ndarray:
+    """(P,) bool: ``collide(model, start, end, axis, shape, which, grow_mm=grow_mm) > 0``, the same
+    answer found by runs: the moves in runs of ``block`` (in the order given, e.g. along a path), each
+    run first tested as one move from its first start to its last end with the pieces grown by the
+    largest distance of a move end of the run from that chord (a move's sweep lies within that
+    distance of the chord: the distance to a segment is convex), and only the moves of runs that meet
+    material tested one by one. A run whose moves do not share one axis is tested move by move. Where
+    the material is far from most moves (the fixtures from a finishing path, the stock from the
+    holder), most runs are clear and the check costs a fraction of the move-by-move one."""
+    s, e, a = _as_moves(start, end, axis)
+    P = s.shape[0]
+    if which not in ("holder", "tool"):
+        raise ValueError("which must be 'holder' or 'tool'")
+    if P < 4 * block:
+        return collide(model, s, e, a, shape, which, grow_mm=grow_mm, progress=progress) > 0
+    first = np.arange(0, P, block)
+    last = np.minimum(first + block - 1, P - 1)
+    owner = np.arange(P) // block
+    c0, cd = s[first], e[last] - s[first]
+    L2 = np.einsum("ij,ij->i", cd, cd)
+
+    def off_chord(q):
+        rel = q - c0[owner]
+        u = np.clip(np.einsum("ij,ij->i", rel, cd[owner]) / np.where(L2 > 0, L2, 1.0)[owner], 0.0, 1.0)
+        return np.linalg.norm(rel - u[:, None] * cd[owner], axis=1)
+
+    dev = np.maximum(off_chord(s), off_chord(e))
+    grow = np.maximum.reduceat(dev, first) + float(grow_mm) + 1e-6
+    same_axis = np.maximum.reduceat(np.abs(a - a[first][owner]).max(axis=1), first) <= 1e-12
+    out = np.zeros(P, dtype=bool)
+    runs = np.flatnonzero(same_axis)
+    if progress is not None:
+        progress(0.0, f"{first.size} runs of {block} moves")
+    hit = np.ones(first.size, dtype=bool)
+    if runs.size:
+        hit[runs] = collide(model, c0[runs], e[last[runs]], a[first[runs]], shape, which, grow_mm=grow[runs]) > 0
+    idx = np.flatnonzero(hit[owner])
+    if idx.size:
+        if progress is not None:
+            progress(0.5, f"{idx.size} moves of {int(hit.sum())} runs that met material")
+        out[idx] = collide(model, s[idx], e[idx], a[idx], shape, which, grow_mm=grow_mm) > 0
+    return out
+
+
 #: Queries of :func:`column_rise` below this many run on the calling thread's serial kernel.
 RISE_SERIAL = 8
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planning.progress import Progress, Throttled
-from planning.simulate.dexel import TriDexel, collide, column_rise, simulate_moves
+from planning.simulate.dexel import TriDexel, collides, column_rise, simulate_moves
 from planning.simulate.kinematics import MachineModel, arc_chords
 from planning.simulate.motion import FEED as SIM_FEED
 from planning.simulate.motion import RAPID as SIM_RAPID
@@ -207,8 +207,10 @@ class _FixtureMemo:
             out[known] = self.hit[order[pos[known]]]
         todo = np.flatnonzero(~known)
         if todo.size:
-            out[todo] = collide(obstacles, pm.start[todo], pm.end[todo], ax[todo], shape, which="tool",
-                                progress=progress) > 0
+            # the same answer as collide move by move, by runs along the path (the obstacles are far
+            # from most moves)
+            out[todo] = collides(obstacles, pm.start[todo], pm.end[todo], ax[todo], shape, which="tool",
+                                 progress=progress)
         self.keys, self.hit = key, out
         return out
 

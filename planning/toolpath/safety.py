@@ -62,6 +62,7 @@ from planning.geometry.collision import centres_collision_free
 from planning.geometry.fixtures import fixture_collision_free
 from planning.geometry.kernels import serial_twin
 from planning.geometry.tool import ToolAssembly
+from planning.simulate.dexel import collides
 from planning.toolpath.finishing import FinishingPath
 from planning.toolpath.frames import AreaFrame
 from planning.toolpath.moves import (
@@ -126,49 +127,6 @@ def _unit_axis(axis, frame: AreaFrame) -> np.ndarray:
     return t / n
 
 
-#: Positions per block of :func:`holder_in_stock`'s first test.
-HOLDER_BLOCK = 16
-
-
-def holder_in_stock(stock, tips: np.ndarray, axis: np.ndarray, shape, block: int = HOLDER_BLOCK,
-                    progress: Callable[[float, str], None] | None = None) -> np.ndarray:
-    """(n,) bool: whether the shank and holder of ``shape`` (its non-cutting pieces) at each tool tip
-    ``tips`` (n,3, part frame) on the unit ``axis`` meet the material of ``stock``
-    (:func:`planning.simulate.dexel.collide` with ``which="holder"`` on zero-length moves), the same
-    answer as that check of every position, found by blocks: the positions in runs of ``block`` (in
-    the order given: along the passes), each run first tested as one move from its first to its last
-    position with the pieces grown by the largest distance of a position of the run from that chord
-    (every position's pieces lie inside that grown sweep); only the positions of runs that meet
-    material are tested one by one. On a finishing path most runs are clear."""
-    from planning.simulate.dexel import collide
-
-    p = np.ascontiguousarray(tips, dtype=np.float64).reshape(-1, 3)
-    n = p.shape[0]
-    ax = np.broadcast_to(np.asarray(axis, dtype=np.float64).reshape(3), (n, 3))
-    if n < 4 * block:
-        return collide(stock, p, p, ax, shape, which="holder", progress=progress) > 0
-    nb = -(-n // block)
-    first = np.arange(nb) * block
-    last = np.minimum(first + block - 1, n - 1)
-    owner = np.arange(n) // block
-    a, ab = p[first], p[last] - p[first]
-    L2 = np.einsum("ij,ij->i", ab, ab)
-    rel = p - a[owner]
-    u = np.clip(np.einsum("ij,ij->i", rel, ab[owner]) / np.where(L2 > 0, L2, 1.0)[owner], 0.0, 1.0)
-    dev = np.linalg.norm(rel - u[:, None] * ab[owner], axis=1)
-    grow = np.maximum.reduceat(dev, first) + 1e-6
-    if progress is not None:
-        progress(0.0, f"{nb} runs of {block}")
-    hit_run = collide(stock, a, p[last], ax[:nb], shape, which="holder", grow_mm=grow) > 0
-    out = np.zeros(n, dtype=bool)
-    idx = np.flatnonzero(hit_run[owner])
-    if idx.size:
-        if progress is not None:
-            progress(0.5, f"{idx.size} positions of {int(hit_run.sum())} runs that met material")
-        out[idx] = collide(stock, p[idx], p[idx], ax[idx], shape, which="holder") > 0
-    return out
-
-
 def blocked_cl(centres_frame, frame: AreaFrame, axis=None, *, tool: ToolAssembly, obstacles_part,
                fixtures: Sequence = (), stock=None, stock_shape=None,
                travel_ok: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -215,8 +173,10 @@ def blocked_cl(centres_frame, frame: AreaFrame, axis=None, *, tool: ToolAssembly
 
             shape = finishing_shape(tool, 0, flute_length_mm(tool))
         say(0.4, f"{n} positions: stock")
-        reasons["stock"] = holder_in_stock(stock, tips, t, shape, progress=None if progress is None else
-                                           (lambda f, m: say(0.4 + 0.55 * f, f"{n} positions: stock, {m}")))
+        # the same answer as collide on every position, by runs along the path (most are clear)
+        reasons["stock"] = collides(stock, tips, tips, np.broadcast_to(t, (n, 3)), shape, which="holder",
+                                    progress=None if progress is None else
+                                    (lambda f, m: say(0.4 + 0.55 * f, f"{n} positions: stock, {m}")))
     if travel_ok is not None:
         say(0.95, f"{n} positions: travel")
         ok = np.asarray(travel_ok(tips), dtype=bool).reshape(-1)

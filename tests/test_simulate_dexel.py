@@ -524,3 +524,51 @@ def test_column_rise_is_where_the_swept_test_clears_within_its_tolerance(shape):
     one = np.array([column_rise(stock, tips[k:k + 1], ax, length[k], shape, grow_mm=0.5, tol_mm=tol)[0]
                     for k in range(0, 300, 37)])
     np.testing.assert_array_equal(one, s[::37])
+
+
+@pytest.mark.parametrize("shape", [
+    ToolShape(number=2, kind="flat", radius_mm=4.0, corner_radius_mm=0.0, flute_length_mm=25.0,
+              pieces=((25.0, math.inf, 4.0),)),
+    ToolShape(number=1, kind="ball", radius_mm=3.0, corner_radius_mm=0.0, flute_length_mm=12.0,
+              pieces=((12.0, 40.0, 2.5), (40.0, math.inf, 10.0))),
+], ids=["flat", "ball_necked_holder"])
+def test_column_rise_of_a_rapid_across_is_where_the_swept_rapids_clear(shape):
+    """dexel.column_rise with a sweep (a rapid across the axis at every height) against collide: on a
+    grooved box and a tilted axis, for rapids from random starts to random ends, the rapid at the
+    height found and at heights above it meets nothing, 0.05 mm below it meets the material."""
+    from planning.simulate.dexel import column_rise
+
+    rng = np.random.default_rng(11)
+    lo, hi = np.array([-20.0, -20.0, -10.0]), np.array([20.0, 20.0, 10.0])
+    stock = TriDexel.box(lo, hi, R_RES, domain_lo=lo - 12.0, domain_hi=hi + 12.0)
+    ax = np.array([-0.25, 0.2, 0.95])
+    ax /= np.linalg.norm(ax)
+    groove = np.array([[-30.0, 3.0, 6.0], [30.0, 3.0, 6.0], [30.0, -8.0, 3.0]])
+    cut(stock, groove[:-1], groove[1:], np.tile(ax, (2, 1)), shape)
+    a = rng.uniform(lo - 6.0, hi + 6.0, (200, 3))
+    b = rng.uniform(lo - 6.0, hi + 6.0, (200, 3))
+    d = (b - a) - np.outer((b - a) @ ax, ax)           # across the axis
+    length = 45.0 - a @ ax
+    tol = 0.02
+    s = column_rise(stock, a, ax, length, shape, grow_mm=0.5, tol_mm=tol, sweep=d)
+    met = np.isfinite(s) & (s >= 0.0)
+    assert 40 < met.sum() < 195
+    axes = np.tile(ax, (a.shape[0], 1))
+
+    def hits(h):
+        st = a + h[:, None] * ax
+        return collide(stock, st, st + d, axes[: len(h)], shape, which="tool", grow_mm=0.5) > 0
+
+    # clear at the height found and at every 0.7 mm above it up to the top
+    h = np.where(met, np.maximum(s, 0.0) + 1e-6, 0.0)
+    for k in range(0, 80):
+        hk = np.minimum(h + 0.7 * k, length)
+        assert not hits(hk).any(), k
+    # met 0.05 mm below it
+    low = np.flatnonzero(met & (s > tol + 0.05) & (s < length - 0.1))
+    assert low.size > 20
+    st = a[low] + (s[low] - tol - 0.03)[:, None] * ax
+    assert np.all(collide(stock, st, st + d[low], axes[low], shape, which="tool", grow_mm=0.5) > 0)
+    # a rapid never met: -inf, and the rapid at its start height clears
+    never = ~np.isfinite(s)
+    assert not hits(np.zeros(a.shape[0]))[never].any()

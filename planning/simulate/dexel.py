@@ -638,7 +638,7 @@ RISE_SERIAL = 8
 
 
 def column_rise(model: TriDexel, tips, axis, length_mm, shape: ToolShape, *, grow_mm: float = 0.0,
-                tol_mm: float = 0.02, bull_tol_mm: float | None = None) -> np.ndarray:
+                tol_mm: float = 0.02, bull_tol_mm: float | None = None, sweep=None) -> np.ndarray:
     """(Q,) for tool tips ``tips`` (Q,3, part frame, mm) on a unit ``axis`` (3,) and lengths
     ``length_mm`` (scalar or (Q,)): the highest position ``s`` in ``[0, length]`` (mm along the axis
     from the tip) at which the whole tool (every piece, cutting or not), grown by ``grow_mm``
@@ -650,7 +650,12 @@ def column_rise(model: TriDexel, tips, axis, length_mm, shape: ToolShape, *, gro
     tests. The tool is taken as its radius-monotone hull (each piece from its bottom up to the top
     of the highest piece: a neck narrower than the tip counts as full width), so the answer is
     never below the exact one on the model's rays and at most ``tol_mm`` above it
-    (:func:`planning.simulate.dexel_kernels.column_rise`)."""
+    (:func:`planning.simulate.dexel_kernels.column_rise`).
+
+    ``sweep`` (Q,3) or (3,): a move across the axis (its component along the axis is dropped): the
+    question is then asked of a rapid from ``tip + s axis`` to ``tip + sweep + s axis`` at every
+    height ``s`` (the lowest height from which every rapid up to ``length`` is clear is just above the
+    answer)."""
     p = np.ascontiguousarray(tips, dtype=np.float64).reshape(-1, 3)
     Q = p.shape[0]
     a = np.asarray(axis, dtype=np.float64).reshape(3)
@@ -664,13 +669,22 @@ def column_rise(model: TriDexel, tips, axis, length_mm, shape: ToolShape, *, gro
     out = np.full(Q, -np.inf)
     if Q == 0:
         return out
+    if sweep is None:
+        d = np.zeros((Q, 3))
+    else:
+        d = np.array(np.broadcast_to(np.asarray(sweep, dtype=np.float64), (Q, 3)))
+        d -= np.outer(d @ a, a)
+        if not np.isfinite(d).all():
+            raise ValueError("sweep must be finite")
     tol = model.res / 4 if bull_tol_mm is None else bull_tol_mm
     pk, pz0, pz1, pr, _ = tool_pieces(shape, tol)
     # beyond this length along the axis from any tip the line has left the domain
-    reach = float(np.linalg.norm(model.hi - model.lo)) + float(np.abs(p - model.lo).max()) * 2.0 + 1.0
+    reach = (float(np.linalg.norm(model.hi - model.lo)) + float(np.abs(p - model.lo).max()) * 2.0
+             + float(np.abs(d).max()) * 2.0 + 1.0)
     kern = K.column_rise if Q < RISE_SERIAL else K.column_rise_parallel
     kern(model.lo, model.res, model.n, model.base, model.off, model.cnt, model.pool, p, a,
-         np.maximum(length, 0.0), pk, pz0, np.where(np.isfinite(pz1), pz1, 1e300), pr, float(grow_mm),
+         np.maximum(length, 0.0), np.ascontiguousarray(d), pk, pz0, np.where(np.isfinite(pz1), pz1, 1e300), pr,
+         float(grow_mm),
          float(tol_mm), reach, out)
     return out
 

@@ -1295,11 +1295,31 @@ def _hull_bottom(rho, pk, pz0, pr, grow):
     return best
 
 
+@njit(cache=True, inline="always")
+def _seg_dist(px, py, dl):
+    """Distance in the plane from (px, py) to the segment from (0, 0) to (dl, 0), dl >= 0."""
+    x = min(max(px, 0.0), dl)
+    return math.sqrt((px - x) * (px - x) + py * py)
+
+
+@njit(cache=True, inline="always")
+def _clip_quad(a, b, c, lo_t, hi_t):
+    """[lo_t, hi_t] cut to where a t^2 + 2 b t + c <= 0 (a >= 0); (1, 0) when empty."""
+    if a <= 1e-12:
+        if c <= 0.0:
+            return lo_t, hi_t
+        return 1.0, 0.0
+    disc = b * b - a * c
+    if disc < 0.0:
+        return 1.0, 0.0
+    sq = math.sqrt(disc)
+    return max(lo_t, (-b - sq) / a), min(hi_t, (-b + sq) / a)
+
+
 @njit(cache=True)
-def _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz1, pr, grow, tol, reach):
+def _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow, tol, reach):
     """:func:`column_rise` for query ``q``."""
     S = length[q]
-    w = np.empty(3)
     rmax = 0.0
     zbot = _INF
     ztop = -_INF
@@ -1311,52 +1331,105 @@ def _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz
         else:
             zbot = min(zbot, pz0[k] - grow)
             ztop = max(ztop, pz1[k] + grow)
-    # material touched by the sweep lies between zbot and S + ztop along the axis (from the tip)
+    # material touched lies between zbot and S + ztop along the axis (from the tip)
     zlim = min(S + ztop, reach)
-    # material met only below the tip (s < 0) is not on the way: start the maximum at 0
+    # the plane across the axis: e1 along the sweep (any direction when there is none), e2 = ax x e1;
+    # the reference point sweeps from (0, 0) to (dl, 0) in it
+    D0, D1, D2 = sweep[q, 0], sweep[q, 1], sweep[q, 2]
+    dl = math.sqrt(D0 * D0 + D1 * D1 + D2 * D2)
+    if dl > 1e-12:
+        e10, e11, e12 = D0 / dl, D1 / dl, D2 / dl
+    else:
+        dl = 0.0
+        k = 0
+        if abs(ax[1]) < abs(ax[k]):
+            k = 1
+        if abs(ax[2]) < abs(ax[k]):
+            k = 2
+        # a unit vector across the axis: the least aligned axis less its component along ax
+        e10 = (1.0 if k == 0 else 0.0) - ax[k] * ax[0]
+        e11 = (1.0 if k == 1 else 0.0) - ax[k] * ax[1]
+        e12 = (1.0 if k == 2 else 0.0) - ax[k] * ax[2]
+        m = math.sqrt(e10 * e10 + e11 * e11 + e12 * e12)
+        e10, e11, e12 = e10 / m, e11 / m, e12 / m
+    e20 = ax[1] * e12 - ax[2] * e11
+    e21 = ax[2] * e10 - ax[0] * e12
+    e22 = ax[0] * e11 - ax[1] * e10
+    e1 = (e10, e11, e12)
+    e2 = (e20, e21, e22)
+    # best is the highest position found so far at which the tool meets material; met only below the
+    # start (s < 0) is not on the way
     best = 0.0
     met = False
     stack_a = np.empty(64)
     stack_b = np.empty(64)
+    w = np.empty(3)
+    r2 = rmax * rmax
     for f in range(3):
         ua = (f + 1) % 3
         va = (f + 2) % 3
         uf = ax[f]
-        a = 1.0 - uf * uf
-        e0u = tips[q, ua]
-        e0v = tips[q, va]
-        lo_u = min(e0u + zbot * ax[ua], e0u + zlim * ax[ua]) - rmax
-        hi_u = max(e0u + zbot * ax[ua], e0u + zlim * ax[ua]) + rmax
-        lo_v = min(e0v + zbot * ax[va], e0v + zlim * ax[va]) - rmax
-        hi_v = max(e0v + zbot * ax[va], e0v + zlim * ax[va]) + rmax
-        i0 = max(0, int(math.ceil((lo_u - lo[ua]) / res - 0.5)))
-        i1 = min(n[ua] - 1, int(math.floor((hi_u - lo[ua]) / res - 0.5)))
-        j0 = max(0, int(math.ceil((lo_v - lo[va]) / res - 0.5)))
-        j1 = min(n[va] - 1, int(math.floor((hi_v - lo[va]) / res - 0.5)))
+        bx = e1[f]
+        by = e2[f]
+        a = bx * bx + by * by          # the ray's speed across the axis (1 - uf^2)
+        # bounding box of the swept column (both ends of the sweep, zbot to zlim up the axis), grown
+        lo_u = _INF
+        hi_u = -_INF
+        lo_v = _INF
+        hi_v = -_INF
+        for lam in (0.0, 1.0):
+            for zz in (zbot, zlim):
+                cu = tips[q, ua] + lam * sweep[q, ua] + zz * ax[ua]
+                cv = tips[q, va] + lam * sweep[q, va] + zz * ax[va]
+                lo_u = min(lo_u, cu)
+                hi_u = max(hi_u, cu)
+                lo_v = min(lo_v, cv)
+                hi_v = max(hi_v, cv)
+        i0 = max(0, int(math.ceil((lo_u - rmax - lo[ua]) / res - 0.5)))
+        i1 = min(n[ua] - 1, int(math.floor((hi_u + rmax - lo[ua]) / res - 0.5)))
+        j0 = max(0, int(math.ceil((lo_v - rmax - lo[va]) / res - 0.5)))
+        j1 = min(n[va] - 1, int(math.floor((hi_v + rmax - lo[va]) / res - 0.5)))
         for j in range(j0, j1 + 1):
             for i in range(i0, i1 + 1):
                 r = base[f] + j * n[ua] + i
                 c = cnt[r]
                 if c == 0:
                     continue
-                # the ray O + t e_f, O at 0 along f: w = O - P
+                # the ray O + t e_f (O at 0 along f), w = O - tip: across the axis at
+                # (ax_, ay_) + t (bx, by), along it at zw + t uf
                 w[f] = -tips[q, f]
-                w[ua] = lo[ua] + (i + 0.5) * res - e0u
-                w[va] = lo[va] + (j + 0.5) * res - e0v
+                w[ua] = lo[ua] + (i + 0.5) * res - tips[q, ua]
+                w[va] = lo[va] + (j + 0.5) * res - tips[q, va]
                 zw = w[0] * ax[0] + w[1] * ax[1] + w[2] * ax[2]
-                b = w[f] - zw * uf
-                cc = w[0] * w[0] + w[1] * w[1] + w[2] * w[2] - zw * zw
-                # within rmax of the axis
-                if a <= 1e-12:
-                    if cc > rmax * rmax:
-                        continue
-                    ta, tb = -_INF, _INF
-                else:
-                    disc = b * b - a * (cc - rmax * rmax)
-                    if disc < 0.0:
-                        continue
-                    sq = math.sqrt(disc)
-                    ta, tb = (-b - sq) / a, (-b + sq) / a
+                ax_ = w[0] * e1[0] + w[1] * e1[1] + w[2] * e1[2]
+                ay_ = w[0] * e2[0] + w[1] * e2[1] + w[2] * e2[2]
+                # where the ray is within rmax of the sweep across the axis (a convex set: one interval,
+                # the hull of the two end discs and the strip between them)
+                ta, tb = _clip_quad(a, ax_ * bx + ay_ * by, ax_ * ax_ + ay_ * ay_ - r2, -_INF, _INF)
+                if dl > 0.0:
+                    t1a, t1b = _clip_quad(a, (ax_ - dl) * bx + ay_ * by, (ax_ - dl) * (ax_ - dl) + ay_ * ay_ - r2,
+                                          -_INF, _INF)
+                    if t1a <= t1b:
+                        if ta <= tb:
+                            ta, tb = min(ta, t1a), max(tb, t1b)
+                        else:
+                            ta, tb = t1a, t1b
+                    # the strip: 0 <= ax_ + t bx <= dl and |ay_ + t by| <= rmax
+                    sa, sb = _clip_quad(by * by, ay_ * by, ay_ * ay_ - r2, -_INF, _INF)
+                    if abs(bx) > 1e-12:
+                        x1 = -ax_ / bx
+                        x2 = (dl - ax_) / bx
+                        sa = max(sa, min(x1, x2))
+                        sb = min(sb, max(x1, x2))
+                    elif ax_ < 0.0 or ax_ > dl:
+                        sa, sb = 1.0, 0.0
+                    if sa <= sb:
+                        if ta <= tb:
+                            ta, tb = min(ta, sa), max(tb, sb)
+                        else:
+                            ta, tb = sa, sb
+                if not ta <= tb:
+                    continue
                 # between zbot and zlim along the axis
                 if abs(uf) > 1e-12:
                     t1 = (zbot - zw) / uf
@@ -1382,24 +1455,33 @@ def _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz
                         top -= 1
                         x0 = stack_a[top]
                         x1 = stack_b[top]
-                        zl0 = zw + x0 * uf
-                        zl1 = zw + x1 * uf
-                        # the closest point of the piece to the axis (rho^2 = a t^2 + 2 b t + cc)
+                        # the nearest point of the piece to the sweep across the axis: an end of the
+                        # piece, the point of it nearest an end of the sweep, or where they cross
                         tv = x0
+                        dmin = _seg_dist(ax_ + x0 * bx, ay_ + x0 * by, dl)
+                        dd = _seg_dist(ax_ + x1 * bx, ay_ + x1 * by, dl)
+                        if dd < dmin:
+                            dmin, tv = dd, x1
                         if a > 1e-12:
-                            tv = min(max(-b / a, x0), x1)
-                        rho_min = math.sqrt(max(0.0, a * tv * tv + 2.0 * b * tv + cc))
-                        hb = _hull_bottom(rho_min, pk, pz0, pr, grow)
+                            for cx in (0.0, dl):
+                                tt = min(max(-((ax_ - cx) * bx + ay_ * by) / a, x0), x1)
+                                dd = _seg_dist(ax_ + tt * bx, ay_ + tt * by, dl)
+                                if dd < dmin:
+                                    dmin, tv = dd, tt
+                            if dl > 0.0 and abs(by) > 1e-12:
+                                tt = -ay_ / by
+                                if x0 <= tt <= x1 and 0.0 <= ax_ + tt * bx <= dl:
+                                    dmin, tv = 0.0, tt
+                        hb = _hull_bottom(dmin, pk, pz0, pr, grow)
                         if hb == _INF:
                             continue
-                        upper = max(zl0, zl1) - hb
+                        upper = max(zw + x0 * uf, zw + x1 * uf) - hb
                         if upper < best or (upper == best and met):
                             continue
-                        # lower: f at the ends and at the closest point
+                        # lower: the height needed at the ends and at the nearest point
                         lower = zw + tv * uf - hb
                         for x in (x0, x1):
-                            rr = math.sqrt(max(0.0, a * x * x + 2.0 * b * x + cc))
-                            hx = _hull_bottom(rr, pk, pz0, pr, grow)
+                            hx = _hull_bottom(_seg_dist(ax_ + x * bx, ay_ + x * by, dl), pk, pz0, pr, grow)
                             if hx < _INF:
                                 lower = max(lower, zw + x * uf - hx)
                         if upper - lower <= tol or top >= 62:
@@ -1418,24 +1500,29 @@ def _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz
 
 
 @njit(cache=True)
-def column_rise(lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz1, pr, grow, tol, reach, out):
+def column_rise(lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow, tol, reach,
+                out):
     """Per query ``q`` the highest position ``s`` in ``[0, length[q]]`` (mm along the unit tool axis
     ``ax`` from the tip ``tips[q]``) at which the tool's pieces (``pk``, ``pz0``, ``pz1``, ``pr`` as
-    :func:`planning.simulate.dexel.tool_pieces`), grown by ``grow``, meet the material on a ray; -inf
-    when no position does. The tool is taken as its radius-monotone hull (a piece counts from its
-    bottom up to the top of the highest one), so the answer is never below the exact one and at most
-    ``tol`` above it: along each interval of material the height ``s = z - bottom(rho)`` (``z`` along
-    the axis, ``rho`` off it) is bounded by the highest ``z`` less the bottom at the nearest point,
+    :func:`planning.simulate.dexel.tool_pieces`), grown by ``grow``, meet the material on a ray
+    anywhere along ``sweep[q]`` (a vector across the axis: the tip at ``tips[q] + l sweep[q] + s ax``,
+    ``l`` in [0, 1]; zero: a column); -inf when no position does. The tool is taken as its
+    radius-monotone hull (a piece counts from its bottom up to the top of the highest one), so the
+    answer is never below the exact one and at most ``tol`` above it: along each interval of
+    material the height ``s = z - bottom(rho)`` (``z`` along the axis, ``rho`` its distance across
+    the axis from the sweep) is bounded by the highest ``z`` less the bottom at the nearest point,
     and halved until that bound is within ``tol`` of the value at the piece's ends and nearest
     point. ``reach``: a length along the axis beyond which the domain holds nothing (bounds an
     infinite holder)."""
     for q in range(tips.shape[0]):
-        out[q] = _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz1, pr, grow, tol, reach)
+        out[q] = _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow,
+                           tol, reach)
 
 
 @njit(parallel=True, cache=True)
-def column_rise_parallel(lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz1, pr, grow, tol, reach,
-                         out):
+def column_rise_parallel(lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow, tol,
+                         reach, out):
     """:func:`column_rise` over the queries on every thread."""
     for q in prange(tips.shape[0]):
-        out[q] = _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, pk, pz0, pz1, pr, grow, tol, reach)
+        out[q] = _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow,
+                           tol, reach)

@@ -11,6 +11,8 @@ import pytest
 import planning.toolpath.finishing_worker as W
 from planning.geometry.tool import ball_tool
 from planning.toolpath.area_paths import area_toolpaths
+from planning.toolpath.frames import AreaFrame
+from planning.toolpath.safety import check_positions, cloud_blocked
 from schemas.params import PathsParams
 
 R = 3.0
@@ -134,8 +136,51 @@ def test_the_workers_own_errors_are_raised_here_and_it_goes_on(monkeypatch):
             w.passes()
         assert w.usable
         assert w.submit(pts, [labels == 0], None, fp, R, 0.01, 20.0, 80.0)
-        fin = w.passes()
+        fin, known = w.passes()
+        assert known is None                                  # no check asked for
         here, _ = W.region_passes(pts, [labels == 0], None, fp, R, 0.01, 20.0, 80.0)
         np.testing.assert_array_equal(fin.toolpath.xyz_mm, here.toolpath.xyz_mm)
+        # with the cloud's part of the check of the positions: the planning process's own answer
+        frame = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
+        assert w.submit(pts, [labels == 0], None, fp, R, 0.01, 20.0, 80.0, (frame, axes[0], tool, pts))
+        fin, (spacing, mask) = w.passes()
+        positions, _ = check_positions(here.toolpath, 20.0, 0.25 * R)
+        assert spacing == 0.25 * R
+        np.testing.assert_array_equal(mask, cloud_blocked(positions, frame, axes[0], tool, pts))
     finally:
         w.close()
+
+
+def test_a_plan_on_the_carried_stock_is_the_same_with_the_worker(monkeypatch):
+    """The whole plan of a reference case (rest roughing on the carried stock, the finishing's CL points
+    cut where the holder meets the stock, the guard): the same programs with the worker (passes and
+    the cloud's part of their check computed there) as without."""
+    from planning.inputs import Cloud
+    from planning.inputs.samples import filleted_box
+    from planning.pipeline import run_plan
+    from schemas.params import apply_overrides, parse_config
+
+    monkeypatch.delenv("SCANMILL_FINISHING_WORKER", raising=False)
+    monkeypatch.setattr(W, "_threads", lambda: 2)
+    s = filleted_box(density_per_mm2=0.5, seed=3)
+    cfg = parse_config(apply_overrides({}, ["tool.diameter_mm=4", "paths.finishing.scallop_mm=0.2",
+                                            "paths.roughing.step_down_mm=5", "simulate.resolution_mm=1.0"]))
+
+    def plan():
+        return run_plan(Cloud(points=s.points, normals=s.normals, source_format="generated"), cfg, name="box")
+
+    monkeypatch.setattr(W, "MIN_POINTS", 10 ** 12)
+    here = plan()
+    used = []
+    real = W.FinishingWorker.passes
+
+    def counted(self, progress=None):
+        out = real(self, progress)
+        used.append(out[1] is not None)
+        return out
+    monkeypatch.setattr(W.FinishingWorker, "passes", counted)
+    monkeypatch.setattr(W, "MIN_POINTS", 0)
+    there = plan()
+    assert used and all(used)                           # every set-up's passes and cloud check came from it
+    assert here.extra["programs"] == there.extra["programs"]
+    assert here.result.verification.status == there.result.verification.status == "passed"

@@ -319,12 +319,15 @@ def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, ob
         ap = AreaPaths(area=i, frame=frame, safe_z_mm=safe, finishing=None, finishing_info=None, radius_mm=R,
                        tolerance_mm=tol)
         masks, job = None, None
+        five = fp.area_modes.get(i, fp.mode) == "5axis"
         if fp.enabled:
             masks = _region_masks(mine, regions, cloud_f.shape[0])
             if extra.any():                    # the points set-ups before left that this one sees
                 masks.append(np.concatenate([extra, np.zeros(cloud_f.shape[0] - extra.shape[0], dtype=bool)]))
-            if worker is not None and worker.submit(cloud_f, masks, faces, fp, R, tol, safe, max_slope_deg):
-                job = worker                   # computed there while this process roughs
+            # computed there while this process roughs (with the cloud's part of their check)
+            check = None if (carried is None or five) else (frame, axes[i], tool, obstacles)
+            if worker is not None and worker.submit(cloud_f, masks, faces, fp, R, tol, safe, max_slope_deg, check):
+                job = worker
         _add_roughing(ap, cloud_f, area_f, top, paths_params, sec, roughing_window_reach_mm(paths_params, tool),
                       stock_f=stock_f, carried=carried, progress=prog.step("roughing"))
         if ap.roughing is not None and ap.roughing.n_moves == 0:
@@ -338,12 +341,11 @@ def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, ob
             # issue 16 item 1: the stock the finishing meets over this area (roughing allowance
             # where roughing reached; more where the roughing tool or its holder could not go)
             ap.allowance_left = carried.allowance_left(points[mine], carried.normals[mine])
-        five = fp.area_modes.get(i, fp.mode) == "5axis"
         if fp.enabled:
             _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec, faces=faces, job=job,
                            blocked=None if (carried is None or five) else
-                           (lambda fin, prg: _cut_blocked(ap, fin, carried, obstacles, axes[i], tool, fixtures, area_f, fp,
-                                                               progress=prg)),
+                           (lambda fin, prg, known: _cut_blocked(ap, fin, carried, obstacles, axes[i], tool, fixtures,
+                                                                      area_f, fp, progress=prg, cloud_known=known)),
                            progress=prog, five_axis=None if not five else
                            _FiveAxisArea(obstacles, tool, cone_deg, carried, fp))
             # cutter, shank and holder above the ball at every CL point of the cut
@@ -540,7 +542,7 @@ def _guard_finishing(ap: AreaPaths, carried, area_f, fp, progress: Progress | No
 
 
 def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, tool: ToolAssembly, fixtures,
-                 area_f, fp, progress: Progress | None = None) -> FinishingPath:
+                 area_f, fp, progress: Progress | None = None, cloud_known=None) -> FinishingPath:
     """Issue 16 item 3 on the dense finishing CL points, before reduction
     (:func:`planning.toolpath.safety.guard_finishing`): the points (and the insides of the moves)
     where the cutter, shank or holder would meet the cloud, the carried stock, a fixture or the
@@ -556,7 +558,7 @@ def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, to
                                 safe_z_mm=ap.safe_z_mm, fixtures=fixtures, stock=carried.stock,
                                 stock_shape=carried.finishing_shape, travel_ok=travel,
                                 floor_z_part_mm=carried.footprint, tol_mm=fp.tolerance_mm, scallop_mm=fp.scallop_mm,
-                                step_mm=fp.step_mm, progress=progress)
+                                step_mm=fp.step_mm, progress=progress, cloud_known=cloud_known)
     ap.blocked = dict(figs.blocked)
     ap.unmachined = figs.unmachined
     if out is None:                            # the set-up cannot finish any of its area
@@ -602,17 +604,18 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
                    faces: np.ndarray | None = None, five_axis: _FiveAxisArea | None = None, job=None) -> None:
     """Step 4 and the gouge check of step 5 into ``ap``: finishing passes per region
     (:func:`_region_finishing`; ``job``: the finishing worker computing the same passes,
-    :class:`planning.toolpath.finishing_worker.FinishingWorker`, or None), the blocked CL points cut out (``blocked``:
-    (FinishingPath, progress) -> FinishingPath, or None), arc fitting or CL reduction of the joined
+    :class:`planning.toolpath.finishing_worker.FinishingWorker`, or None), the blocked CL points cut
+    out (``blocked``: (FinishingPath, progress, the cloud reason of its check if the worker found it,
+    or None) -> FinishingPath, or None), arc fitting or CL reduction of the joined
     path, and the minimal clearance of the final moves (capped at R)."""
     R, tol = ap.radius_mm, ap.tolerance_mm
     t0 = time.perf_counter()
     step = (lambda name: None) if progress is None else progress.step
     finishing_progress = step("finishing")
-    fin = None
+    fin = cloud_known = None
     if job is not None:
         try:
-            fin = job.passes(finishing_progress)
+            fin, cloud_known = job.passes(finishing_progress)
         except WorkerFailed as e:
             _log.warning("finishing worker failed (%s): passes computed in this process", e)
     if fin is None:
@@ -624,7 +627,7 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
     sec["finishing"] = time.perf_counter() - t0
     if blocked is not None:
         t0 = time.perf_counter()
-        fin = blocked(fin, step("cut_blocked"))
+        fin = blocked(fin, step("cut_blocked"), cloud_known)
         sec["cut_blocked"] = time.perf_counter() - t0
         if fin is None:                        # nothing of the area can be finished from this set-up
             return

@@ -72,6 +72,24 @@ def binned_cloud(cloud_f: np.ndarray, faces, R: float):
     return binned
 
 
+def cloud_check(fin, safe: float, R: float, check) -> tuple[float, np.ndarray] | None:
+    """The stock-free part of the check of the passes' positions (step 1 of
+    :func:`planning.toolpath.safety.guard_finishing` at its default sample spacing, R / 4): the
+    cloud reason of :func:`planning.toolpath.safety.cloud_blocked` for
+    :func:`planning.toolpath.safety.check_positions`, as ``guard_finishing``'s ``cloud_known``.
+    ``check``: ``(frame, axis (part frame), tool assembly, obstacles (part frame))`` or None."""
+    from planning.toolpath.safety import check_positions, cloud_blocked
+
+    if check is None:
+        return None
+    frame, axis, tool, obstacles = check
+    if obstacles is None or len(obstacles) == 0:
+        return None
+    spacing = 0.25 * float(R)
+    positions, _ = check_positions(fin.toolpath, safe, spacing)
+    return spacing, cloud_blocked(positions, frame, axis, tool, obstacles)
+
+
 def region_passes(cloud_f: np.ndarray, region_masks: list, faces, fp, R: float, tol: float, safe: float,
                   max_slope_deg: float, progress=None):
     """The finishing passes of one set-up's regions (the step of
@@ -122,8 +140,9 @@ def _serve() -> int:
         except EOFError:
             return 0
         try:
-            fin, _ = region_passes(*job)
-            answer = ("ok", fin)
+            passes, check = job
+            fin, _ = region_passes(*passes)
+            answer = ("ok", (fin, cloud_check(fin, passes[6], passes[4], check)))
         except Exception as e:                # noqa: BLE001 - the caller raises it as its own
             answer = ("error", e)
         _write_frame(dst, answer)
@@ -165,13 +184,14 @@ class FinishingWorker:
         return self._proc is not None and self._proc.poll() is None
 
     def submit(self, cloud_f, region_masks, faces, fp, R: float, tol: float, safe: float,
-               max_slope_deg: float) -> bool:
+               max_slope_deg: float, check=None) -> bool:
         """Start one set-up's passes in the worker (the job is written by a thread: the worker may still
-        be starting); False when the worker is not usable (compute the passes here)."""
+        be starting), and with ``check`` (:func:`cloud_check`'s) the cloud reason of their check;
+        False when the worker is not usable (compute the passes here)."""
         if not self.usable or self._writer is not None:
             return False
-        job = (np.ascontiguousarray(cloud_f), list(region_masks), None if faces is None else np.asarray(faces),
-               fp, float(R), float(tol), float(safe), float(max_slope_deg))
+        job = ((np.ascontiguousarray(cloud_f), list(region_masks), None if faces is None else np.asarray(faces),
+                fp, float(R), float(tol), float(safe), float(max_slope_deg)), check)
 
         def write():
             try:
@@ -184,8 +204,9 @@ class FinishingWorker:
         return True
 
     def passes(self, progress: Callable[[float, str], None] | None = None):
-        """The passes of the job submitted last (waiting for them, ``progress(0, ...)`` about every
-        second meanwhile). The worker's errors are raised here; :class:`WorkerFailed` when the worker
+        """``(the passes, the cloud reason of their check or None)`` of the job submitted last
+        (:func:`region_passes`, :func:`cloud_check`; waiting for them, ``progress(0, ...)`` about
+        every second meanwhile). The worker's errors are raised here; :class:`WorkerFailed` when the worker
         died (it is closed; the caller computes the passes itself)."""
         if self._writer is None:
             raise WorkerFailed("no job submitted")

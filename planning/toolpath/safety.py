@@ -127,11 +127,25 @@ def _unit_axis(axis, frame: AreaFrame) -> np.ndarray:
     return t / n
 
 
+def cloud_blocked(centres_frame, frame: AreaFrame, axis, tool: ToolAssembly, obstacles_part) -> np.ndarray:
+    """(n,) bool: the ``cloud`` reason of :func:`blocked_cl` alone (the cutter above the ball, the shank
+    or the holder meets the cloud or the forbidden points ``obstacles_part``), for the ball centres
+    ``centres_frame`` (n,3, area frame). It needs no stock: the finishing worker computes it for
+    step 1 of :func:`guard_finishing` beside the passes (:mod:`planning.toolpath.finishing_worker`)."""
+    c_f = np.asarray(centres_frame, dtype=np.float64).reshape(-1, 3)
+    if c_f.shape[0] == 0:
+        return np.zeros(0, dtype=bool)
+    t = _unit_axis(axis, frame)
+    return ~centres_collision_free(np.asarray(obstacles_part, dtype=np.float64).reshape(-1, 3), frame.to_part(c_f),
+                                   t[None, :], tool)[:, 0]
+
+
 def blocked_cl(centres_frame, frame: AreaFrame, axis=None, *, tool: ToolAssembly, obstacles_part,
                fixtures: Sequence = (), stock=None, stock_shape=None,
                travel_ok: Callable[[np.ndarray], np.ndarray] | None = None,
                floor_z_part_mm: float | None = None, tol_mm: float = 1e-3,
-               progress: Callable[[float, str], None] | None = None) -> BlockedCL:
+               progress: Callable[[float, str], None] | None = None,
+               cloud_known: np.ndarray | None = None) -> BlockedCL:
     """Which ball-centre positions the tool may not take (module docstring, step 1).
 
     ``centres_frame`` (n,3): ball centres in the area frame ``frame``; ``axis`` (3,): the tool axis
@@ -146,7 +160,8 @@ def blocked_cl(centres_frame, frame: AreaFrame, axis=None, *, tool: ToolAssembly
     (part frame z; None: not checked), or a :class:`planning.toolpath.carried.Footprint` (only a ball
     reaching below the underside INSIDE the part's footprint counts); ``tol_mm``: how far below the
     underside the ball may reach. ``progress(fraction, message)``: each check as it starts (the
-    stock's inside it). Vectorised: one call of each check for all points."""
+    stock's inside it). ``cloud_known`` (n,) bool: the cloud reason already found for these points
+    (:func:`cloud_blocked`), not computed again. Vectorised: one call of each check for all points."""
     say = progress or (lambda fraction, message="": None)
     c_f = np.asarray(centres_frame, dtype=np.float64).reshape(-1, 3)
     n = c_f.shape[0]
@@ -161,8 +176,11 @@ def blocked_cl(centres_frame, frame: AreaFrame, axis=None, *, tool: ToolAssembly
     tips = c_p - R * t
     obst = None if obstacles_part is None else np.asarray(obstacles_part, dtype=np.float64).reshape(-1, 3)
     if obst is not None and obst.shape[0]:
-        say(0.0, f"{n} positions: cloud")
-        reasons["cloud"] = ~centres_collision_free(obst, c_p, t[None, :], tool)[:, 0]
+        if cloud_known is not None and np.shape(cloud_known) == (n,):
+            reasons["cloud"] = np.asarray(cloud_known, dtype=bool)
+        else:
+            say(0.0, f"{n} positions: cloud")
+            reasons["cloud"] = cloud_blocked(c_f, frame, t, tool, obst)
     if fixtures:
         say(0.3, f"{n} positions: fixtures")
         reasons["fixture"] = ~fixture_collision_free(c_p, t[None, :], tool, list(fixtures))[:, 0]
@@ -549,6 +567,19 @@ def finished_reach_mm(radius_mm: float, *, tol_mm: float, scallop_mm: float, spa
     return float(tol_mm) + float(scallop_mm) + (math.sqrt(R * R + d * d) - R)
 
 
+def check_positions(tp: Toolpath, safe_z_mm: float, spacing_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Step 1 of :func:`guard_finishing`'s positions: every point of ``tp``, then points inside its
+    moves at most ``spacing_mm`` apart, the moves along the safe height left out. Returns
+    ``(positions (P + Q, 3), the move of each inside point (Q,))``."""
+    xyz = tp.xyz_mm
+    P = tp.n_moves
+    low = xyz[:, 2] < float(safe_z_mm) - _AT_SAFE_MM
+    moves = np.arange(1, P)
+    moves = moves[low[moves] | low[moves - 1]]
+    inner, owner = _move_samples(tp, moves, spacing_mm)
+    return np.concatenate([xyz, inner]), owner
+
+
 def _move_samples(tp: Toolpath, moves: np.ndarray, spacing_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """Points inside the moves ``moves`` (indices >= 1) at most ``spacing_mm`` apart (end points
     excluded): straight moves vectorised, arcs by :func:`planning.toolpath.moves.densify`. Returns
@@ -644,7 +675,8 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
                     floor_z_part_mm: float | None = None, tol_mm: float = 1e-3, scallop_mm: float = 0.01,
                     step_mm: float | None = None, reach_mm: float | None = None, approach_mm: float = 1.0,
                     sample_mm: float | None = None, max_rounds: int = 8,
-                    progress: Callable[[float, str], None] | None = None) -> tuple[FinishingPath | None, FinishingSafety]:
+                    progress: Callable[[float, str], None] | None = None,
+                    cloud_known: tuple[float, np.ndarray] | None = None) -> tuple[FinishingPath | None, FinishingSafety]:
     """Steps 1 to 3 of the module docstring for one area's finishing ``fin``, best on the dense CL
     points before CL reduction and arc fitting (arcs are handled too).
 
@@ -672,7 +704,10 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
     blocked, None when no piece is left; ``min_clearance_mm`` stays the input's (a lower bound:
     the kept moves are the input's, the new ones run straight up over ball-drop points); and
     :class:`FinishingSafety`. ``progress(fraction, message)``: the check of step 1 takes the first
-    70 %, the rounds of step 2 the next 20 %, step 3 the rest."""
+    70 %, the rounds of step 2 the next 20 %, step 3 the rest. ``cloud_known``: ``(spacing, mask)``,
+    the cloud reason of step 1's positions (:func:`check_positions` at that spacing,
+    :func:`cloud_blocked`) found beforehand; used when the spacing is this call's and the count
+    matches."""
     say = progress or (lambda fraction, message="": None)
     tp = fin.toolpath
     R = float(tool.radius_mm)
@@ -691,13 +726,14 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
         return blocked_cl(points, frame, axis, **kw,
                           progress=None if progress is None else (lambda f, m: say(round_at[0], f"{message}: {m}"))).mask
 
-    # 1. the points and the insides of the moves (not those along the safe height)
+    # 1. the points and the insides of the moves (not those along the safe height); the cloud reason
+    # of these very positions may be known (cloud_known: (the sample spacing, the mask))
     xyz = tp.xyz_mm
-    low = xyz[:, 2] < safe - _AT_SAFE_MM
-    moves = np.arange(1, P)
-    moves = moves[low[moves] | low[moves - 1]]
-    inner, owner = _move_samples(tp, moves, spacing)
-    b = blocked_cl(np.concatenate([xyz, inner]), frame, axis, **kw,
+    positions, owner = check_positions(tp, safe, spacing)
+    known = None
+    if cloud_known is not None and float(cloud_known[0]) == spacing and len(cloud_known[1]) == positions.shape[0]:
+        known = cloud_known[1]
+    b = blocked_cl(positions, frame, axis, **kw, cloud_known=known,
                    progress=None if progress is None else (lambda f, m: say(0.7 * f, f"check of {m}")))
     on_pts = BlockedCL(mask=b.mask[:P], reasons={k: v[:P] for k, v in b.reasons.items()})
     drop = on_pts.mask.copy()

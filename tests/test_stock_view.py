@@ -253,6 +253,21 @@ def test_travel_cells_are_the_machines_own_travel_test():
         ref = machine.travel_ok(frame.to_part(pts), gauge) & machine.travel_ok(frame.to_part(lift), gauge)
         assert np.array_equal(cells.ravel(), ref)
         assert 0 < cells.sum() < cells.size
+    # a raster inside the travel (the shortcut of the four corners): all cells, as the machine says
+    from scipy.ndimage import binary_erosion
+
+    deep = binary_erosion(ok(x0, y0, h, nx, ny, 0.0), np.ones((11, 11), dtype=bool))
+    assert deep.any()
+    i, j = np.argwhere(deep)[0]
+    # between the centres of the cells 4 to either side (the travel is convex in the cell centre)
+    sx, sy = x0 + (i - 3.5) * h, y0 + (j - 3.5) * h
+    inner = ok(sx, sy, h / 4, 32, 32, 0.0)
+    X, Y = np.meshgrid(sx + (np.arange(32) + 0.5) * h / 4, sy + (np.arange(32) + 0.5) * h / 4, indexing="ij")
+    pts = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], axis=1)
+    lift = pts.copy()
+    lift[:, 2] = 60.0
+    ref = machine.travel_ok(frame.to_part(pts), gauge) & machine.travel_ok(frame.to_part(lift), gauge)
+    assert ref.all() and inner.all()
 
 
 def test_level_air_trims_a_line_to_where_its_disc_meets_material_not_yet_swept():

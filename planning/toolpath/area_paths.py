@@ -502,6 +502,19 @@ def _travel_cells(machine, frame: AreaFrame, gauge_mm: float, lift_z: float):
         x = x0 + (np.arange(nx) + 0.5) * h
         y = y0 + (np.arange(ny) + 0.5) * h
         out = np.ones((nx, ny), dtype=bool)
+        if nx == 0 or ny == 0:
+            return out
+        # affine in the cell centre: within the limits at the raster's four corner cells (both heights),
+        # within them over the whole raster (the usual case: nothing to compute per cell)
+        cx = np.array([x[0], x[-1], x[0], x[-1]])
+        cy = np.array([y[0], y[0], y[-1], y[-1]])
+        inside = True
+        for i, (lo, hi) in enumerate(limits):
+            for zz in (z, max(z, lift_z)):
+                v = cx * dx[i] + cy * dy[i] + m0[i] + zz * dz[i]
+                inside = inside and bool(np.all((v >= lo - TRAVEL_SLACK_MM) & (v <= hi + TRAVEL_SLACK_MM)))
+        if inside:
+            return out
         for i, (lo, hi) in enumerate(limits):
             base_i = x[:, None] * dx[i] + y[None, :] * dy[i] + m0[i]
             for zz in (z, max(z, lift_z)):

@@ -422,3 +422,37 @@ def test_level_air_trims_a_contour_chain_and_opens_a_loop_at_its_longest_useless
     far = xy[:-1] - np.array([10.0, 10.0])
     fcells = np.floor(far[:, 0] / h).astype(np.int64) * ny + np.floor(far[:, 1] / h).astype(np.int64)
     assert air.trim_chain(far, fcells, ny, loop=False) is None
+
+
+def _channel_roughing(monkeypatch=None):
+    """The ring channel of the test above roughed on its stock view: (roughing, frame, stock)."""
+    Rt = 4.0
+    shape = ToolShape(number=2, kind="flat", radius_mm=Rt, corner_radius_mm=0.0, flute_length_mm=25.0,
+                      pieces=((25.0, math.inf, 4.0),))
+    cloud = _channel(r_out=10.0 + 2 * Rt + 1.0 + 2.0)
+    lo, hi = np.array([-27.0, -27.0, 0.0]), np.array([27.0, 27.0, 10.0])
+    stock = _box(lo, hi)
+    frame = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
+    rr = roughing_paths(cloud, tool_radius_mm=Rt, step_down_mm=2.5, stock_allowance_mm=0.5, floor_z_mm=0.5,
+                        stock_points_mm=stock.boundary_points(), stock_spacing_mm=RES, holder_pieces=shape.pieces,
+                        safe_z_mm=25.0, rapid_clearance_mm=0.5, stock_view=StockView(stock, frame, shape))
+    return rr, frame, stock, shape
+
+
+def test_a_piece_no_entry_fits_is_tried_again_after_the_levels_other_pieces():
+    """The ring channel's clearing lines are short chords no entry fits when they come first; the
+    contours along the walls then sweep them, so tried again after the level's other pieces they are
+    air (not cut) or entered from the cut beside them: none is left, and the channel is roughed down
+    to its floor all round (the stock's top over the tool's reach is the floor, 0.5 mm)."""
+    rr, frame, stock, shape = _channel_roughing()
+    assert rr.n_pieces_left == 0 and rr.left_length_mm == 0.0
+    pm = part_moves(rr.toolpath, frame)
+    s = stock.copy()
+    simulate_moves(s, pm.start, pm.end, np.broadcast_to(pm.axis, pm.start.shape), shape, pm.kind,
+                   rapid_clearance_mm=0.5)
+    h, x0, n = 0.5, -27.0, 108
+    tops = stock_tops_in_frame(s, frame.rotation, frame.origin_mm, x0, x0, h, n, n, np.inf, -5.0)
+    c = x0 + (np.arange(n) + 0.5) * h
+    R = np.hypot(*np.meshgrid(c, c, indexing="ij"))
+    ring = (R > 10.5 + RES) & (R < 21.0 - 0.5 - RES)            # within the tool's reach, off the walls' allowance
+    assert np.all(tops[ring] <= 0.5 + 1e-6)

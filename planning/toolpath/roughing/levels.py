@@ -761,7 +761,10 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
     lowered along what was cut (cells the flat bottom, or the corner, surely swept) before each
     entry and at the end. With ``air`` (:class:`~planning.toolpath.roughing.air._LevelAir`) a clearing
     line is trimmed, just before it is cut, to the span where its disc still meets material of the
-    level that the level's cuts so far have not swept, and skipped when there is none. Returns the
+    level that the level's cuts so far have not swept, and skipped when there is none; a piece that no
+    entry fits (a straight plunge only) is tried again after the level's other pieces, which may have
+    swept its material (it is then trimmed away as air) or cut beside it (a side entry or a link at the
+    level), and is left (``n_pieces_left``) only when it still cannot be entered. Returns the
     new current tip, the volume removed (mm^3) and whether anything was cut at the level."""
     z = lv.z
     here = None                  # (xy, cell, component) where the tool is at this level
@@ -770,7 +773,15 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
     any_swept = False
     prev_line = False
     cut_all = []                 # every polyline cut at this level, for ``air``
-    for piece, xy, cells in _order(pieces, None if cur is None else np.asarray(cur[:2]), oneway):
+    later = []                   # pieces no entry fitted yet: tried again after the others
+
+    def _all():
+        for piece_, xy_, cells_ in _order(pieces, None if cur is None else np.asarray(cur[:2]), oneway):
+            yield piece_, xy_, cells_, False
+        for piece_, xy_, cells_ in later:
+            yield piece_, xy_, cells_, True
+
+    for piece, xy, cells, retry in _all():
         if air is not None:
             air.mark(cut_all)
             trimmed = air.trim(xy, cells, lv.ny) if piece.is_line else \
@@ -802,6 +813,11 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
                 swept = []
             entered = ent.enter(w, lv, cur, xy, cells[0], z, safe)
             if entered is None:       # no entry but a straight plunge: the piece is left, the tool stays
+                if air is not None and not retry:
+                    # the level's other pieces may yet clear its material or open a way in from the side
+                    later.append((piece, xy, cells))
+                    ent.n_left -= 1
+                    continue
                 ent.left_mm += float(np.hypot(*np.diff(xy, axis=0).T).sum()) if xy.shape[0] > 1 else 0.0
                 continue
             if here is not None:

@@ -439,6 +439,38 @@ def _channel_roughing(monkeypatch=None):
     return rr, frame, stock, shape
 
 
+def test_entries_beside_walls_descend_at_the_entry_angle_only_from_the_material_the_stock_shows(monkeypatch):
+    """In the ring channel every ramp runs beside the channel's walls, where the maps' material under it
+    is the part's own height: the stock itself (the cutter, less a cell at its rim, moved up over the
+    ramp's way) shows where the descent meets material, and the ramp is fed (straight, or at STEEP_DEG
+    where a straight feed would shave the wall) through the air above that; the entries feed far less
+    in air than when the maps alone decide, take off the same material and never plunge into it."""
+    import planning.toolpath.roughing.entries as E
+    from planning.toolpath.moves import USE_PLUNGE
+
+    def entry_air(rr, frame, stock, shape):
+        pm = part_moves(rr.toolpath, frame)
+        run = simulate_moves(stock.copy(), pm.start, pm.end, np.broadcast_to(pm.axis, pm.start.shape), shape,
+                             pm.kind, rapid_clearance_mm=0.5)
+        d = pm.end - pm.start
+        L = np.linalg.norm(d, axis=1)
+        feed = pm.kind == FEED
+        down = feed & (L > 0) & (-d[:, 2] > math.cos(math.radians(10.0)) * L)
+        entry = feed & (rr.toolpath.use[pm.source] == USE_PLUNGE)
+        return L[entry & (run.removed_mm3 < 1e-6)].sum(), run, down
+
+    rr, frame, stock, shape = _channel_roughing()
+    air, run, down = entry_air(rr, frame, stock, shape)
+    assert rr.n_ramps > 0 and rr.n_plunges_into_material == 0
+    assert np.all(run.removed_mm3[down] < 1e-6)
+    monkeypatch.setattr(E._Entries, "_sweep_top", lambda self, xyz, z, top: math.inf)
+    old, *_ = _channel_roughing()
+    air_old, run_old, _ = entry_air(old, frame, stock, shape)
+    assert air < 0.5 * air_old
+    assert old.length_mm - rr.length_mm > 0.5 * (air_old - air)
+    assert run.removed_mm3.sum() == pytest.approx(run_old.removed_mm3.sum(), rel=0.01)
+
+
 def test_a_piece_no_entry_fits_is_tried_again_after_the_levels_other_pieces():
     """The ring channel's clearing lines are short chords no entry fits when they come first; the
     contours along the walls then sweep them, so tried again after the level's other pieces they are

@@ -545,6 +545,35 @@ class _LiveStock:
             return float(self.view.column_clear_z(np.array([[x, y, z]]), top, clearance_mm)[0])
         return clear
 
+    def material_rise(self, w, shrink_mm: float):
+        """``rise(xy, z, top)`` -> the highest frame height at which the cutter (its flutes, without the
+        shank and holder pieces) narrowed by ``shrink_mm`` and moved straight up from (x, y, z) to
+        ``top`` for every x, y of ``xy`` (k,2), meets the view's material or the obstacles (the view
+        brought up to date with ``w``'s moves; :func:`planning.simulate.dexel.column_rise`, at most
+        its tolerance above the exact height); -inf where it meets none. Where a helix or ramp above
+        those points begins to cut more than a ring of ``shrink_mm`` at its rim (the allowance the
+        levels above left on a wall beside the tool, which the whole descent rubs)."""
+        from planning.simulate.dexel import column_rise
+
+        sh = self.view.shape
+        r = max(sh.radius_mm - shrink_mm, 0.5 * sh.radius_mm)
+        cutter = replace(sh, pieces=(), radius_mm=r, corner_radius_mm=min(sh.corner_radius_mm, r))
+        axis = self.view.frame.rotation[2]
+
+        def rise(xy, z, top):
+            self.sync(w)
+            xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+            if xy.shape[0] == 0 or not top > z:
+                return -math.inf
+            tips = self.view.frame.to_part(np.column_stack([xy, np.full(xy.shape[0], float(z))]))
+            out = -math.inf
+            for model in (self.view.stock, self.view.obstacles):
+                if model is not None:
+                    s = column_rise(model, tips, axis, float(top) - float(z), cutter)
+                    out = max(out, float(s.max()))
+            return float(z) + out if math.isfinite(out) else -math.inf
+        return rise
+
     def column_is_clear(self, w, clearance_mm: float):
         """``clear(x, y, z, top)`` -> bool: whether the tool at (x, y, z), moved straight up to ``top``,
         keeps ``clearance_mm`` from the material (the view brought up to date with ``w``'s moves; one
@@ -658,6 +687,7 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     if live is not None:
         ent.gap = min(GAP_MM, live.clearance_mm + ENTRY_GAP_EXTRA_MM)
         ent.clear = live.column_is_clear(w, FEED_CLEAR_MM)
+        ent.rise = live.material_rise(w, grid.h)
     if live is not None and live.clearance_mm > 0:
         w.gap = ent.gap
         w.column_clear = live.column_clear(w, live.clearance_mm)

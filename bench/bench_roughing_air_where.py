@@ -125,6 +125,7 @@ def breakdown(call, box_lo, box_hi):
     use = np.array([USE_NAMES.get(int(u), str(u)) for u in tp.use[pm.source]])
     tag = tags[pm.source]
     out = {"feed": float(L[feed].sum()), "air": float(L[air].sum()), "n_levels": int(r.n_levels),
+           "removed_cm3": float(run.removed_mm3.sum()) / 1000.0, "left": (int(r.n_pieces_left), float(r.left_length_mm)),
            "levels": (float(r.levels_mm[0]), float(r.levels_mm[-1])) if r.n_levels else None}
     for name, key in (("use", use), ("where", where), ("why", why), ("writer", tag),
                       ("where x why", np.char.add(np.char.add(where, " / "), why)),
@@ -170,7 +171,8 @@ def main() -> int:
                 print(f"\n{case}, set-up {k}: no roughing")
                 continue
             print(f"\n{case}, set-up {k} (machining order): feed {b['feed']:.0f} mm, in air {b['air']:.0f} mm "
-                  f"({b['air'] / max(b['feed'], 1e-9):.1%}); {b['n_levels']} levels {b['levels']}")
+                  f"({b['air'] / max(b['feed'], 1e-9):.1%}); removed {b['removed_cm3']:.2f} cm^3; pieces left {b['left']}; "
+                  f"{b['n_levels']} levels {b['levels']}")
             for name in ("use", "where", "why", "where x why", "writer", "writer x why"):
                 print(f"  by {name}:")
                 for key, (tot, ai) in b[name].items():

@@ -488,3 +488,43 @@ def test_a_piece_no_entry_fits_is_tried_again_after_the_levels_other_pieces():
     R = np.hypot(*np.meshgrid(c, c, indexing="ij"))
     ring = (R > 10.5 + RES) & (R < 21.0 - 0.5 - RES)            # within the tool's reach, off the walls' allowance
     assert np.all(tops[ring] <= 0.5 + 1e-6)
+
+
+def test_lines_keep_off_the_walls_so_the_contour_cuts_a_band_not_the_lines_ends(monkeypatch):
+    """On the stock view, with the contour pass, the clearing lines stop LINE_BACK_RT x the flat radius
+    short of the part's walls where they run into them (:func:`~planning.toolpath.roughing.levels._off_walls`): the contour then
+    cuts that band all along instead of retracing the thin scallops between the lines' ends. Against the
+    lines run up to the walls (LINE_BACK_RT = 0): less feed, less of it in air, the same material off
+    and no straight plunge."""
+    import planning.toolpath.roughing.levels as LV
+    from planning.toolpath.roughing.levels import _off_walls
+
+    # the helper: a run along x loses back_mm at an end where a forbidden cell stops it, not elsewhere
+    h = 0.5
+    G = np.zeros((30, 40))
+    G[:5, :20] = 1.0                                  # a wall across the first 20 rows' runs, at x < 2.5 mm
+    region = G <= 0.5
+    off = _off_walls(region, G, 0.5, h, 2.0)
+    i = np.arange(30)
+    assert np.all(off[:, 20:] == region[:, 20:])                     # runs from the raster's edge: whole
+    assert np.all(off[i >= 9, :20]) and not off[i < 9, :20].any()    # 4 cells (2 mm) off the wall
+    assert np.array_equal(_off_walls(region, G, 0.5, h, 0.0), region)
+
+    cloud = _dome()
+    lo, hi = np.array([-26.0, -26.0, -0.5]), np.array([26.0, 26.0, 24.0])
+    stock = _box(lo, hi)
+    frame = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
+    kw = {"tool_radius_mm": SHAPE.radius_mm, "step_down_mm": 3.0, "stock_allowance_mm": 0.5, "floor_z_mm": 0.0,
+          "stock_points_mm": stock.boundary_points(), "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces,
+          "safe_z_mm": 40.0, "rapid_clearance_mm": 0.5}
+    res = {}
+    for back in (LV.LINE_BACK_RT, 0.0):
+        monkeypatch.setattr(LV, "LINE_BACK_RT", back)
+        rr = roughing_paths(cloud, stock_view=StockView(stock, frame, SHAPE), **kw)
+        pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
+        res[back] = (L[feed].sum(), L[feed & (run.removed_mm3 < 1e-6)].sum(), run.removed_mm3.sum(),
+                     int((down & (run.removed_mm3 > 1e-6)).sum()))
+    (feed1, air1, rem1, pl1), (feed0, air0, rem0, pl0) = res[0.5], res[0.0]
+    assert pl1 == 0
+    assert feed1 < feed0 and air1 < air0
+    assert rem1 == pytest.approx(rem0, rel=0.005)

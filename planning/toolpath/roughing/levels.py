@@ -48,6 +48,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numba import njit
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
@@ -103,6 +104,11 @@ from planning.toolpath.roughing.ordering import _order
 from planning.toolpath.roughing.regions import _region_runs
 
 MAX_LEVELS = 10_000     #: most Z levels
+#: With the contour pass, the clearing lines stop this many flat radii (at least half the cutter
+#: radius) short of the part's walls, so that the contour cuts a band along them everywhere rather than
+#: retracing the lines' ends (issue 30: most of the contour's feed in air was such retracing); with
+#: the lines ``stepover_mm`` <= 1.2 Rt apart the band and the lines' discs still overlap
+LINE_BACK_RT = 0.5
 
 REMOVED_NOTE = ("Each set-up is roughed from the full stock box (the cloud's box in the set-up frame grown by the "
                 "stock margin): material removed by earlier set-ups is not modelled, so lines may cut air.")
@@ -725,7 +731,13 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
         if runs[1].size:
             lv = _Level(region, x0, y0, h, nx, ny, float(z), top_dil, mat.H, Rt, scratch,
                         hold=None if hold is None else hold.HT)
-            pieces = _line_pieces(region, runs, ys, x0, y0, h, ny, oneway)
+            # on the stock view, with the contour pass, the lines keep LINE_BACK_RT x the flat radius off the
+            # part's walls: the contour then cuts that band all along (not the thin scallops between the
+            # lines' ends); on the box or the points alone the lines run up to the walls as before
+            lines_at = region
+            if contour and slab is not None:
+                lines_at = _off_walls(region, forb.G, thr, h, LINE_BACK_RT * max(Rt - rc, 0.5 * Rt))
+            pieces = _line_pieces(lines_at, runs, ys, x0, y0, h, ny, oneway)
             if contour:
                 pieces += _contour_pieces(region, forb.G, thr, runs, x0, y0, h)
             if pieces:
@@ -739,6 +751,43 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
         if progress is not None:
             progress(li + 1, int(levels.size))
     return w, cur, level_retracts, removed, blocked, deepest
+
+
+def _off_walls(region, G, thr, h: float, back_mm: float) -> np.ndarray:
+    """The region less, along every run of its cells in x (the clearing lines' direction) that ends at a
+    forbidden cell (``G > thr``: the part's walls offset by the tool radius and the allowance; not the
+    region's other limits), the run's last ``back_mm`` at that end (cells whose centre is closer than
+    ``back_mm`` to the run's edge): where the clearing lines run when the offset contour follows the
+    walls (:func:`_cut_levels`)."""
+    if not back_mm > 0 or not region.any():
+        return region
+    return _pull_back(region, G, float(thr), int(math.ceil(back_mm / h - 0.5)))
+
+
+@njit(cache=True, nogil=True)
+def _pull_back(region, G, thr, k):
+    """:func:`_off_walls`' kernel: ``k`` cells off each run end that borders a forbidden cell in x."""
+    nx, ny = region.shape
+    out = region.copy()
+    if k <= 0:
+        return out
+    for j in range(ny):
+        i = 0
+        while i < nx:
+            if not region[i, j]:
+                i += 1
+                continue
+            i0 = i
+            while i < nx and region[i, j]:
+                i += 1
+            i1 = i                                     # the run is i0 .. i1 - 1
+            if i0 > 0 and G[i0 - 1, j] > thr:
+                for q in range(i0, min(i0 + k, i1)):
+                    out[q, j] = False
+            if i1 < nx and G[i1, j] > thr:
+                for q in range(max(i1 - k, i0), i1):
+                    out[q, j] = False
+    return out
 
 
 def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock, Rt, rc, h, s, *, rest, ent,

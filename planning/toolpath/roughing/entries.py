@@ -117,6 +117,7 @@ from planning.toolpath.roughing.links import (
     _Level,
     _lift,
     _link_height,
+    _rapid_from,
     _retract,
     _seg_in,
     _Writer,
@@ -921,7 +922,8 @@ def _approach(w: _Writer, lv: _Level, cur, p, zs, z, safe):
         zl = min(safe, max(_link_height(lv, np.array(cur[:2]), p, cur[2], z, safe), zs))
         if w.rapid_clear is not None:
             zl = w.rapid_clear(np.array(cur[:2]), p, zl, safe)
-        _retract(w, cur, zl)
+        a2 = _retract(w, cur, zl, lv)
+        zl = _rapid_from(w, np.array(cur[:2]), a2, p, zl, safe)
         w.add([p[0], p[1], zl], USE_RAPID)
     if zl > zs:
         zr = zs if w.column_clear is None else min(zl, w.column_clear(p[0], p[1], zs, zl))

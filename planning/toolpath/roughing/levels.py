@@ -580,6 +580,13 @@ class _LiveStock:
             return float(z) + out if math.isfinite(out) else -math.inf
         return rise
 
+    def column_clear_many(self, w, clearance_mm: float):
+        """The writer's ``column_clear_many(points (n,3), top)``: :meth:`column_clear` of n tips at once."""
+        def clear(points, top):
+            self.sync(w)
+            return self.view.column_clear_z(np.asarray(points, dtype=np.float64).reshape(-1, 3), top, clearance_mm)
+        return clear
+
     def column_is_clear(self, w, clearance_mm: float):
         """``clear(x, y, z, top)`` -> bool: whether the tool at (x, y, z), moved straight up to ``top``,
         keeps ``clearance_mm`` from the material (the view brought up to date with ``w``'s moves; one
@@ -697,6 +704,7 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     if live is not None and live.clearance_mm > 0:
         w.gap = ent.gap
         w.column_clear = live.column_clear(w, live.clearance_mm)
+        w.column_clear_many = live.column_clear_many(w, live.clearance_mm)
         w.rapid_clear = live.rapid_clear(w, live.clearance_mm)
     cur = None                    # current tip (x, y, z)
     level_retracts = np.zeros(levels.size, np.int64)

@@ -465,7 +465,9 @@ def _lift(w: _Writer, lv: _Level, cur, q, z, safe, top_q=None):
     """Lift from ``cur`` (or from nowhere: first approach at the safe height), rapid over, rapid down to
     ``w.gap`` (GAP_MM without a stock view) above the remaining material under the disc at q (``top_q``: that height, mm, when the
     caller knows it more closely than the dilated map's :meth:`_Level.top_at`; never below the
-    material), plunge to z."""
+    material), plunge to z. Where that rapid down would stop STEP_OFF_GAIN_MM or more higher (the grown
+    tool beside a wall), it comes down instead at a point ``w.gap`` off (:func:`_step_off`) whose column
+    the grown tool clears down to ``w.gap`` above the level, and feeds in to q at 45 degrees."""
     if cur is None:
         zl = safe
         w.add([q[0], q[1], safe], USE_RAPID)
@@ -482,19 +484,18 @@ def _lift(w: _Writer, lv: _Level, cur, q, z, safe, top_q=None):
     if cur is not None and zd > z + w.gap + STEP_OFF_GAIN_MM:
         # beside a wall the rapid down stops high: come down off it and feed in to q at 45 degrees
         off = _step_off(w, lv, (q[0], q[1], z), zl)
-        if off is not None and off[1] + STEP_OFF_GAIN_MM < zd:
+        z1 = z + w.gap
+        # only where the rapid comes down at p all the way to z1: a feed straight down there could meet
+        # material (nothing says that p's column is air below where the grown tool clears it)
+        if off is not None and off[1] <= z1 + 1e-9 and off[1] + STEP_OFF_GAIN_MM < zd:
             p, zc = off
-            z1 = z + w.gap
             p_up = w.pts[-1][-1]
             zl2 = _rapid_from(w, p_up[:2], p_up[:2], p, zl, safe, at=False)
             if zl2 > zl:
                 w.add([p_up[0], p_up[1], zl2], USE_RAPID)
             w.add([p[0], p[1], zl2], USE_RAPID)
-            zc = min(max(zc, z1), zl2)
-            if zc < zl2:
-                w.add([p[0], p[1], zc], USE_RAPID)
-            if zc > z1:
-                w.add([p[0], p[1], z1], USE_PLUNGE)
+            if z1 < zl2:
+                w.add([p[0], p[1], z1], USE_RAPID)
             w.add([q[0], q[1], z], USE_PLUNGE)
             return
         w.add([q[0], q[1], zl], USE_RAPID)

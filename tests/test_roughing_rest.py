@@ -248,3 +248,69 @@ def test_stock_above_the_safe_height_raises_it():
 def test_bad_stock_arguments_raise(kwargs, words):
     with pytest.raises(ParameterError, match=words):
         roughing_paths(_plate(), tool_radius_mm=RT, **kwargs)
+
+
+def test_a_retract_beside_a_wall_steps_off_it_instead_of_feeding_up_it():
+    """With a rapid clearance, a retract feeds up until the grown tool clears the material beside it; by
+    a wall that is the wall's whole height. Where a point ``w.gap`` off at the level (in the region)
+    clears lower, the retract steps off to it at 45 degrees and the rapid rises from there; where none
+    does (or there is no level to ask), it feeds straight up as before."""
+    from types import SimpleNamespace
+
+    from planning.toolpath.moves import USE_RAPID, USE_RETRACT
+    from planning.toolpath.roughing.links import _retract, _Writer
+
+    def writer(wall_x):
+        w = _Writer()
+        w.gap = 0.65
+        # the column at x is clear from 10 mm up within 0.5 mm of the wall (x >= wall_x - 0.5), else at once
+        w.column_clear = lambda x, y, z, top: 10.0 if x >= wall_x - 0.5 else z
+        w.column_clear_many = lambda pts, top: np.where(pts[:, 0] >= wall_x - 0.5, 10.0, pts[:, 2])
+        return w
+
+    lv = SimpleNamespace(z=0.0, visible=lambda a, b: True)
+    w = writer(0.0)
+    end = _retract(w, (0.0, 0.0, 0.0), 20.0, lv)
+    pts, codes = np.concatenate(w.pts), np.repeat(w.codes, w.counts)
+    assert codes[0] == USE_RETRACT and codes[-1] == USE_RAPID
+    assert pts[0, 2] == pytest.approx(0.65) and np.hypot(*pts[0, :2]) == pytest.approx(0.65)
+    assert pts[0, 0] < -0.5 + 1e-9                    # off the wall, where the column clears at once
+    assert np.allclose(end, pts[0, :2]) and pts[-1, 2] == 20.0
+    # no level to ask, or nowhere in the region off the wall: straight up the wall at feed, as before
+    for lv2 in (None, SimpleNamespace(z=0.0, visible=lambda a, b: False)):
+        w = writer(0.0)
+        end = _retract(w, (0.0, 0.0, 0.0), 20.0, lv2)
+        pts, codes = np.concatenate(w.pts), np.repeat(w.codes, w.counts)
+        assert np.allclose(pts[:, :2], 0.0) and codes[0] == USE_RETRACT and pts[0, 2] == 10.0
+        assert np.allclose(end, 0.0)
+
+
+def test_a_lift_beside_a_wall_comes_down_off_it_only_where_that_column_is_air():
+    """A lift's rapid down at q stops where the grown tool clears the material beside (by a wall: high)
+    and the rest is fed straight down. Where a point ``w.gap`` off at the level has its column clear
+    down to ``w.gap`` above the level, the lift comes down there by rapid and feeds in to q at 45
+    degrees; where that column is clear only higher up (material under it), it does not (a feed
+    straight down there could plunge into it) and the lift is as before."""
+    from types import SimpleNamespace
+
+    from planning.toolpath.moves import USE_PLUNGE, USE_RAPID
+    from planning.toolpath.roughing.links import _lift, _Writer
+
+    def run(off_clear_from):
+        w = _Writer()
+        w.gap = 0.65
+        w.column_clear = lambda x, y, z, top: max(z, 8.0) if x >= -0.5 else z          # the wall at x >= -0.5
+        w.column_clear_many = lambda pts, top: np.where(pts[:, 0] >= -0.5, 8.0, np.maximum(pts[:, 2], off_clear_from))
+        w.rapid_clear = lambda a, b, z, top: z
+        lv = SimpleNamespace(z=0.0, visible=lambda a, b: True, corridor_top=lambda a, b: 10.0, top_at=lambda q: 0.0)
+        _lift(w, lv, (-20.0, 0.0, 0.0), np.array([0.0, 0.0]), 0.0, 30.0, top_q=0.0)
+        return np.concatenate(w.pts), np.repeat(w.codes, w.counts)
+
+    pts, codes = run(0.0)
+    assert np.allclose(pts[-1], [0.0, 0.0, 0.0]) and codes[-1] == USE_PLUNGE
+    # the last feed comes in from w.gap off and w.gap above at 45 degrees, after a rapid down to there
+    assert pts[-2, 0] < -0.5 and pts[-2, 2] == pytest.approx(0.65) and codes[-2] == USE_RAPID
+    assert np.hypot(*pts[-2, :2]) == pytest.approx(0.65)
+    pts, codes = run(3.0)                 # off the wall the column is air only from 3 mm up: as before
+    assert np.allclose(pts[-1], [0.0, 0.0, 0.0]) and np.allclose(pts[-2], [0.0, 0.0, 8.0])
+    assert codes[-1] == USE_PLUNGE and codes[-2] == USE_RAPID

@@ -437,3 +437,109 @@ def test_level_air_trims_a_contour_chain_and_opens_a_loop_at_its_longest_useless
     far = xy[:-1] - np.array([10.0, 10.0])
     fcells = np.floor(far[:, 0] / h).astype(np.int64) * ny + np.floor(far[:, 1] / h).astype(np.int64)
     assert air.trim_chain(far, fcells, ny, loop=False) is None
+
+
+def _channel_roughing(monkeypatch=None):
+    """The ring channel of the test above roughed on its stock view: (roughing, frame, stock)."""
+    Rt = 4.0
+    shape = ToolShape(number=2, kind="flat", radius_mm=Rt, corner_radius_mm=0.0, flute_length_mm=25.0,
+                      pieces=((25.0, math.inf, 4.0),))
+    cloud = _channel(r_out=10.0 + 2 * Rt + 1.0 + 2.0)
+    lo, hi = np.array([-27.0, -27.0, 0.0]), np.array([27.0, 27.0, 10.0])
+    stock = _box(lo, hi)
+    frame = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
+    rr = roughing_paths(cloud, tool_radius_mm=Rt, step_down_mm=2.5, stock_allowance_mm=0.5, floor_z_mm=0.5,
+                        stock_points_mm=stock.boundary_points(), stock_spacing_mm=RES, holder_pieces=shape.pieces,
+                        safe_z_mm=25.0, rapid_clearance_mm=0.5, stock_view=StockView(stock, frame, shape))
+    return rr, frame, stock, shape
+
+
+def test_entries_beside_walls_descend_at_the_entry_angle_only_from_the_material_the_stock_shows(monkeypatch):
+    """In the ring channel every ramp runs beside the channel's walls, where the maps' material under it
+    is the part's own height: the stock itself (the cutter, less a cell at its rim, moved up over the
+    ramp's way) shows where the descent meets material, and the ramp is fed (straight, or at STEEP_DEG
+    where a straight feed would shave the wall) through the air above that; the entries feed far less
+    in air than when the maps alone decide, take off the same material and never plunge into it."""
+    import planning.toolpath.roughing.entries as E
+    from planning.toolpath.moves import USE_PLUNGE
+
+    def entry_air(rr, frame, stock, shape):
+        pm = part_moves(rr.toolpath, frame)
+        run = simulate_moves(stock.copy(), pm.start, pm.end, np.broadcast_to(pm.axis, pm.start.shape), shape,
+                             pm.kind, rapid_clearance_mm=0.5)
+        d = pm.end - pm.start
+        L = np.linalg.norm(d, axis=1)
+        feed = pm.kind == FEED
+        down = feed & (L > 0) & (-d[:, 2] > math.cos(math.radians(10.0)) * L)
+        entry = feed & (rr.toolpath.use[pm.source] == USE_PLUNGE)
+        return L[entry & (run.removed_mm3 < 1e-6)].sum(), run, down
+
+    rr, frame, stock, shape = _channel_roughing()
+    air, run, down = entry_air(rr, frame, stock, shape)
+    assert rr.n_ramps > 0 and rr.n_plunges_into_material == 0
+    assert np.all(run.removed_mm3[down] < 1e-6)
+    monkeypatch.setattr(E._Entries, "_sweep_top", lambda self, xyz, z, top: math.inf)
+    old, *_ = _channel_roughing()
+    air_old, run_old, _ = entry_air(old, frame, stock, shape)
+    assert air < 0.5 * air_old
+    assert old.length_mm - rr.length_mm > 0.5 * (air_old - air)
+    assert run.removed_mm3.sum() == pytest.approx(run_old.removed_mm3.sum(), rel=0.01)
+
+
+def test_a_piece_no_entry_fits_is_tried_again_after_the_levels_other_pieces():
+    """The ring channel's clearing lines are short chords no entry fits when they come first; the
+    contours along the walls then sweep them, so tried again after the level's other pieces they are
+    air (not cut) or entered from the cut beside them: none is left, and the channel is roughed down
+    to its floor all round (the stock's top over the tool's reach is the floor, 0.5 mm)."""
+    rr, frame, stock, shape = _channel_roughing()
+    assert rr.n_pieces_left == 0 and rr.left_length_mm == 0.0
+    pm = part_moves(rr.toolpath, frame)
+    s = stock.copy()
+    simulate_moves(s, pm.start, pm.end, np.broadcast_to(pm.axis, pm.start.shape), shape, pm.kind,
+                   rapid_clearance_mm=0.5)
+    h, x0, n = 0.5, -27.0, 108
+    tops = stock_tops_in_frame(s, frame.rotation, frame.origin_mm, x0, x0, h, n, n, np.inf, -5.0)
+    c = x0 + (np.arange(n) + 0.5) * h
+    R = np.hypot(*np.meshgrid(c, c, indexing="ij"))
+    ring = (R > 10.5 + RES) & (R < 21.0 - 0.5 - RES)            # within the tool's reach, off the walls' allowance
+    assert np.all(tops[ring] <= 0.5 + 1e-6)
+
+
+def test_lines_keep_off_the_walls_so_the_contour_cuts_a_band_not_the_lines_ends(monkeypatch):
+    """On the stock view, with the contour pass, the clearing lines stop LINE_BACK_RT x the flat radius
+    short of the part's walls where they run into them (:func:`~planning.toolpath.roughing.levels._off_walls`): the contour then
+    cuts that band all along instead of retracing the thin scallops between the lines' ends. Against the
+    lines run up to the walls (LINE_BACK_RT = 0): less feed, less of it in air, the same material off
+    and no straight plunge."""
+    import planning.toolpath.roughing.levels as LV
+    from planning.toolpath.roughing.levels import _off_walls
+
+    # the helper: a run along x loses back_mm at an end where a forbidden cell stops it, not elsewhere
+    h = 0.5
+    G = np.zeros((30, 40))
+    G[:5, :20] = 1.0                                  # a wall across the first 20 rows' runs, at x < 2.5 mm
+    region = G <= 0.5
+    off = _off_walls(region, G, 0.5, h, 2.0)
+    i = np.arange(30)
+    assert np.all(off[:, 20:] == region[:, 20:])                     # runs from the raster's edge: whole
+    assert np.all(off[i >= 9, :20]) and not off[i < 9, :20].any()    # 4 cells (2 mm) off the wall
+    assert np.array_equal(_off_walls(region, G, 0.5, h, 0.0), region)
+
+    cloud = _dome()
+    lo, hi = np.array([-26.0, -26.0, -0.5]), np.array([26.0, 26.0, 24.0])
+    stock = _box(lo, hi)
+    frame = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
+    kw = {"tool_radius_mm": SHAPE.radius_mm, "step_down_mm": 3.0, "stock_allowance_mm": 0.5, "floor_z_mm": 0.0,
+          "stock_points_mm": stock.boundary_points(), "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces,
+          "safe_z_mm": 40.0, "rapid_clearance_mm": 0.5}
+    res = {}
+    for back in (LV.LINE_BACK_RT, 0.0):
+        monkeypatch.setattr(LV, "LINE_BACK_RT", back)
+        rr = roughing_paths(cloud, stock_view=StockView(stock, frame, SHAPE), **kw)
+        pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
+        res[back] = (L[feed].sum(), L[feed & (run.removed_mm3 < 1e-6)].sum(), run.removed_mm3.sum(),
+                     int((down & (run.removed_mm3 > 1e-6)).sum()))
+    (feed1, air1, rem1, pl1), (feed0, air0, rem0, pl0) = res[0.5], res[0.0]
+    assert pl1 == 0
+    assert feed1 < feed0 and air1 < air0
+    assert rem1 == pytest.approx(rem0, rel=0.005)

@@ -74,7 +74,16 @@ part of the descent above the material is not fed at the entry angle (0.65 mm at
 above the material read under it, and the tool is fed straight down to that point from the
 start height, when the stock itself (``clear``: the tool at that point, moved straight up to the
 start height, keeps FEED_CLEAR_MM from every ray of the tri-dexel stock) shows the straight feed
-meets nothing (``n_fed_down``); otherwise the whole descent stays.
+meets nothing (``n_fed_down``); otherwise the whole descent stays. The material "read under it" is
+the stock itself (``rise``, :meth:`_Entries._sweep_top`): the cutter, narrowed by a raster cell at its
+rim, moved straight up from the level over the descent's way (sampled SWEEP_SAMPLE_MM apart); the
+maps' bound beside a wall is the part's own height, which put ramps along a slot's walls 9-10 mm
+above the material they met (about 150 mm of air each at 3 degrees on the slot case). The rapid down
+then stops where the tool grown by the rapid clearance meets the stock, and the feed goes on from
+there. Where the straight feed down would still touch the stock (the allowance on a wall beside the
+descent's start, which the narrowed cutter does not see), the descent through the air runs at
+STEEP_DEG along the entry's own way instead (counted in ``n_fed_down`` too): its flat bottom is in
+air down to the material, only its rim may brush the wall, and it is no straight plunge.
 
 **The stock decides, the maps propose (with a stock view).** The maps bound the material from
 one ray family, grown by a ray spacing; the stock view reads all three. A piece whose start the
@@ -108,6 +117,7 @@ from planning.toolpath.roughing.links import (
     _Level,
     _lift,
     _link_height,
+    _rapid_from,
     _retract,
     _seg_in,
     _Writer,
@@ -131,6 +141,13 @@ ENTRY_FEED_GAP_MM = 0.1
 #: A straight feed down (a side entry's, or the one above a helix or ramp) keeps this far from the
 #: stock itself (mm): the programs' rounding does not turn it into a plunge into material
 FEED_CLEAR_MM = 0.02
+#: The descent of a helix or ramp is sampled this far apart where the stock itself is asked how high
+#: its material under the descent reaches (mm)
+SWEEP_SAMPLE_MM = 0.25
+#: Where the stock shows the flat bottom of a helix or ramp in air down to just above the material but
+#: a straight feed down would shave a wall beside it, the descent through the air runs at this angle
+#: from the horizontal along the entry's own way (degrees)
+STEEP_DEG = 45.0
 _DIRS_DEG = (0.0, 30.0, -30.0, 60.0, -60.0, 90.0, -90.0, 120.0, -120.0, 150.0, -150.0, 180.0)
 _DIR_COS = np.array([math.cos(math.radians(a)) for a in _DIRS_DEG])   #: cos / sin of _DIRS_DEG, the
 _DIR_SIN = np.array([math.sin(math.radians(a)) for a in _DIRS_DEG])   #: directions of the near centres
@@ -550,6 +567,24 @@ def _ramp_xyz(q, p, zs, z, tan) -> np.ndarray:
     return np.column_stack([v, z + drop])
 
 
+def _steep_head(xyz, low, zs, zf):
+    """The descent from ``zs`` to ``low[0]`` (at height ``zf``) at STEEP_DEG from the horizontal along
+    the way the descent ``xyz`` (k,3) came to ``low[0]``, walked back from it (k', 3), its first
+    point at ``zs``; None when that way is too short."""
+    k = int(np.argmax(xyz[:, 2] <= zf)) if (xyz[:, 2] <= zf).any() else xyz.shape[0] - 1
+    back = np.vstack([low[:1, :2], xyz[k - 1::-1, :2]]) if k > 0 else low[:1, :2]
+    need = (zs - zf) / math.tan(math.radians(STEEP_DEG))
+    d = np.hypot(*np.diff(back, axis=0).T)
+    cum = np.concatenate([[0.0], np.cumsum(d)])
+    if cum[-1] < need - 1e-9:
+        return None
+    m = int(np.searchsorted(cum, need))                 # cum[m - 1] < need <= cum[m]
+    t = (need - cum[m - 1]) / max(d[m - 1], 1e-12)
+    pts = np.vstack([back[:m], back[m - 1] + t * (back[m] - back[m - 1])])[::-1]
+    s = np.concatenate([cum[:m], [need]])[::-1]       # the way left to low[0]
+    return np.column_stack([pts, zf + s / need * (zs - zf)])
+
+
 def _from_height(xyz, zf) -> np.ndarray:
     """The descent ``xyz`` (k, 3; heights non-increasing) from where it comes down to ``zf``: the
     point at that height (interpolated on its segment), then the vertices below."""
@@ -613,6 +648,10 @@ class _Entries:
         #: ``clear(x, y, z, top)`` -> bool: the tool at (x, y, z), moved straight up to ``top``, meets no
         #: material of the stock itself (set with a stock view); None: the maps alone decide
         self.clear = None
+        #: ``rise(xy, z, top)`` -> the highest frame height at which the cutter moved straight up from
+        #: the level z to ``top`` over the points ``xy`` (k,2) meets the stock itself (-inf: none); set with
+        #: a stock view; None: the maps alone say where a helix or ramp begins to cut
+        self.rise = None
         #: helices and ramps begun by a straight feed down through the air (``clear`` said it was)
         self.n_fed_down = 0
         #: pieces entered by a feed straight down that the stock itself shows to be in air
@@ -703,17 +742,36 @@ class _Entries:
 
     def _write(self, w, lv, cur, plan: _Plan, q, z, safe):
         xyz = plan.xyz
+        zs = plan.zs
         if self.clear is not None:
             # fed straight down through the air to just above the material read under the entry, the
             # helix or ramp from there: 0.55 mm fed down instead of 11 mm of descent at 3 degrees; only
             # where the stock itself says that the straight feed meets nothing
             zf = max(plan.zs - self.gap, z) + ENTRY_FEED_GAP_MM
+            if self.rise is not None and xyz[0, 2] > z:
+                # the maps' material under the entry is a bound (beside a wall: the part's own height);
+                # the stock itself says where the descent's sweep first meets material
+                zf = min(zf, max(self._sweep_top(xyz, z, plan.zs), z) + ENTRY_FEED_GAP_MM)
             if zf < plan.zs - 1e-6 and xyz[0, 2] > zf:
                 low = _from_height(xyz, zf)
-                if self.clear(low[0, 0], low[0, 1], zf, plan.zs):
-                    xyz = np.vstack([[low[0, 0], low[0, 1], plan.zs], low])
+                steep = None
+                if not self.clear(low[0, 0], low[0, 1], zf, plan.zs) and self.rise is not None:
+                    # a straight feed would shave the allowance on a wall beside it (a plunge, as the
+                    # verification counts them); down the entry's own way at STEEP_DEG instead: its flat
+                    # bottom is in air (``rise``) down to zf, only its rim may touch the wall
+                    steep = _steep_head(xyz, low, plan.zs, zf)
+                if steep is not None:
+                    xyz = np.vstack([steep, low[1:]])
                     self.n_fed_down += 1
-        _approach(w, lv, cur, xyz[0, :2], plan.zs, z, safe)
+                elif self.clear(low[0, 0], low[0, 1], zf, plan.zs):
+                    if w.column_clear is not None:
+                        # the rapid down stops where the tool grown by the rapid clearance meets the
+                        # stock (:func:`_approach`), the feed goes on from there
+                        xyz, zs = low, float(low[0, 2])
+                    else:
+                        xyz = np.vstack([[low[0, 0], low[0, 1], plan.zs], low])
+                    self.n_fed_down += 1
+        _approach(w, lv, cur, xyz[0, :2], zs, z, safe)
         w.add(xyz[1:], USE_PLUNGE)
         if plan.kind == "helix":
             self.n_helix += 1
@@ -723,6 +781,22 @@ class _Entries:
             return []
         w.add(np.column_stack([plan.link[1:], np.full(plan.link.shape[0] - 1, z)]), USE_CUT)
         return [plan.link]
+
+    def _sweep_top(self, xyz, z, top) -> float:
+        """The highest material the descent ``xyz`` (k,3) may meet: the stock itself under the cutter
+        moved straight up from the level ``z`` to ``top`` over its points, the segments sampled at most
+        SWEEP_SAMPLE_MM apart (between two samples the tool discs leave a lens no deeper than
+        SWEEP_SAMPLE_MM^2 / (8 Rt) uncovered: 0.003 mm for Rt = 2 mm), plus that lens; -inf when none."""
+        xy = np.asarray(xyz[:, :2], dtype=np.float64)
+        d = np.hypot(*np.diff(xy, axis=0).T)
+        pts = [xy[:1]]
+        for k in range(d.size):
+            n = int(math.ceil(d[k] / SWEEP_SAMPLE_MM))
+            if n >= 1:
+                t = np.arange(1, n + 1)[:, None] / n
+                pts.append(xy[k] + t * (xy[k + 1] - xy[k]))
+        t_top = self.rise(np.concatenate(pts), z, top)
+        return t_top + SWEEP_SAMPLE_MM ** 2 / (8.0 * self.Rt) if math.isfinite(t_top) else -math.inf
 
     def _helix_at(self, c, r, e, phi, zs, z, cost, link) -> _Plan:
         """The helix plan about c (mm) of radius r ending at e (angle ``phi``) at level z from zs."""
@@ -848,7 +922,8 @@ def _approach(w: _Writer, lv: _Level, cur, p, zs, z, safe):
         zl = min(safe, max(_link_height(lv, np.array(cur[:2]), p, cur[2], z, safe), zs))
         if w.rapid_clear is not None:
             zl = w.rapid_clear(np.array(cur[:2]), p, zl, safe)
-        _retract(w, cur, zl)
+        a2 = _retract(w, cur, zl, lv)
+        zl = _rapid_from(w, np.array(cur[:2]), a2, p, zl, safe)
         w.add([p[0], p[1], zl], USE_RAPID)
     if zl > zs:
         zr = zs if w.column_clear is None else min(zl, w.column_clear(p[0], p[1], zs, zl))

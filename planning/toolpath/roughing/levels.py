@@ -48,6 +48,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numba import njit
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
@@ -103,6 +104,11 @@ from planning.toolpath.roughing.ordering import _order
 from planning.toolpath.roughing.regions import _region_runs
 
 MAX_LEVELS = 10_000     #: most Z levels
+#: With the contour pass, the clearing lines stop this many flat radii (at least half the cutter
+#: radius) short of the part's walls, so that the contour cuts a band along them everywhere rather than
+#: retracing the lines' ends (issue 30: most of the contour's feed in air was such retracing); with
+#: the lines ``stepover_mm`` <= 1.2 Rt apart the band and the lines' discs still overlap
+LINE_BACK_RT = 0.5
 
 REMOVED_NOTE = ("Each set-up is roughed from the full stock box (the cloud's box in the set-up frame grown by the "
                 "stock margin): material removed by earlier set-ups is not modelled, so lines may cut air.")
@@ -545,6 +551,42 @@ class _LiveStock:
             return float(self.view.column_clear_z(np.array([[x, y, z]]), top, clearance_mm)[0])
         return clear
 
+    def material_rise(self, w, shrink_mm: float):
+        """``rise(xy, z, top)`` -> the highest frame height at which the cutter (its flutes, without the
+        shank and holder pieces) narrowed by ``shrink_mm`` and moved straight up from (x, y, z) to
+        ``top`` for every x, y of ``xy`` (k,2), meets the view's material or the obstacles (the view
+        brought up to date with ``w``'s moves; :func:`planning.simulate.dexel.column_rise`, at most
+        its tolerance above the exact height); -inf where it meets none. Where a helix or ramp above
+        those points begins to cut more than a ring of ``shrink_mm`` at its rim (the allowance the
+        levels above left on a wall beside the tool, which the whole descent rubs)."""
+        from planning.simulate.dexel import column_rise
+
+        sh = self.view.shape
+        r = max(sh.radius_mm - shrink_mm, 0.5 * sh.radius_mm)
+        cutter = replace(sh, pieces=(), radius_mm=r, corner_radius_mm=min(sh.corner_radius_mm, r))
+        axis = self.view.frame.rotation[2]
+
+        def rise(xy, z, top):
+            self.sync(w)
+            xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+            if xy.shape[0] == 0 or not top > z:
+                return -math.inf
+            tips = self.view.frame.to_part(np.column_stack([xy, np.full(xy.shape[0], float(z))]))
+            out = -math.inf
+            for model in (self.view.stock, self.view.obstacles):
+                if model is not None:
+                    s = column_rise(model, tips, axis, float(top) - float(z), cutter)
+                    out = max(out, float(s.max()))
+            return float(z) + out if math.isfinite(out) else -math.inf
+        return rise
+
+    def column_clear_many(self, w, clearance_mm: float):
+        """The writer's ``column_clear_many(points (n,3), top)``: :meth:`column_clear` of n tips at once."""
+        def clear(points, top):
+            self.sync(w)
+            return self.view.column_clear_z(np.asarray(points, dtype=np.float64).reshape(-1, 3), top, clearance_mm)
+        return clear
+
     def column_is_clear(self, w, clearance_mm: float):
         """``clear(x, y, z, top)`` -> bool: whether the tool at (x, y, z), moved straight up to ``top``,
         keeps ``clearance_mm`` from the material (the view brought up to date with ``w``'s moves; one
@@ -658,9 +700,11 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     if live is not None:
         ent.gap = min(GAP_MM, live.clearance_mm + ENTRY_GAP_EXTRA_MM)
         ent.clear = live.column_is_clear(w, FEED_CLEAR_MM)
+        ent.rise = live.material_rise(w, grid.h)
     if live is not None and live.clearance_mm > 0:
         w.gap = ent.gap
         w.column_clear = live.column_clear(w, live.clearance_mm)
+        w.column_clear_many = live.column_clear_many(w, live.clearance_mm)
         w.rapid_clear = live.rapid_clear(w, live.clearance_mm)
     cur = None                    # current tip (x, y, z)
     level_retracts = np.zeros(levels.size, np.int64)
@@ -695,7 +739,13 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
         if runs[1].size:
             lv = _Level(region, x0, y0, h, nx, ny, float(z), top_dil, mat.H, Rt, scratch,
                         hold=None if hold is None else hold.HT)
-            pieces = _line_pieces(region, runs, ys, x0, y0, h, ny, oneway)
+            # on the stock view, with the contour pass, the lines keep LINE_BACK_RT x the flat radius off the
+            # part's walls: the contour then cuts that band all along (not the thin scallops between the
+            # lines' ends); on the box or the points alone the lines run up to the walls as before
+            lines_at = region
+            if contour and slab is not None:
+                lines_at = _off_walls(region, forb.G, thr, h, LINE_BACK_RT * max(Rt - rc, 0.5 * Rt))
+            pieces = _line_pieces(lines_at, runs, ys, x0, y0, h, ny, oneway)
             if contour:
                 pieces += _contour_pieces(region, forb.G, thr, runs, x0, y0, h)
             if pieces:
@@ -709,6 +759,43 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
         if progress is not None:
             progress(li + 1, int(levels.size))
     return w, cur, level_retracts, removed, blocked, deepest
+
+
+def _off_walls(region, G, thr, h: float, back_mm: float) -> np.ndarray:
+    """The region less, along every run of its cells in x (the clearing lines' direction) that ends at a
+    forbidden cell (``G > thr``: the part's walls offset by the tool radius and the allowance; not the
+    region's other limits), the run's last ``back_mm`` at that end (cells whose centre is closer than
+    ``back_mm`` to the run's edge): where the clearing lines run when the offset contour follows the
+    walls (:func:`_cut_levels`)."""
+    if not back_mm > 0 or not region.any():
+        return region
+    return _pull_back(region, G, float(thr), int(math.ceil(back_mm / h - 0.5)))
+
+
+@njit(cache=True, nogil=True)
+def _pull_back(region, G, thr, k):
+    """:func:`_off_walls`' kernel: ``k`` cells off each run end that borders a forbidden cell in x."""
+    nx, ny = region.shape
+    out = region.copy()
+    if k <= 0:
+        return out
+    for j in range(ny):
+        i = 0
+        while i < nx:
+            if not region[i, j]:
+                i += 1
+                continue
+            i0 = i
+            while i < nx and region[i, j]:
+                i += 1
+            i1 = i                                     # the run is i0 .. i1 - 1
+            if i0 > 0 and G[i0 - 1, j] > thr:
+                for q in range(i0, min(i0 + k, i1)):
+                    out[q, j] = False
+            if i1 < nx and G[i1, j] > thr:
+                for q in range(max(i1 - k, i0), i1):
+                    out[q, j] = False
+    return out
 
 
 def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock, Rt, rc, h, s, *, rest, ent,
@@ -761,7 +848,10 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
     lowered along what was cut (cells the flat bottom, or the corner, surely swept) before each
     entry and at the end. With ``air`` (:class:`~planning.toolpath.roughing.air._LevelAir`) a clearing
     line is trimmed, just before it is cut, to the span where its disc still meets material of the
-    level that the level's cuts so far have not swept, and skipped when there is none. Returns the
+    level that the level's cuts so far have not swept, and skipped when there is none; a piece that no
+    entry fits (a straight plunge only) is tried again after the level's other pieces, which may have
+    swept its material (it is then trimmed away as air) or cut beside it (a side entry or a link at the
+    level), and is left (``n_pieces_left``) only when it still cannot be entered. Returns the
     new current tip, the volume removed (mm^3) and whether anything was cut at the level."""
     z = lv.z
     here = None                  # (xy, cell, component) where the tool is at this level
@@ -770,7 +860,15 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
     any_swept = False
     prev_line = False
     cut_all = []                 # every polyline cut at this level, for ``air``
-    for piece, xy, cells in _order(pieces, None if cur is None else np.asarray(cur[:2]), oneway):
+    later = []                   # pieces no entry fitted yet: tried again after the others
+
+    def _all():
+        for piece_, xy_, cells_ in _order(pieces, None if cur is None else np.asarray(cur[:2]), oneway):
+            yield piece_, xy_, cells_, False
+        for piece_, xy_, cells_ in later:
+            yield piece_, xy_, cells_, True
+
+    for piece, xy, cells, retry in _all():
         if air is not None:
             air.mark(cut_all)
             trimmed = air.trim(xy, cells, lv.ny) if piece.is_line else \
@@ -802,6 +900,11 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
                 swept = []
             entered = ent.enter(w, lv, cur, xy, cells[0], z, safe)
             if entered is None:       # no entry but a straight plunge: the piece is left, the tool stays
+                if air is not None and not retry:
+                    # the level's other pieces may yet clear its material or open a way in from the side
+                    later.append((piece, xy, cells))
+                    ent.n_left -= 1
+                    continue
                 ent.left_mm += float(np.hypot(*np.diff(xy, axis=0).T).sum()) if xy.shape[0] > 1 else 0.0
                 continue
             if here is not None:

@@ -378,6 +378,9 @@ class _Writer:
         #: it (mm): GAP_MM, or less where the stock itself is read (``column_clear``: the rapids are
         #: checked on it, so the gap is only what the feed needs, not a guard against the maps' error)
         self.gap = GAP_MM
+        #: ``column_clear_many(points (n,3), top)`` -> (n,) ``column_clear`` of each point at once (None:
+        #: no clearance asked); where a retract or a lift's descent beside a wall may step off it
+        self.column_clear_many = None
 
     def add(self, xyz, use):
         xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
@@ -401,27 +404,70 @@ def _lift_cost(lv: _Level, a, b, z, safe) -> float:
     return 2.0 * (zl - z) + float(np.hypot(*(b - a))) / RAPID_RATIO
 
 
-def _retract(w: _Writer, cur, zl):
+#: A retract (or a lift's descent) steps off a wall beside it when that saves at least this much of
+#: its feed straight up (mm)
+STEP_OFF_GAIN_MM = 1.0
+
+
+def _step_off(w: _Writer, lv: _Level | None, xyz, zl):
+    """Where a feed straight up from the tip ``xyz`` beside a wall would run up the wall (the tool grown
+    by the rapid clearance touches the allowance the level left on it): the point p ``w.gap`` away at
+    the level (8 directions, the move to it in ``lv``'s region, at the level or below ``xyz``: allowed
+    there, so allowed at ``xyz``'s height) from which the rapid up is clear lowest, and that height
+    (:attr:`_Writer.column_clear_many` from ``w.gap`` above the tip, at most ``zl``); None when there is
+    none or nothing to ask."""
+    if lv is None or w.column_clear_many is None or lv.z > float(xyz[2]) + 1e-9:
+        return None
+    a = np.asarray(xyz[:2], dtype=np.float64)
+    t = np.arange(8) * (math.pi / 4.0)
+    cand = a + w.gap * np.column_stack([np.cos(t), np.sin(t)])
+    ok = [k for k in range(8) if lv.visible(a, cand[k])]
+    if not ok:
+        return None
+    z1 = float(xyz[2]) + w.gap
+    zc = np.asarray(w.column_clear_many(np.column_stack([cand[ok], np.full(len(ok), z1)]), zl), dtype=np.float64)
+    k = int(np.argmin(zc))
+    return cand[ok[k]], float(zc[k])
+
+
+def _retract(w: _Writer, cur, zl, lv: _Level | None = None):
     """Out of the cut by ``w.gap`` (GAP_MM without a stock view) at feed (``USE_RETRACT``), then up to ``zl`` by rapid (straight up
     from a position that is safe at its level is safe at any height above). With a rapid clearance
     (``w.column_clear``) the feed goes on up until the tool grown by it clears the material beside
     (the wall the tool has just cut along, the part's allowance), so that the rapid does not brush
-    it."""
+    it; with ``lv`` (the level moved to) where that feed would run STEP_OFF_GAIN_MM or more up the
+    wall, the retract steps ``w.gap`` off it instead (:func:`_step_off`, up and out at 45 degrees) and
+    the rapid rises from there. Returns the x, y where the tool is at ``zl``."""
     zr = cur[2] + w.gap
     if w.column_clear is not None:             # the stock itself, as the moves so far left it
         zr = max(zr, w.column_clear(cur[0], cur[1], cur[2], zl))
     zr = min(zr, zl)
+    if zr > cur[2] + w.gap + STEP_OFF_GAIN_MM:
+        off = _step_off(w, lv, cur, zl)
+        z1 = cur[2] + w.gap
+        if off is not None and off[1] + STEP_OFF_GAIN_MM < zr and z1 < zl:
+            p, zc = off
+            w.add([p[0], p[1], z1], USE_RETRACT)
+            if min(zc, zl) > z1:
+                w.add([p[0], p[1], min(zc, zl)], USE_RETRACT)
+            w.n_retracts += 1
+            if zl > max(zc, z1):
+                w.add([p[0], p[1], zl], USE_RAPID)
+            return np.asarray(p, dtype=np.float64)
     w.add([cur[0], cur[1], zr], USE_RETRACT)
     w.n_retracts += 1
     if zl > zr:
         w.add([cur[0], cur[1], zl], USE_RAPID)
+    return np.array(cur[:2], dtype=np.float64)
 
 
 def _lift(w: _Writer, lv: _Level, cur, q, z, safe, top_q=None):
     """Lift from ``cur`` (or from nowhere: first approach at the safe height), rapid over, rapid down to
     ``w.gap`` (GAP_MM without a stock view) above the remaining material under the disc at q (``top_q``: that height, mm, when the
     caller knows it more closely than the dilated map's :meth:`_Level.top_at`; never below the
-    material), plunge to z."""
+    material), plunge to z. Where that rapid down would stop STEP_OFF_GAIN_MM or more higher (the grown
+    tool beside a wall), it comes down instead at a point ``w.gap`` off (:func:`_step_off`) whose column
+    the grown tool clears down to ``w.gap`` above the level, and feeds in to q at 45 degrees."""
     if cur is None:
         zl = safe
         w.add([q[0], q[1], safe], USE_RAPID)
@@ -430,11 +476,43 @@ def _lift(w: _Writer, lv: _Level, cur, q, z, safe, top_q=None):
         zl = _link_height(lv, a, q, cur[2], z, safe)
         if w.rapid_clear is not None:          # the grown tool clear of the material beside the way
             zl = w.rapid_clear(a, q, zl, safe)
-        _retract(w, cur, zl)
-        w.add([q[0], q[1], zl], USE_RAPID)
+        a2 = _retract(w, cur, zl, lv)
+        zl = _rapid_from(w, a, a2, q, zl, safe)
     zd = min(zl, max(lv.top_at(q) if top_q is None else top_q, z) + w.gap)
     if w.column_clear is not None:             # the grown tool keeps clear of the material beside
         zd = min(zl, w.column_clear(q[0], q[1], zd, zl))
+    if cur is not None and zd > z + w.gap + STEP_OFF_GAIN_MM:
+        # beside a wall the rapid down stops high: come down off it and feed in to q at 45 degrees
+        off = _step_off(w, lv, (q[0], q[1], z), zl)
+        z1 = z + w.gap
+        # only where the rapid comes down at p all the way to z1: a feed straight down there could meet
+        # material (nothing says that p's column is air below where the grown tool clears it)
+        if off is not None and off[1] <= z1 + 1e-9 and off[1] + STEP_OFF_GAIN_MM < zd:
+            p, zc = off
+            p_up = w.pts[-1][-1]
+            zl2 = _rapid_from(w, p_up[:2], p_up[:2], p, zl, safe, at=False)
+            if zl2 > zl:
+                w.add([p_up[0], p_up[1], zl2], USE_RAPID)
+            w.add([p[0], p[1], zl2], USE_RAPID)
+            if z1 < zl2:
+                w.add([p[0], p[1], z1], USE_RAPID)
+            w.add([q[0], q[1], z], USE_PLUNGE)
+            return
+        w.add([q[0], q[1], zl], USE_RAPID)
+    elif cur is not None:
+        w.add([q[0], q[1], zl], USE_RAPID)
     if zd < zl:
         w.add([q[0], q[1], zd], USE_RAPID)
     w.add([q[0], q[1], z], USE_PLUNGE)
+
+
+def _rapid_from(w: _Writer, a, a2, q, zl, safe, at: bool = True) -> float:
+    """The height of the rapid across to q: ``zl`` (checked from ``a``), or, where the retract ended at
+    another x, y ``a2`` (stepped off a wall), the rapid clearance's own height from there, no lower
+    (``at``: the tool is raised to it at ``a2`` here). Returns that height."""
+    if w.rapid_clear is None or (np.allclose(a, a2) and at):
+        return zl
+    z2 = max(zl, w.rapid_clear(np.asarray(a2, dtype=np.float64), np.asarray(q, dtype=np.float64), zl, safe))
+    if at and z2 > zl:
+        w.add([a2[0], a2[1], z2], USE_RAPID)
+    return z2

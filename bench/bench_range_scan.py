@@ -21,8 +21,8 @@ Per case and thread count it prints: the wall seconds of the plan (``run_plan``)
 the seconds per stage (``plan.json`` ``timings``, the pipeline's own clock; ``write`` is
 :func:`planning.report.plan_files.write_plan`) with the peak RSS while each ran, the peak RSS of the
 process (MB; sampled every 20 ms by a thread, the generated sample included), the plan status and
-the exit code ``scanmill plan`` would give (0 planned and verified or skipped, 3 infeasible or
-incomplete, 4 verification failed), the verification status and mode (``single_pass`` or
+the exit code ``scanmill plan`` would give (``scanmill.cli.exit_status``: 0 planned, 3 infeasible or
+incomplete, 4 verification failed, 5 unfinished), the verification status and mode (``single_pass`` or
 ``independent`` where the plan reports it), the coverage reached, the simulated machining time
 (``verification.machining_time_s``, h:mm), the roughing air share (``air_feed_mm / feed_mm``
 summed over the roughing operations of every area) and the roughing plunges into material, and the
@@ -64,11 +64,11 @@ STAGE_ORDER = ("normals", "orientations", "placement", "visibility", "setups", "
                "simulate", "write")
 
 
-def _exit_code(status: str, verdict: str | None) -> int:
-    """What ``scanmill plan`` returns for this plan (scanmill/cli.py cmd_plan)."""
-    if status != "planned":
-        return 3
-    return 4 if verdict == "failed" else 0
+def _exit_code(result) -> int:
+    """What ``scanmill plan`` returns for this plan: the CLI's own rule (scanmill/cli.py exit_status)."""
+    from scanmill.cli import exit_status
+
+    return exit_status(result)
 
 
 def _hmm(seconds: float | None) -> str:
@@ -130,7 +130,7 @@ def run_one(case: str, n_points: int, overrides: list[str]) -> dict:
         "omp_threads": os.environ.get("OMP_NUM_THREADS"),
         "cpus": sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
         "n_sampled": int(r.normals.n_sampled), "k": int(r.selection.k) if r.selection is not None else None,
-        "status": r.status, "exit_code": _exit_code(r.status, verdict), "message": r.message,
+        "status": r.status, "exit_code": _exit_code(r), "message": r.message,
         "coverage": float(r.coverage),
         "verdict": verdict, "verification_mode": getattr(v, "mode", None) if v is not None else None,
         "verification_message": None if v is None else v.message,

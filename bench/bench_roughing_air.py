@@ -26,8 +26,10 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE / "bench"))
 
 
-def capture(case: str, setup: int):
-    """The roughing call of the case's ``setup``-th set-up: (cloud in frame, keyword arguments, stock view)."""
+def capture_all(case: str, extra_sets=()):
+    """Every roughing call of the case's plan (without verification, plus ``extra_sets`` overrides), in
+    machining order: [(cloud in frame, keyword arguments, (stock, frame, shape, obstacles))], and the
+    parsed configuration and the cloud's points."""
     from bench_stock_first import case_input
 
     import planning.toolpath.area_paths as AP
@@ -47,14 +49,22 @@ def capture(case: str, setup: int):
     AP.roughing_paths = spy
     try:
         pts, nrm, faces, doc, sets = case_input(case, HERE)
-        cfg = parse_config(apply_overrides(doc, sets + ["simulate.enabled=false", "paths.finishing.enabled=false"]))
+        cfg = parse_config(apply_overrides(doc, sets + ["simulate.enabled=false", *extra_sets]))
         run_plan(Cloud(points=pts, normals=nrm, source_format="generated", faces=faces), cfg, name=case)
     finally:
         AP.roughing_paths = orig
-    return calls[setup]
+    return calls, cfg, pts
 
 
-def main() -> int:
+def tagged_run(call, tag_of):
+    """One captured roughing call planned again on its stock view with every point tagged by the planner
+    call that wrote it (``tag_of(frame, its source line)``), and its moves run on the stock it met
+    (``simulate_moves``, rapid clearance 0.5 mm). Returns a namespace: ``result`` (the roughing), ``pm``
+    (its part moves), ``run``, ``axis``, per part move ``L`` (length), ``feed``, ``air`` (removed under
+    ``AIR_MM3``), ``tag`` and ``block`` (the writer call), and the call's ``stock`` and ``shape``; None
+    when the roughing wrote no move."""
+    from types import SimpleNamespace
+
     import planning.toolpath.roughing.links as LK
     from planning.simulate.dexel import simulate_moves
     from planning.simulate.motion import FEED
@@ -63,38 +73,45 @@ def main() -> int:
     from planning.toolpath.roughing import roughing_paths
     from planning.toolpath.stock_view import StockView
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--case", default="slot")
-    ap.add_argument("--setup", type=int, default=1, help="the set-up's place in the machining order")
-    a = ap.parse_args()
-    cloud_f, kw, (stock, frame, shape, obstacles) = capture(a.case, a.setup)
-
-    tags, calls, n_calls = [], [], [0]
+    cloud_f, kw, (stock, frame, shape, obstacles) = call
+    tags, blocks, n_blocks = [], [], [0]
     add = LK._Writer.add
 
     def tagged(self, xyz, use):
         f = sys._getframe(1)
         n = np.asarray(xyz, dtype=np.float64).reshape(-1, 3).shape[0]
-        tags.extend([f"{f.f_code.co_name}: {linecache.getline(f.f_code.co_filename, f.f_lineno).strip()}"] * n)
-        n_calls[0] += 1
-        calls.extend([n_calls[0]] * n)
+        tags.extend([tag_of(f, linecache.getline(f.f_code.co_filename, f.f_lineno).strip())] * n)
+        blocks.extend([n_blocks[0]] * n)
+        n_blocks[0] += 1
         return add(self, xyz, use)
 
     LK._Writer.add = tagged
     try:
-        r = roughing_paths(cloud_f, stock_view=StockView(stock, frame, shape, obstacles=obstacles), **kw)
+        r = roughing_paths(cloud_f, stock_view=StockView(stock.copy(), frame, shape, obstacles=obstacles), **kw)
     finally:
         LK._Writer.add = add
     tp = r.toolpath
+    if tp.n_moves == 0:
+        return None
     tags = np.array(tags + ["(final retract)"] * (tp.n_moves - len(tags)))
-    block = np.array(calls + [-1] * (tp.n_moves - len(calls)))
+    blocks = np.array(blocks + [-1] * (tp.n_moves - len(blocks)))
     pm = part_moves(tp, frame)
-    run = simulate_moves(stock.copy(), pm.start, pm.end, np.broadcast_to(pm.axis, pm.start.shape), shape, pm.kind,
-                         rapid_clearance_mm=0.5)
-    L = np.linalg.norm(pm.end - pm.start, axis=1)
+    axis = np.broadcast_to(pm.axis, pm.start.shape)
+    run = simulate_moves(stock.copy(), pm.start, pm.end, axis, shape, pm.kind, rapid_clearance_mm=0.5)
     feed = pm.kind == FEED
-    air = feed & (run.removed_mm3 < AIR_MM3)
-    t, b = tags[pm.source], block[pm.source]
+    return SimpleNamespace(result=r, pm=pm, run=run, axis=axis, L=np.linalg.norm(pm.end - pm.start, axis=1),
+                           feed=feed, air=feed & (run.removed_mm3 < AIR_MM3), tag=tags[pm.source],
+                           block=blocks[pm.source], stock=stock, shape=shape)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--case", default="slot")
+    ap.add_argument("--setup", type=int, default=1, help="the set-up's place in the machining order")
+    a = ap.parse_args()
+    calls, _, _ = capture_all(a.case, ["paths.finishing.enabled=false"])
+    got = tagged_run(calls[a.setup], lambda f, line: f"{f.f_code.co_name}: {line}")
+    L, feed, air, t, b = got.L, got.feed, got.air, got.tag, got.block
     print(f"{a.case}, set-up {a.setup} in the machining order: feed {L[feed].sum():.0f} mm, in air {L[air].sum():.0f} mm "
           f"({L[air].sum() / max(L[feed].sum(), 1e-9):.1%}); load average {os.getloadavg()[0]:.2f}")
     agg = collections.defaultdict(lambda: [0.0, 0.0, 0])

@@ -1,10 +1,10 @@
 """Benchmark: where and for what the roughing end mill feeds through air (issue 30). Figures only.
 
 The case (``bench/bench_stock_first.py``'s cases) is planned without verification, every
-set-up's roughing call captured (``bench_roughing_air.capture``'s spy, all set-ups at once), then each
-set-up's roughing is planned again on its stock view with every point tagged by the planner function
-that wrote it, and its moves run on the stock it met (``simulate_moves``, the verification's kernels,
-rapid clearance 0.5 mm). A feed move is *in air* when it removed under ``AIR_MM3``. Per set-up (machining
+set-up's roughing call captured (``bench_roughing_air.capture_all``), then each set-up's roughing is
+planned again on its stock view with every point tagged by the planner function that wrote it, and its
+moves run on the stock it met (``bench_roughing_air.tagged_run``: ``simulate_moves``, the
+verification's kernels, rapid clearance 0.5 mm). A feed move is *in air* when it removed under ``AIR_MM3``. Per set-up (machining
 order) the air feed length is broken down:
 
 * by the move's ``use`` (cut, plunge/entry, retract; :mod:`planning.toolpath.moves`);
@@ -37,79 +37,27 @@ sys.path.insert(0, str(HERE / "bench"))
 USE_NAMES = {0: "rapid", 1: "cut", 2: "plunge/entry", 3: "retract"}
 
 
-def capture_all(case: str):
-    """Every roughing call of the case's plan, in machining order: [(cloud in frame, keyword arguments,
-    (stock, frame, shape, obstacles))], and the parsed configuration and cloud points."""
-    from bench_stock_first import case_input
-
-    import planning.toolpath.area_paths as AP
-    from planning.inputs import Cloud
-    from planning.pipeline import run_plan
-    from schemas.params import apply_overrides, parse_config
-
-    calls = []
-    orig = AP.roughing_paths
-
-    def spy(cloud_f, **kw):
-        v = kw["stock_view"]
-        calls.append((cloud_f.copy(), {k: x for k, x in kw.items() if k not in ("progress", "stock_view")},
-                      (v.stock.copy(), v.frame, v.shape, v.obstacles)))
-        return orig(cloud_f, **kw)
-
-    AP.roughing_paths = spy
-    try:
-        pts, nrm, faces, doc, sets = case_input(case, HERE)
-        cfg = parse_config(apply_overrides(doc, sets + ["simulate.enabled=false"]))
-        run_plan(Cloud(points=pts, normals=nrm, source_format="generated", faces=faces), cfg, name=case)
-    finally:
-        AP.roughing_paths = orig
-    return calls, cfg, pts
+def _writer(f, line: str) -> str:
+    """The tag of a point: the planner function that wrote it; in ``_cut_level``, a line's or a
+    contour's own points or a link."""
+    what = f.f_code.co_name
+    if what == "_cut_level":
+        what += (": line" if f.f_locals["piece"].is_line else ": contour") if "xy[1:]" in line else ": link"
+    return what
 
 
 def breakdown(call, box_lo, box_hi):
     """The air breakdown of one captured roughing call (module docstring): a dict of figures."""
-    import linecache
+    from bench_roughing_air import tagged_run
 
-    import planning.toolpath.roughing.links as LK
     from planning.simulate.dexel import simulate_moves
-    from planning.simulate.motion import FEED
     from planning.simulate.verify import AIR_MM3
-    from planning.toolpath.guard import part_moves
-    from planning.toolpath.roughing import roughing_paths
-    from planning.toolpath.stock_view import StockView
 
-    cloud_f, kw, (stock, frame, shape, obstacles) = call
-    tags, blocks, blocks_n = [], [], []
-    add = LK._Writer.add
-
-    def tagged(self, xyz, use):
-        f = sys._getframe(1)
-        n = np.asarray(xyz, dtype=np.float64).reshape(-1, 3).shape[0]
-        line = linecache.getline(f.f_code.co_filename, f.f_lineno).strip()
-        what = f.f_code.co_name
-        if what == "_cut_level":
-            what += (": line" if f.f_locals["piece"].is_line else ": contour") if "xy[1:]" in line else ": link"
-        blocks.extend([len(blocks_n)] * n)
-        blocks_n.append(n)
-        tags.extend([what] * n)
-        return add(self, xyz, use)
-
-    LK._Writer.add = tagged
-    try:
-        r = roughing_paths(cloud_f, stock_view=StockView(stock.copy(), frame, shape, obstacles=obstacles), **kw)
-    finally:
-        LK._Writer.add = add
-    tp = r.toolpath
-    if tp.n_moves == 0:
+    got = tagged_run(call, _writer)
+    if got is None:
         return None
-    tags = np.array(tags + ["_result: final retract"] * (tp.n_moves - len(tags)))
-    blocks = np.array(blocks + [-1] * (tp.n_moves - len(blocks)))
-    pm = part_moves(tp, frame)
-    axis = np.broadcast_to(pm.axis, pm.start.shape)
-    run = simulate_moves(stock.copy(), pm.start, pm.end, axis, shape, pm.kind, rapid_clearance_mm=0.5)
-    L = np.linalg.norm(pm.end - pm.start, axis=1)
-    feed = pm.kind == FEED
-    air = feed & (run.removed_mm3 < AIR_MM3)
+    r, pm, run, axis, L, feed, air = got.result, got.pm, got.run, got.axis, got.L, got.feed, got.air
+    tp, stock, shape = r.toolpath, got.stock, got.shape
     # the air moves alone on the stock before this roughing: did it have material there?
     ia = np.flatnonzero(air)
     before = np.zeros(len(L), bool)
@@ -123,7 +71,7 @@ def breakdown(call, box_lo, box_hi):
                      np.where(mid[:, 2] < box_lo[2], "below bottom", np.where(inxy, "inside box", "beside box")))
     why = np.where(before, "this roughing", "before")
     use = np.array([USE_NAMES.get(int(u), str(u)) for u in tp.use[pm.source]])
-    tag = tags[pm.source]
+    tag = got.tag
     out = {"feed": float(L[feed].sum()), "air": float(L[air].sum()), "n_levels": int(r.n_levels),
            "removed_cm3": float(run.removed_mm3.sum()) / 1000.0, "left": (int(r.n_pieces_left), float(r.left_length_mm)),
            "levels": (float(r.levels_mm[0]), float(r.levels_mm[-1])) if r.n_levels else None}
@@ -137,7 +85,7 @@ def breakdown(call, box_lo, box_hi):
                 agg[key[i]][1] += L[i]
         out[name] = dict(sorted(agg.items(), key=lambda kv: -kv[1][1]))
     # the level pieces' air: at their ends (or all of the piece) and inside, by the piece's kind
-    blk = blocks[pm.source]
+    blk = got.block
     for kind in ("_cut_level: line", "_cut_level: contour"):
         lead = inner = 0.0
         for b_ in np.unique(blk[(tag == kind) & feed]):
@@ -154,6 +102,7 @@ def breakdown(call, box_lo, box_hi):
 
 
 def main() -> int:
+    from bench_roughing_air import capture_all
     from bench_stock_first import CASES
 
     from planning.simulate.verify import stock_extent

@@ -371,17 +371,7 @@ def test_a_narrow_ring_channel_no_helix_fits_is_ramped_along_its_own_path_not_pl
     """The tool centre has a ring 2 mm wide: no helix fits, its clearing lines are short chords; the
     roughing on the stock view enters by ramps along the pieces' own paths, at the entry angle, and
     leaves next to nothing uncut."""
-    Rt = 4.0
-    shape = ToolShape(number=2, kind="flat", radius_mm=Rt, corner_radius_mm=0.0, flute_length_mm=25.0,
-                      pieces=((25.0, math.inf, 4.0),))
-    cloud = _channel(r_out=10.0 + 2 * Rt + 1.0 + 2.0)
-    # the stock left to rough: the channel, 10 mm deep, over a floor 0.5 mm thick (the allowance)
-    lo, hi = np.array([-27.0, -27.0, 0.0]), np.array([27.0, 27.0, 10.0])
-    stock = _box(lo, hi)
-    frame = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
-    rr = roughing_paths(cloud, tool_radius_mm=Rt, step_down_mm=2.5, stock_allowance_mm=0.5, floor_z_mm=0.5,
-                        stock_points_mm=stock.boundary_points(), stock_spacing_mm=RES, holder_pieces=shape.pieces,
-                        safe_z_mm=25.0, rapid_clearance_mm=0.5, stock_view=StockView(stock, frame, shape))
+    rr, frame, stock, shape = _channel_roughing()
     assert rr.n_plunges_into_material == 0 and rr.n_helix == 0 and rr.n_ramps > 0
     pm = part_moves(rr.toolpath, frame)
     run = simulate_moves(stock.copy(), pm.start, pm.end, np.broadcast_to(pm.axis, pm.start.shape), shape, pm.kind,
@@ -439,8 +429,10 @@ def test_level_air_trims_a_contour_chain_and_opens_a_loop_at_its_longest_useless
     assert air.trim_chain(far, fcells, ny, loop=False) is None
 
 
-def _channel_roughing(monkeypatch=None):
-    """The ring channel of the test above roughed on its stock view: (roughing, frame, stock)."""
+def _channel_roughing():
+    """A ring channel (the tool centre has a ring 2 mm wide) roughed on its stock view: the stock left to
+    rough is the channel, 10 mm deep, over a floor 0.5 mm thick (the allowance). Returns
+    (roughing, frame, stock, tool shape)."""
     Rt = 4.0
     shape = ToolShape(number=2, kind="flat", radius_mm=Rt, corner_radius_mm=0.0, flute_length_mm=25.0,
                       pieces=((25.0, math.inf, 4.0),))
@@ -539,7 +531,7 @@ def test_lines_keep_off_the_walls_so_the_contour_cuts_a_band_not_the_lines_ends(
         pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
         res[back] = (L[feed].sum(), L[feed & (run.removed_mm3 < 1e-6)].sum(), run.removed_mm3.sum(),
                      int((down & (run.removed_mm3 > 1e-6)).sum()))
-    (feed1, air1, rem1, pl1), (feed0, air0, rem0, pl0) = res[0.5], res[0.0]
+    (feed1, air1, rem1, pl1), (feed0, air0, rem0, _) = res[0.5], res[0.0]
     assert pl1 == 0
     assert feed1 < feed0 and air1 < air0
     assert rem1 == pytest.approx(rem0, rel=0.005)

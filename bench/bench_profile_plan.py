@@ -7,6 +7,12 @@ seconds, the functions with the most own time, and the calls into the tri-dexel 
 by their five callers, with their count, moves and seconds:
 
     NUMBA_NUM_THREADS=2 .venv/bin/python bench/bench_profile_plan.py
+
+``--wall``: no profiler (it charges the kernels' many small calls far more than they cost); the stage
+seconds, and the wall seconds and calls of the paths stage's steps and checks (:data:`STEPS`, each timed
+where it is called, nested ones included in their callers):
+
+    NUMBA_NUM_THREADS=2 .venv/bin/python bench/bench_profile_plan.py --wall
 """
 
 from __future__ import annotations
@@ -26,7 +32,42 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE / "scripts"))
 
 
+#: (module, attribute path) of the functions ``--wall`` times.
+STEPS = (
+    ("planning.toolpath.area_paths", "_add_roughing"), ("planning.toolpath.area_paths", "_guard_roughing"),
+    ("planning.toolpath.area_paths", "_add_finishing"), ("planning.toolpath.area_paths", "_cut_blocked"),
+    ("planning.toolpath.area_paths", "_guard_finishing"), ("planning.toolpath.safety", "blocked_cl"),
+    ("planning.toolpath.guard", "_FixtureMemo.check"), ("planning.toolpath.guard", "simulate_moves"),
+    ("planning.toolpath.guard", "column_clear_z"), ("planning.toolpath.stock_view", "StockView.column_is_clear"),
+    ("planning.toolpath.stock_view", "StockView.rapid_clear_z"),
+)
+
+
+def _time_steps(acc: dict) -> None:
+    """Wrap every function of :data:`STEPS` where it is looked up, adding (seconds, calls) to ``acc``."""
+    import importlib
+
+    for mod_name, path in STEPS:
+        owner = importlib.import_module(mod_name)
+        *outer, name = path.split(".")
+        for part in outer:
+            owner = getattr(owner, part)
+        fn = getattr(owner, name)
+
+        def timed(*a, _fn=fn, _key=path, **k):
+            t = time.perf_counter()
+            try:
+                return _fn(*a, **k)
+            finally:
+                got = acc.setdefault(_key, [0.0, 0])
+                got[0] += time.perf_counter() - t
+                got[1] += 1
+        setattr(owner, name, timed)
+
+
 def main() -> int:
+    import argparse
+
     from demo_service import CONFIGS
 
     import planning.simulate.dexel as D
@@ -46,10 +87,22 @@ def main() -> int:
         s[0], s[1], s[2] = s[0] + 1, s[1] + len(start), s[2] + time.perf_counter() - t
         return r
 
-    D._run = timed
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--wall", action="store_true", help="no profiler: wall seconds of the paths stage's steps")
+    wall = ap.parse_args().wall
     s = make_sample("femur_like", n_points=1_000_000)
     cfg = parse_config(json.loads(json.dumps(CONFIGS["femur_like"])))
     print(f"load average {os.getloadavg()[0]:.2f}", flush=True)
+    if wall:
+        acc: dict = {}
+        _time_steps(acc)
+        out = run_plan(Cloud(points=s.points, normals=None, source_format="generated"), cfg, name="femur_like")
+        print(", ".join(f"{t.stage} {t.seconds:.1f} s" for t in out.result.timings))
+        for _, path in STEPS:
+            sec, n = acc.get(path, (0.0, 0))
+            print(f"  {sec:7.2f} s {n:6d} calls  {path}")
+        return 0
+    D._run = timed
     pr = cProfile.Profile()
     pr.enable()
     out = run_plan(Cloud(points=s.points, normals=None, source_format="generated"), cfg, name="femur_like")

@@ -384,6 +384,22 @@ def test_disc_maximum_gives_the_distance_transform_map():
             np.testing.assert_array_equal(got > t, ref)
 
 
+def test_stamping_the_cells_a_second_map_raises_gives_the_disc_maximum_of_both():
+    """``_stamp_max(_disc_max(raw), src, raw)`` (the live stock's boundary points added to its line
+    reading) equals ``_disc_max(max(raw, src))`` bit for bit, stamping only where ``src`` is above ``raw``."""
+    from planning.toolpath.roughing.maps import _stamp_max
+
+    rng = np.random.default_rng(17)
+    for _ in range(30):
+        nx, ny = (int(v) for v in rng.integers(1, 50, 2))
+        raw = np.where(rng.random((nx, ny)) < 0.5, rng.normal(size=(nx, ny)), -np.inf)
+        src = np.where(rng.random((nx, ny)) < 0.1, rng.normal(size=(nx, ny)) + 0.5, -np.inf)
+        h, reach = float(rng.uniform(0.1, 1.0)), float(rng.uniform(0.05, 6.0))
+        out = _disc_max(raw, h, reach)
+        _stamp_max(out, src, raw, h, reach)
+        np.testing.assert_array_equal(out, _disc_max(np.maximum(raw, src), h, reach))
+
+
 def test_disc_maximum_is_the_same_in_any_number_of_blocks_of_rows():
     """The rows are shared among the threads in blocks (one per thread); each block filters the rows
     within reach of its edges itself: any number of blocks gives the same map, bit for bit."""

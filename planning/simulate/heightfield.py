@@ -116,3 +116,53 @@ def stock_tops_in_frame(stock: TriDexel, rotation, origin_mm, x0: float, y0: flo
     _frame_tops(stock.lo, stock.res, stock.n, stock.base, stock.off, stock.cnt, stock.pool, R, o, float(x0), float(y0),
                 float(h), s, float(stop_mm), out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _boundary_tops(lo, res, n, base, off, cnt, pool, rot, origin, x0, y0, h, above, out):
+    nx, ny = out.shape
+    p = np.empty(3)
+    for f in range(3):
+        ua = (f + 1) % 3
+        va = (f + 2) % 3
+        nu = n[ua]
+        for r in range(base[f + 1] - base[f]):
+            g = base[f] + r
+            c = cnt[g]
+            if c == 0:
+                continue
+            p[ua] = lo[ua] + (r % nu + 0.5) * res
+            p[va] = lo[va] + (r // nu + 0.5) * res
+            o = off[g]
+            for k in range(c):
+                for e in range(2):
+                    p[f] = pool[o + k, e]
+                    dx = p[0] - origin[0]
+                    dy = p[1] - origin[1]
+                    dz = p[2] - origin[2]
+                    fz = rot[2, 0] * dx + rot[2, 1] * dy + rot[2, 2] * dz
+                    if not fz > above:
+                        continue
+                    i = int(math.floor((rot[0, 0] * dx + rot[0, 1] * dy + rot[0, 2] * dz - x0) / h))
+                    j = int(math.floor((rot[1, 0] * dx + rot[1, 1] * dy + rot[1, 2] * dz - y0) / h))
+                    if 0 <= i < nx and 0 <= j < ny and fz > out[i, j]:
+                        out[i, j] = fz
+
+
+def boundary_tops_in_frame(stock: TriDexel, rotation, origin_mm, x0: float, y0: float, h: float, nx: int, ny: int,
+                           above_mm: float = -math.inf) -> np.ndarray:
+    """(nx, ny) frame z (mm) of the highest boundary point of ``stock`` in every cell of the raster (cells
+    of side ``h`` from (``x0``, ``y0``), frame x, y), among those above ``above_mm``; -inf where none. The
+    boundary points are both ends of every material interval of all three ray families
+    (:meth:`planning.simulate.dexel.TriDexel.boundary_points`, without building them): unlike
+    :func:`stock_tops_in_frame`, which reads one family, it sees a sliver thinner than a ray spacing
+    that only one family holds (a plate between two families' rays). Sampled, not a bound: a cell
+    between samples reads -inf; grown over the sampling's spacing (as
+    :func:`planning.toolpath.roughing.maps._stock_tops` grows it) it bounds the material. Cost: one
+    pass over the model's intervals."""
+    R = np.ascontiguousarray(rotation, dtype=np.float64).reshape(3, 3)
+    o = np.ascontiguousarray(origin_mm, dtype=np.float64).reshape(3)
+    out = np.full((int(nx), int(ny)), -np.inf)
+    _boundary_tops(stock.lo, stock.res, stock.n, stock.base, stock.off, stock.cnt, stock.pool, R, o, float(x0),
+                   float(y0), float(h), float(above_mm), out)
+    return out

@@ -656,6 +656,9 @@ class _Entries:
         self.n_fed_down = 0
         #: pieces entered by a feed straight down that the stock itself shows to be in air
         self.n_in_air = 0
+        #: helices and ramps begun higher because the stock stood in the column above their start
+        #: (:meth:`_raised`)
+        self.n_raised = 0
 
     def _margs(self, lv: _Level, start: bool = False):
         """The material arguments of the kernels: the map and the tops; ``start``: the tops a helix or
@@ -771,6 +774,8 @@ class _Entries:
                     else:
                         xyz = np.vstack([[low[0, 0], low[0, 1], plan.zs], low])
                     self.n_fed_down += 1
+        if self.clear is not None and not self.clear(xyz[0, 0], xyz[0, 1], zs, safe):
+            xyz, zs = self._raised(w, xyz, zs, safe)
         _approach(w, lv, cur, xyz[0, :2], zs, z, safe)
         w.add(xyz[1:], USE_PLUNGE)
         if plan.kind == "helix":
@@ -781,6 +786,37 @@ class _Entries:
             return []
         w.add(np.column_stack([plan.link[1:], np.full(plan.link.shape[0] - 1, z)]), USE_CUT)
         return [plan.link]
+
+    def _raised(self, w, xyz, zs, safe):
+        """The descent ``xyz`` (k,3, its first point at ``zs``) begun higher where the stock itself (a
+        sliver the maps and the line reading miss, a wall's allowance at the rim) stands in the column
+        above its start: the rapid down would stop above ``zs`` and the straight feed on to it would cut
+        (a straight plunge, as the verification counts them). Returns (xyz', zs'): a ramp back and forth
+        along the descent's own way (:func:`_path_ramp_xyz`; it lies in the region, and a position allowed
+        lower is allowed higher) at the entry angle from zs', the lowest height from which the tool grown
+        by the rapid clearance clears the stock up to ``safe`` over every point of that way (sampled
+        SWEEP_SAMPLE_MM apart), down to the start; unchanged when nothing can be asked or the way is a point."""
+        if w.column_clear_many is None:
+            return xyz, zs
+        xy = np.asarray(xyz[:, :2], dtype=np.float64)
+        keep = np.concatenate([[True], np.hypot(*np.diff(xy, axis=0).T) > 1e-9])
+        xy = xy[keep]
+        if xy.shape[0] < 2:
+            return xyz, zs
+        d = np.hypot(*np.diff(xy, axis=0).T)
+        pts = [xy[:1]]
+        for k in range(d.size):
+            n = int(math.ceil(d[k] / SWEEP_SAMPLE_MM))
+            t = np.arange(1, n + 1)[:, None] / n
+            pts.append(xy[k] + t * (xy[k + 1] - xy[k]))
+        xs = np.concatenate(pts)
+        zc = float(np.max(w.column_clear_many(np.column_stack([xs, np.full(xs.shape[0], float(zs))]), safe)))
+        zc = min(zc, safe)
+        if not zc > zs + 1e-6:
+            return xyz, zs
+        head = _path_ramp_xyz(xy, zc, float(zs), self.cfg.tan)
+        self.n_raised += 1
+        return np.vstack([head, xyz[1:]]), float(head[0, 2])
 
     def _sweep_top(self, xyz, z, top) -> float:
         """The highest material the descent ``xyz`` (k,3) may meet: the stock itself under the cutter

@@ -98,6 +98,7 @@ from planning.toolpath.roughing.maps import (
     _MaterialMap,
     _Raster,
     _raster,
+    _stamp_max,
     _stock_tops,
 )
 from planning.toolpath.roughing.ordering import _order
@@ -606,6 +607,16 @@ class _LiveStock:
             return self.view.rapid_clear_z(a, b, z, top, clearance_mm)
         return clear
 
+    def _boundary_tops(self, oi: slice, oj: slice, stop: float) -> np.ndarray:
+        """(cells of ``oi`` x ``oj``) the highest boundary point of the view's stock above ``stop`` per
+        cell, every ray family (:func:`planning.simulate.heightfield.boundary_tops_in_frame`); -inf
+        where none."""
+        from planning.simulate.heightfield import boundary_tops_in_frame
+
+        g, v = self.grid, self.view
+        return boundary_tops_in_frame(v.stock, v.frame.rotation, v.frame.origin_mm, g.x0 + oi.start * g.h,
+                                      g.y0 + oj.start * g.h, g.h, oi.stop - oi.start, oj.stop - oj.start, stop)
+
     def advance(self, w, z: float, mat: _MaterialMap, ent: _Entries) -> None:
         """Run the moves so far on the view and lower the map and the entries' tops for level ``z``,
         over the cells about the window (:func:`_crop`: the tool centres' box grown by ``3 Rt``, what
@@ -629,6 +640,11 @@ class _LiveStock:
         self.top[oi, oj] = np.maximum(top, g.cmax[oi, oj])
         # an upper bound of the view's material, kept over the inner cells (their discs lie in the outer)
         bound_o = _disc_max(self.top[oi, oj], g.h, self.grow)
+        # the line along the frame's Z is read on one ray family and misses slivers thinner than a ray
+        # spacing that only the other two hold (a skin the levels above left on a wall, 0.25 mm thick on
+        # the range femur, 30 mm above the level, which the holder met): the stock's boundary points,
+        # every family, grown as the first reading was (:func:`_stock_tops`), keep the bound above them
+        _stamp_max(bound_o, self._boundary_tops(oi, oj, stop), self.top[oi, oj], g.h, self.grow)
         inner = (slice(ii.start - oi.start, ii.stop - oi.start), slice(ij.start - oj.start, ij.stop - oj.start))
         bound = bound_o[inner]
         read = self.top[ii, ij]

@@ -283,6 +283,29 @@ def _disc_widths(h, reach):
     return wd, K
 
 
+@njit(cache=True, nogil=True)
+def _stamp_max(out, src, raw, h, reach):
+    """``out[c] = max(out[c], src[c'])`` for every cell c' where ``src`` is above ``raw`` and every c whose
+    centre is closer than ``reach`` to c''s (the disc of :func:`_disc_max`): with ``out`` =
+    ``_disc_max(raw, h, reach)`` it becomes ``_disc_max(max(raw, src), h, reach)`` at the cost of the few
+    cells where ``src`` adds something."""
+    nx, ny = out.shape
+    wd, K = _disc_widths(h, reach)
+    for i in range(nx):
+        for j in range(ny):
+            v = src[i, j]
+            if not v > raw[i, j]:
+                continue
+            for di in range(-K, K + 1):
+                w = wd[abs(di)]
+                ii = i + di
+                if w < 0 or ii < 0 or ii >= nx:
+                    continue
+                for jj in range(max(0, j - w), min(ny, j + w + 1)):
+                    if v > out[ii, jj]:
+                        out[ii, jj] = v
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _max_into(out, o, row):
     """``out[o] = max(out[o], row)`` element-wise."""

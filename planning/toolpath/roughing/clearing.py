@@ -140,3 +140,55 @@ def _contour_pieces(region, G, thr, runs, x0, y0, h) -> list[_Piece]:
             out.append(_Piece(comp, xy, cell[run], "loop" if closed else "start", False))
     return out
 
+
+
+#: Rounds of :func:`_hug` (each drops at most every other vertex of a run of candidates)
+HUG_ROUNDS = 2
+
+
+def _hug(pieces: list[_Piece], keeps, z: float, need_mm: float, h: float) -> list[_Piece]:
+    """The contour pieces with their staircase's steps away from the part taken out where the exact
+    clearance allows (module docstring, "Hugging the walls"): a vertex where the chain turns right (the
+    part side) and that lies within ``h`` of the chord of its two neighbours is dropped when the tool
+    moved along that chord at height ``z`` keeps ``need_mm`` (the allowance) from the cloud
+    (``keeps(a (k,2), b (k,2), z, need) -> (k,) bool``:
+    :meth:`planning.toolpath.roughing.clearance._MoveClearance.keeps`). A chain's first and last vertex
+    stay; lines are returned as they are."""
+    out = list(pieces)
+    idx = [k for k, p in enumerate(out) if not p.is_line and p.xy.shape[0] >= 3]
+    for _ in range(HUG_ROUNDS):
+        cand, owner = [], []
+        for k in idx:
+            xy = out[k].xy
+            p, v, n = xy[:-2], xy[1:-1], xy[2:]
+            d1, d2, ch = v - p, n - v, n - p
+            cross = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+            L = np.hypot(ch[:, 0], ch[:, 1])
+            # the vertex's distance from the chord: |cross| / |chord|
+            ok = (cross < -1e-12) & (-cross <= h * L + 1e-12)
+            j = np.flatnonzero(ok) + 1                      # vertex index in xy
+            if j.size == 0:
+                continue
+            # at most every other vertex of a run of consecutive candidates (the chords must not overlap)
+            run_start = np.concatenate([[True], np.diff(j) != 1])
+            pos = np.arange(j.size) - np.maximum.accumulate(np.where(run_start, np.arange(j.size), 0))
+            j = j[pos % 2 == 0]
+            cand.append(j)
+            owner.append(k)
+        if not cand:
+            break
+        a = np.concatenate([out[k].xy[j - 1] for k, j in zip(owner, cand)])
+        b = np.concatenate([out[k].xy[j + 1] for k, j in zip(owner, cand)])
+        good = keeps(a, b, z, need_mm)
+        if not good.any():
+            break
+        s = 0
+        for k, j in zip(owner, cand):
+            g = good[s:s + j.size]
+            s += j.size
+            if g.any():
+                keep = np.ones(out[k].xy.shape[0], dtype=bool)
+                keep[j[g]] = False
+                pc = out[k]
+                out[k] = _Piece(pc.comp, pc.xy[keep], pc.cells[keep], pc.ends, pc.is_line, pc.row)
+    return out

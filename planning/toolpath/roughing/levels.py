@@ -63,9 +63,10 @@ from planning.toolpath.moves import (
     path_length_mm,
 )
 from planning.toolpath.roughing.air import _LevelAir
-from planning.toolpath.roughing.clearance import min_tool_clearance
+from planning.toolpath.roughing.clearance import _MoveClearance, min_tool_clearance
 from planning.toolpath.roughing.clearing import (
     _contour_pieces,
+    _hug,
     _line_pieces,
     _line_ys,
     _Piece,
@@ -321,6 +322,12 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
         mat = _MaterialMap(grid, stock.box_lo, stock.box_hi, stock.z_top, Rt)
         levels = _levels(stock.z_top, stock.floor, step, step_down_mm)
     ys = _line_ys(stock.box_lo, stock.box_hi, grid.h, Rt, rc, s)
+    hug = None
+    if slab is not None and contour:   # on the stock view: the contour's steps away from the walls taken out
+        chords = _MoveClearance(pts, Rt, rc)
+
+        def hug(pieces_, z_):
+            return _hug(pieces_, chords.keeps, z_, a, h)
     forb = _ForbiddenMap(grid.cmax, grid.h, Rt, rc, a, stock.big)
     ent = _Entries(cfg, mat, fine, forb.G, Rt, rc, edge=(Rt + h) if rest else h, win=win)
     # on the stock view, the map is read on one ray family; the other two may keep slivers of up to
@@ -334,7 +341,7 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
                                                                     stock.z_top, hold, slab, travel_cells,
                                                                     live,
                                                                     None if obs is None else
-                                                                    _disc_max(obs, h, Rt + HOLDER_GAP_MM + h))
+                                                                    _disc_max(obs, h, Rt + HOLDER_GAP_MM + h), hug)
     air_top = fine if rest else _box_tops(grid, stock)
     return _result(pts, w, cur, levels, level_retracts, removed, stock, Rt, rc, grid.h, s,
                    rest=rest, ent=ent, air_top=air_top, before=before, after=mat.volume_above(stock.floor, wmask),
@@ -696,7 +703,7 @@ ENTRY_GAP_EXTRA_MM = 0.15
 
 def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, ys, oneway, contour, safe, Rt, rc,
                 progress, ent: _Entries, near=None, z_top=math.inf, hold: _HolderMap | None = None, slab=None,
-                travel=None, live=None, obstacle_near=None):
+                travel=None, live=None, obstacle_near=None, hug=None):
     """Cut every level from the top down: its region (rest roughing, ``near`` not None: only the
     cells whose ``near`` is above the level; ``hold`` not None: without the cells the holder
     blocks, and lifts that keep the holder clear; ``slab`` not None: only the cells ``slab(z, z_above)``
@@ -764,6 +771,8 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
             pieces = _line_pieces(lines_at, runs, ys, x0, y0, h, ny, oneway)
             if contour:
                 pieces += _contour_pieces(region, forb.G, thr, runs, x0, y0, h)
+                if hug is not None:
+                    pieces = hug(pieces, float(z))
             if pieces:
                 deepest = float(z)
             ent.thr = thr

@@ -642,3 +642,83 @@ def test_boundary_tops_in_frame_are_the_highest_boundary_point_per_cell():
             np.maximum.at(want, (i[ok], j[ok]), q[ok, 2])
             assert np.isfinite(want).sum() > 50
             assert np.allclose(got, want, equal_nan=False) and np.array_equal(np.isfinite(got), np.isfinite(want))
+
+
+def test_the_contours_steps_away_from_a_wall_are_taken_out_where_the_exact_clearance_allows(monkeypatch):
+    """The offset contour is a staircase of raster cells; along a sloping wall its steps away from the
+    part cut nothing (the tool steps into the room it has just cut). On the stock view a vertex where the
+    chain turns towards the part, within a cell of its neighbours' chord, is dropped when the tool along
+    that chord keeps the allowance from the cloud (:func:`~planning.toolpath.roughing.clearing._hug`):
+    against the same roughing without it (HUG_ROUNDS = 0), the contour feeds far less in air, no less
+    material comes off, nothing plunges, and the path still keeps the allowance from every point."""
+    import planning.toolpath.roughing.clearing as CL
+    from planning.toolpath.roughing.clearance import _MoveClearance, min_tool_clearance
+    from planning.toolpath.roughing.clearing import _hug, _Piece
+
+    # the helper on a staircase beside a wall x = 0 sloping away (the part on the right of the travel,
+    # +y): the steps right (towards the part) stay, a step left is dropped only where the chord keeps the
+    # clearance
+    h, Rt, a = 0.5, 2.0, 0.3
+    ys = np.arange(-20.0, 20.01, 0.25)
+    wall = np.column_stack([np.zeros_like(ys), ys, np.full_like(ys, 5.0)])    # points on x = 0, above the tip
+    x = -(Rt + a) - np.array([0.0, 0.0, h, h, 2 * h, 2 * h])               # stepping away from the wall
+    y = np.array([-10.0, -5.0, -4.5, 0.0, 0.5, 5.0])
+    piece = _Piece(0, np.column_stack([x, y]), np.arange(6), "start", False)
+    keeps = _MoveClearance(wall, Rt).keeps
+    out = _hug([piece], keeps, 1.0, a, h)[0]
+    # the vertices where the chain turns right (towards the wall at x = 0) after a step left are gone
+    assert out.xy.shape[0] < piece.xy.shape[0]
+    assert np.allclose(out.xy[0], piece.xy[0]) and np.allclose(out.xy[-1], piece.xy[-1])
+    assert min_tool_clearance(np.column_stack([out.xy, np.ones(len(out.xy))]), wall, tool_radius_mm=Rt).min_mm \
+        >= a - 1e-9
+    # a wall that follows the staircase itself (points Rt + a to the right of every point of it): no chord
+    # keeps the allowance, nothing changes
+    t = np.linspace(0.0, 1.0, 200)[:, None]
+    stair = np.concatenate([piece.xy[k] + t * (piece.xy[k + 1] - piece.xy[k]) for k in range(5)])
+    tight = np.column_stack([stair[:, 0] + Rt + a, stair[:, 1], np.full(len(stair), 5.0)])
+    same = _hug([piece], _MoveClearance(tight, Rt).keeps, 1.0, a, h)[0]
+    assert same.xy.shape == piece.xy.shape
+
+    # a cone (its wall at every angle to the raster, sloping: each level cuts a band along it)
+    cloud = _cone()
+    stock = _box([-26.0, -26.0, 0.0], [26.0, 26.0, 22.0])
+    frame = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
+    kw = {"tool_radius_mm": SHAPE.radius_mm, "step_down_mm": 3.0, "stock_allowance_mm": 0.5, "floor_z_mm": 0.5,
+          "stock_points_mm": stock.boundary_points(), "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces,
+          "safe_z_mm": 40.0, "rapid_clearance_mm": 0.5}
+    on = CL.HUG_ROUNDS
+    assert on > 0
+    res = {}
+    for rounds in (on, 0):
+        monkeypatch.setattr(CL, "HUG_ROUNDS", rounds)
+        rr = roughing_paths(cloud, stock_view=StockView(stock, frame, SHAPE), **kw)
+        pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
+        air = feed & (run.removed_mm3 < 1e-6)
+        d = pm.end - pm.start
+        steps = feed & (np.abs(d[:, 2]) < 1e-9) & (L <= 2 * rr.cell_mm + 1e-9)     # a cell or two at a level
+        res[rounds] = {"air": L[air].sum(), "steps_air": L[steps & air].sum(), "removed": run.removed_mm3.sum(),
+                       "plunges": int((down & ~air).sum()), "rapids": int((run.rapid_depth_mm > 0).sum()),
+                       "holder": int((run.holder_depth_mm > 0).sum()), "rr": rr}
+    new, old = res[on], res[0]
+    assert new["plunges"] == 0 and new["rapids"] == 0 and new["holder"] == 0
+    assert new["rr"].n_plunges_into_material == 0
+    assert old["steps_air"] > 10.0 and new["steps_air"] < 0.2 * old["steps_air"]
+    assert new["air"] < old["air"]
+    assert new["removed"] >= old["removed"]
+    assert new["rr"].min_clearance_mm >= 0.5 - 1e-6
+
+
+def _cone(r0=20.0, r1=10.0, height=20.0, step=0.5):
+    """A cone's frustum standing on z = 0 (radius ``r0`` at the bottom, ``r1`` at the top), points ``step``
+    apart on its wall and its top."""
+    pts = []
+    for z in np.arange(0.0, height + 1e-9, step):
+        r = r0 + (r1 - r0) * z / height
+        n = int(2 * math.pi * r / step)
+        t = np.linspace(0, 2 * math.pi, n, endpoint=False)
+        pts.append(np.column_stack([r * np.cos(t), r * np.sin(t), np.full(n, z)]))
+    g = np.arange(-r1, r1 + 1e-9, step)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    m = np.hypot(X, Y) <= r1
+    pts.append(np.column_stack([X[m], Y[m], np.full(m.sum(), height)]))
+    return np.concatenate(pts)

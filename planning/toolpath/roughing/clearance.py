@@ -9,7 +9,8 @@ others); :class:`~planning.toolpath.roughing.levels.RoughingPath` reports it as
 ``min_clearance_mm`` (>= the allowance - 1e-6 mm by construction). Points more than Rt below the
 lowest tip are left out (farther than Rt from the tool). Cost: one counting sort of the cloud
 (:func:`_bin_highest_first`), then a scan of the cells near each move (numba, parallel over chunks
-of moves).
+of moves). :class:`_MoveClearance` asks the same kernel of many separate moves against one binning
+(the contour's chords on the stock view, :func:`planning.toolpath.roughing.clearing._hug`).
 """
 
 from __future__ import annotations

@@ -15,7 +15,20 @@ the midpoints between an allowed and a forbidden cell centre, allowed cells 8-co
 with the material that stays on the right of the travel (climb milling with a clockwise, M3,
 spindle); where the region ends at its limit around the stock the contour is not cut (air).
 Every path point lies within ``h`` of an allowed cell centre (lines ``h / sqrt(2)``, contour
-``0.8 h``, links below ``0.96 h``), hence is safe.
+``0.8 h``, links below ``0.96 h``), hence is safe (but for the chords below, which the exact
+clearance makes safe).
+
+**Hugging the walls** (:func:`_hug`; on the stock view only, issue 30). The contour is a staircase
+of raster cells; along a wall at an angle to the raster, each step away from the part moves the tool
+into the room it has just cut and feeds through air (on the slot case most of the roughing's air was
+such steps of 0.3-0.45 mm). A vertex where the chain turns right (towards the part) and that lies
+within ``h`` of the chord of its two neighbours is dropped when the tool moved along that chord at the
+level keeps the allowance from every cloud point (the exact clearance of
+:mod:`planning.toolpath.roughing.clearance`, :class:`~planning.toolpath.roughing.clearance._MoveClearance`:
+the cloud binned once per set-up, one kernel call per round for all the level's chords). The chord
+lies between the staircase and the part, so it cuts at least what the steps cut; at most every other
+vertex of a run of candidates goes per round, HUG_ROUNDS rounds. A chain's ends stay; the lines and
+the contour on the box or the points alone are unchanged.
 """
 
 from __future__ import annotations

@@ -712,7 +712,9 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     None: without the cells where it (the obstacles' top within Rt + HOLDER_GAP_MM) is above the
     level less that gap; ``live`` not None: the
     moves of every level run on the stock view before the next level is planned
-    (:class:`_LiveStock`); ``travel`` not None: only the cells within the machine's travel at the level), pieces,
+    (:class:`_LiveStock`); ``travel`` not None: only the cells within the machine's travel at the level;
+    ``hug`` not None: ``hug(pieces, z)`` gives the level's pieces with the contours' steps away from the
+    walls taken out, :func:`~planning.toolpath.roughing.clearing._hug`), pieces,
     order, links and entries, lowering the
     remaining material along the cut. Returns (the moves, the last tip (None when nothing was
     cut), lifts within each level, the volume removed at each level, the cells the holder blocked

@@ -686,6 +686,11 @@ def test_the_contours_steps_away_from_a_wall_are_taken_out_where_the_exact_clear
     kw = {"tool_radius_mm": SHAPE.radius_mm, "step_down_mm": 3.0, "stock_allowance_mm": 0.5, "floor_z_mm": 0.5,
           "stock_points_mm": stock.boundary_points(), "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces,
           "safe_z_mm": 40.0, "rapid_clearance_mm": 0.5}
+    import planning.toolpath.roughing.air as AM
+
+    # the chords alone (the exact ends and the lifted links, tested below, change which pieces start where)
+    monkeypatch.setattr(AM, "EXACT_ENDS", False)
+    monkeypatch.setattr(AM, "LINK_LIFT_MM", 1e9)
     on = CL.HUG_ROUNDS
     assert on > 0
     res = {}
@@ -722,3 +727,72 @@ def _cone(r0=20.0, r1=10.0, height=20.0, step=0.5):
     m = np.hypot(X, Y) <= r1
     pts.append(np.column_stack([X[m], Y[m], np.full(m.sum(), height)]))
     return np.concatenate(pts)
+
+
+def test_pieces_ends_and_links_that_meet_no_material_on_the_stock_are_not_fed():
+    """On the stock view a piece's leading and trailing moves that meet no material as the level's cuts
+    so far left it are not cut (a loop is opened at its longest such run, a line cut to the parts that
+    meet material: :func:`~planning.toolpath.roughing.air._exact_ends`), and a feed link at the level
+    longer than LINK_LIFT_MM (plus twice the retract's rise) through air only is lifted over. On the
+    tilted dome, each step feeds less in air than the one before, the same material comes off, and
+    nothing plunges, brushes a rapid or meets the holder."""
+    import planning.toolpath.roughing.air as AM
+    from planning.toolpath.roughing.air import _exact_ends, _LevelAir
+
+    # the helper, with a made-up stock: material only where x > 5
+    air = _LevelAir(np.zeros((40, 40), bool), 0.0, 0.0, 0.5, 2.0, 2.0)
+
+    def meets(a, b, z):
+        return np.maximum(a[:, 0], b[:, 0]) > 5.0
+
+    xs = np.arange(0.0, 10.01, 1.0)
+    chain = np.column_stack([xs, np.full_like(xs, 3.0)])
+    cells = np.arange(xs.size)
+    got = _exact_ends(air, chain, cells, 40, meets, 0.0, False, False)
+    assert got is not None and np.allclose(got[0], chain[5:]) and np.array_equal(got[1], cells[5:])
+    assert _exact_ends(air, chain[:5], cells[:5], 40, meets, 0.0, False, False) is None
+    # a loop about the square [0, 10] x [0, 10]: opened at its run of moves with x <= 5
+    t = np.concatenate([np.arange(0, 10), np.full(10, 10.0), np.arange(10, 0, -1), np.zeros(10)])
+    u = np.concatenate([np.zeros(10), np.arange(0, 10), np.full(10, 10.0), np.arange(10, 0, -1)])
+    loop = np.vstack([np.column_stack([t, u]), [[0.0, 0.0]]])
+    lcells = np.arange(loop.shape[0]) % (loop.shape[0] - 1)
+    got = _exact_ends(air, loop, lcells, 40, meets, 0.0, True, False)
+    assert got is not None
+    hit = meets(got[0][:-1], got[0][1:], 0.0)
+    assert hit.all() and hit.size == int(meets(loop[:-1], loop[1:], 0.0).sum())
+    # a line from x = 0 to 10 (cells of the row j = 6): cut to the parts that meet material
+    line = np.array([[0.0, 3.0], [10.0, 3.0]])
+    lc = np.array([0 * 40 + 6, 19 * 40 + 6])
+    got = _exact_ends(air, line, lc, 40, meets, 0.0, False, True)
+    assert got is not None and 4.0 <= got[0][0, 0] <= 5.0 and got[0][1, 0] == pytest.approx(10.0)
+    assert got[1][0] // 40 == int(math.floor(got[0][0, 0] / 0.5)) and got[1][1] == lc[1] and got[1][0] % 40 == 6
+
+    cloud = _dome()
+    lo, hi = np.array([-26.0, -26.0, -0.5]), np.array([26.0, 26.0, 24.0])
+    stock = _box(lo, hi)
+    frame = _tilted_frame(cloud)
+    cloud_f = frame.to_frame(cloud)
+    kw = {"tool_radius_mm": SHAPE.radius_mm, "step_down_mm": 3.0, "stock_allowance_mm": 0.5,
+          "floor_z_mm": float(cloud_f[:, 2].min()) + 0.5, "stock_points_mm": frame.to_frame(stock.boundary_points()),
+          "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces, "safe_z_mm": float(cloud_f[:, 2].max()) + 30.0,
+          "rapid_clearance_mm": 0.5}
+    link = AM.LINK_LIFT_MM
+    assert AM.EXACT_ENDS and link < 1e6
+    res = []
+    for ends, lift in ((False, 1e9), (True, 1e9), (True, link)):
+        monkeypatch_ = pytest.MonkeyPatch()
+        monkeypatch_.setattr(AM, "EXACT_ENDS", ends)
+        monkeypatch_.setattr(AM, "LINK_LIFT_MM", lift)
+        try:
+            rr = roughing_paths(cloud_f, stock_view=StockView(stock, frame, SHAPE), **kw)
+        finally:
+            monkeypatch_.undo()
+        pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
+        air_ = feed & (run.removed_mm3 < 1e-6)
+        res.append((L[air_].sum(), run.removed_mm3.sum(), int((down & ~air_).sum()),
+                    int((run.rapid_depth_mm > 0).sum()), int((run.holder_depth_mm > 0).sum()),
+                    rr.n_plunges_into_material))
+    (a0, r0, *_), (a1, r1, *c1), (a2, r2, *c2) = res
+    assert a1 < a0 and a2 < a1
+    assert r1 == pytest.approx(r0, rel=1e-3) and r2 == pytest.approx(r0, rel=1e-3)
+    assert c1 == [0, 0, 0, 0] and c2 == [0, 0, 0, 0]

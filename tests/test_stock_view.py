@@ -733,7 +733,8 @@ def test_pieces_ends_and_links_that_meet_no_material_on_the_stock_are_not_fed():
     """On the stock view a piece's leading and trailing moves that meet no material as the level's cuts
     so far left it are not cut (a loop is opened at its longest such run, a line cut to the parts that
     meet material: :func:`~planning.toolpath.roughing.air._exact_ends`), and a feed link at the level
-    longer than LINK_LIFT_MM (plus twice the retract's rise) through air only is lifted over. On the
+    longer than LINK_LIFT_MM (plus LIFT_SLOWER times the lift's feeds) through air only, to a piece that starts in
+    air, is lifted over. On the
     tilted dome, each step feeds less in air than the one before, the same material comes off, and
     nothing plunges, brushes a rapid or meets the holder."""
     import planning.toolpath.roughing.air as AM
@@ -748,8 +749,9 @@ def test_pieces_ends_and_links_that_meet_no_material_on_the_stock_are_not_fed():
     xs = np.arange(0.0, 10.01, 1.0)
     chain = np.column_stack([xs, np.full_like(xs, 3.0)])
     cells = np.arange(xs.size)
+    k = AM.KEEP_LEAD                                   # leading moves in air kept (the way in from the side)
     got = _exact_ends(air, chain, cells, 40, meets, 0.0, False, False)
-    assert got is not None and np.allclose(got[0], chain[5:]) and np.array_equal(got[1], cells[5:])
+    assert got is not None and np.allclose(got[0], chain[5 - k:]) and np.array_equal(got[1], cells[5 - k:])
     assert _exact_ends(air, chain[:5], cells[:5], 40, meets, 0.0, False, False) is None
     # a loop about the square [0, 10] x [0, 10]: opened at its run of moves with x <= 5
     t = np.concatenate([np.arange(0, 10), np.full(10, 10.0), np.arange(10, 0, -1), np.zeros(10)])
@@ -759,12 +761,14 @@ def test_pieces_ends_and_links_that_meet_no_material_on_the_stock_are_not_fed():
     got = _exact_ends(air, loop, lcells, 40, meets, 0.0, True, False)
     assert got is not None
     hit = meets(got[0][:-1], got[0][1:], 0.0)
-    assert hit.all() and hit.size == int(meets(loop[:-1], loop[1:], 0.0).sum())
+    assert hit[k:].all() and not hit[:k].any() and hit.size == int(meets(loop[:-1], loop[1:], 0.0).sum()) + k
     # a line from x = 0 to 10 (cells of the row j = 6): cut to the parts that meet material
     line = np.array([[0.0, 3.0], [10.0, 3.0]])
     lc = np.array([0 * 40 + 6, 19 * 40 + 6])
     got = _exact_ends(air, line, lc, 40, meets, 0.0, False, True)
-    assert got is not None and 4.0 <= got[0][0, 0] <= 5.0 and got[0][1, 0] == pytest.approx(10.0)
+    part = AM.LINE_PART_RT * 2.0
+    assert got is not None and 4.0 - k * part <= got[0][0, 0] <= 5.0 - (k - 1) * part
+    assert got[0][1, 0] == pytest.approx(10.0)
     assert got[1][0] // 40 == int(math.floor(got[0][0, 0] / 0.5)) and got[1][1] == lc[1] and got[1][0] % 40 == 6
 
     cloud = _dome()
@@ -779,10 +783,13 @@ def test_pieces_ends_and_links_that_meet_no_material_on_the_stock_are_not_fed():
     link = AM.LINK_LIFT_MM
     assert AM.EXACT_ENDS and link < 1e6
     res = []
-    for ends, lift in ((False, 1e9), (True, 1e9), (True, link)):
+    # the lifts' feeds counted at the roughing feed (LIFT_SLOWER = 1): the dome's links through air are then
+    # long enough to lift over (at the default, 4 x, none is here)
+    for ends, lift, slower in ((False, 1e9, AM.LIFT_SLOWER), (True, 1e9, AM.LIFT_SLOWER), (True, link, 1.0)):
         monkeypatch_ = pytest.MonkeyPatch()
         monkeypatch_.setattr(AM, "EXACT_ENDS", ends)
         monkeypatch_.setattr(AM, "LINK_LIFT_MM", lift)
+        monkeypatch_.setattr(AM, "LIFT_SLOWER", slower)
         try:
             rr = roughing_paths(cloud_f, stock_view=StockView(stock, frame, SHAPE), **kw)
         finally:

@@ -24,9 +24,12 @@ collision kernel); the leading and trailing moves that meet none are not cut (a 
 longest run of them) and a piece none of whose moves meets any is skipped. A move that meets nothing
 before the piece is cut meets nothing when it is cut, so no material is lost. The same question decides
 the feed links at the level (:func:`planning.toolpath.roughing.levels._cut_level`): a link longer than
-LINK_LIFT_MM plus twice the rise of a retract there (more beside a wall) that meets no material is not
-fed; the tool lifts and the entry (:mod:`planning.toolpath.roughing.entries`) comes down beside the next
-piece, in the air the level has cut.
+LINK_LIFT_MM plus LIFT_SLOWER times the lift's feeds (the retract's rise there, more beside a wall, and
+the feed down) that meets no material, to a
+piece whose start the cutter meets none at either, is not fed: the tool lifts and the entry
+(:mod:`planning.toolpath.roughing.entries`) comes straight down there, in the air the level has cut
+(where the next piece starts in material, the link is kept: it brings the tool in from the side, where a
+lift would need a helix or ramp, longer to run).
 """
 
 from __future__ import annotations
@@ -168,11 +171,20 @@ class _LevelAir:
 #: A piece's move meets material on the stock view when the cutter swept along it is deeper in the
 #: material than this (mm): below it a move removes next to nothing (a re-pass along a cut it made)
 MEET_DEPTH_MM = 1e-4
+#: Leading moves in air a piece keeps before its first move that meets material (:func:`_exact_ends`;
+#: 1: its start is then in air, that move bringing the cutter in from the side). 0 (all go): on the
+#: reference cases keeping one changed little and was not measured on its own for the machining time
+KEEP_LEAD = 0
 #: Whether the pieces' ends are asked of the stock view (:func:`_exact_ends`)
 EXACT_ENDS = True
-#: On the stock view a feed link at the level longer than this (mm) that meets no material is not
-#: fed: the tool lifts over it (a retract and a feed down of about the rapid clearance each)
-LINK_LIFT_MM = 3.0
+#: On the stock view a feed link at the level longer than this (mm) that meets no material, to a piece
+#: that starts in air, is not fed: the tool lifts over it (a retract and a feed down of about the rapid
+#: clearance each)
+LINK_LIFT_MM = 2.0
+#: How many times slower than the roughing feed a lift's feeds run (the default plunge feed, 500 mm/min,
+#: against the roughing feed, 2000): a link is lifted over only where it is longer than LINK_LIFT_MM plus
+#: this many times the lift's feed up and down, so that the lift is no slower than the link
+LIFT_SLOWER = 4.0
 #: A clearing line is asked of the stock view in parts about this many cutter radii long
 LINE_PART_RT = 0.5
 
@@ -208,7 +220,7 @@ def _exact_ends(air: _LevelAir, xy: np.ndarray, cells: np.ndarray, ny: int, meet
         hit = np.asarray(meets(pts[:-1], pts[1:], z), dtype=bool)
         if not hit.any():
             return None
-        k0, k1 = int(np.argmax(hit)), n - 1 - int(np.argmax(hit[::-1]))
+        k0, k1 = max(int(np.argmax(hit)) - KEEP_LEAD, 0), n - 1 - int(np.argmax(hit[::-1]))
         if k0 == 0 and k1 == n - 1:
             return xy, cells
         # the new ends' cells: on the line's row, within its run of cells
@@ -225,10 +237,11 @@ def _exact_ends(air: _LevelAir, xy: np.ndarray, cells: np.ndarray, ny: int, meet
         return xy, cells
     m = hit.size
     if not loop:
-        k0, k1 = int(np.argmax(hit)), m - 1 - int(np.argmax(hit[::-1]))
+        k0, k1 = max(int(np.argmax(hit)) - KEEP_LEAD, 0), m - 1 - int(np.argmax(hit[::-1]))
         return xy[k0:k1 + 2], cells[k0:k1 + 2]
     # a loop (xy[0] == xy[-1], move k from vertex k to k + 1): its longest cyclic run of moves that meet
     # nothing goes; the chain starts at the vertex after that run and ends at the vertex where it began
     start, length = _longest_cyclic_run(~hit)
+    length -= min(KEEP_LEAD, length)                   # KEEP_LEAD moves into the material stay
     order = (start + length + np.arange(m - length + 1)) % m
     return xy[order], cells[order]

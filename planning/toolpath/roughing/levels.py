@@ -913,8 +913,9 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
     level that the level's cuts so far have not swept, and skipped when there is none, and on the stock view
     any piece loses the ends whose moves meet no material there (``air.meets``:
     :func:`~planning.toolpath.roughing.air._exact_ends`), and a link at the level longer than
-    LINK_LIFT_MM (plus twice the retract's rise, :func:`_retract_rise`) that meets none is lifted over
-    instead of fed; a piece that no
+    LINK_LIFT_MM (plus LIFT_SLOWER times the retract's rise, :func:`_retract_rise`, and the feed down)
+    that meets none, to a piece that
+    starts in air, is lifted over instead of fed; a piece that no
     entry fits (a straight plunge only) is tried again after the level's other pieces, which may have
     swept its material (it is then trimmed away as air) or cut beside it (a side entry or a link at the
     level), and is left (``n_pieces_left``) only when it still cannot be entered. Returns the
@@ -954,8 +955,8 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
             worth = max(4.0 * lv.Rt, _lift_cost(lv, here[0], q, z, safe))     # longest link kept at the level
             dist = float(np.hypot(*(q - here[0])))
             if dist <= worth and air is not None and air.meets is not None and dist > air_mod.LINK_LIFT_MM \
-                    and not air.meets(here[0][None, :], q[None, :], z)[0] \
-                    and dist > air_mod.LINK_LIFT_MM + 2.0 * _retract_rise(w, here[0], z, safe):
+                    and not air.meets(np.array([here[0], q]), np.array([q, q]), z).any() \
+                    and dist > air_mod.LINK_LIFT_MM + air_mod.LIFT_SLOWER * (_retract_rise(w, here[0], z, safe) + w.gap):
                 pass      # through air all the way: lifted over (the entry finds a way in beside q)
             elif dist <= worth and lv.visible(here[0], q):
                 w.add([q[0], q[1], z], USE_CUT)
@@ -966,8 +967,10 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
                 path = lv.grid_path(here[0], here[1], q, cells[0], worth)
                 if path is not None and air is not None and air.meets is not None:
                     long_ = float(np.hypot(*np.diff(path, axis=0).T).sum())
-                    if long_ > air_mod.LINK_LIFT_MM and not air.meets(path[:-1], path[1:], z).any() \
-                            and long_ > air_mod.LINK_LIFT_MM + 2.0 * _retract_rise(w, here[0], z, safe):
+                    if long_ > air_mod.LINK_LIFT_MM and not air.meets(np.vstack([path[:-1], q]), np.vstack([path[1:], q]),
+                                                                      z).any() \
+                            and long_ > air_mod.LINK_LIFT_MM + air_mod.LIFT_SLOWER * (_retract_rise(w, here[0], z, safe)
+                                                                                     + w.gap):
                         path = None   # through air all the way: lifted over
                 if path is not None:
                     w.add(np.column_stack([path[1:], np.full(path.shape[0] - 1, z)]), USE_CUT)

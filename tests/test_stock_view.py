@@ -642,3 +642,164 @@ def test_boundary_tops_in_frame_are_the_highest_boundary_point_per_cell():
             np.maximum.at(want, (i[ok], j[ok]), q[ok, 2])
             assert np.isfinite(want).sum() > 50
             assert np.allclose(got, want, equal_nan=False) and np.array_equal(np.isfinite(got), np.isfinite(want))
+
+
+def test_the_contours_steps_away_from_a_wall_are_taken_out_where_the_exact_clearance_allows(monkeypatch):
+    """The offset contour is a staircase of raster cells; along a sloping wall its steps away from the
+    part cut nothing (the tool steps into the room it has just cut). On the stock view a vertex where the
+    chain turns towards the part, within a cell of its neighbours' chord, is dropped when the tool along
+    that chord keeps the allowance from the cloud (:func:`~planning.toolpath.roughing.clearing._hug`):
+    against the same roughing without it (HUG_ROUNDS = 0), the contour feeds far less in air, no less
+    material comes off, nothing plunges, and the path still keeps the allowance from every point."""
+    import planning.toolpath.roughing.clearing as CL
+    from planning.toolpath.roughing.clearance import _MoveClearance, min_tool_clearance
+    from planning.toolpath.roughing.clearing import _hug, _Piece
+
+    # the helper on a staircase beside a wall x = 0 sloping away (the part on the right of the travel,
+    # +y): the steps right (towards the part) stay, a step left is dropped only where the chord keeps the
+    # clearance
+    h, Rt, a = 0.5, 2.0, 0.3
+    ys = np.arange(-20.0, 20.01, 0.25)
+    wall = np.column_stack([np.zeros_like(ys), ys, np.full_like(ys, 5.0)])    # points on x = 0, above the tip
+    x = -(Rt + a) - np.array([0.0, 0.0, h, h, 2 * h, 2 * h])               # stepping away from the wall
+    y = np.array([-10.0, -5.0, -4.5, 0.0, 0.5, 5.0])
+    piece = _Piece(0, np.column_stack([x, y]), np.arange(6), "start", False)
+    keeps = _MoveClearance(wall, Rt).keeps
+    out = _hug([piece], keeps, 1.0, a, h)[0]
+    # the vertices where the chain turns right (towards the wall at x = 0) after a step left are gone
+    assert out.xy.shape[0] < piece.xy.shape[0]
+    assert np.allclose(out.xy[0], piece.xy[0]) and np.allclose(out.xy[-1], piece.xy[-1])
+    assert min_tool_clearance(np.column_stack([out.xy, np.ones(len(out.xy))]), wall, tool_radius_mm=Rt).min_mm \
+        >= a - 1e-9
+    # a wall that follows the staircase itself (points Rt + a to the right of every point of it): no chord
+    # keeps the allowance, nothing changes
+    t = np.linspace(0.0, 1.0, 200)[:, None]
+    stair = np.concatenate([piece.xy[k] + t * (piece.xy[k + 1] - piece.xy[k]) for k in range(5)])
+    tight = np.column_stack([stair[:, 0] + Rt + a, stair[:, 1], np.full(len(stair), 5.0)])
+    same = _hug([piece], _MoveClearance(tight, Rt).keeps, 1.0, a, h)[0]
+    assert same.xy.shape == piece.xy.shape
+
+    # a cone (its wall at every angle to the raster, sloping: each level cuts a band along it)
+    cloud = _cone()
+    stock = _box([-26.0, -26.0, 0.0], [26.0, 26.0, 22.0])
+    frame = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
+    kw = {"tool_radius_mm": SHAPE.radius_mm, "step_down_mm": 3.0, "stock_allowance_mm": 0.5, "floor_z_mm": 0.5,
+          "stock_points_mm": stock.boundary_points(), "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces,
+          "safe_z_mm": 40.0, "rapid_clearance_mm": 0.5}
+    import planning.toolpath.roughing.air as AM
+
+    # the chords alone (the exact ends and the lifted links, tested below, change which pieces start where)
+    monkeypatch.setattr(AM, "EXACT_ENDS", False)
+    monkeypatch.setattr(AM, "LINK_LIFT_MM", 1e9)
+    on = CL.HUG_ROUNDS
+    assert on > 0
+    res = {}
+    for rounds in (on, 0):
+        monkeypatch.setattr(CL, "HUG_ROUNDS", rounds)
+        rr = roughing_paths(cloud, stock_view=StockView(stock, frame, SHAPE), **kw)
+        pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
+        air = feed & (run.removed_mm3 < 1e-6)
+        d = pm.end - pm.start
+        steps = feed & (np.abs(d[:, 2]) < 1e-9) & (L <= 2 * rr.cell_mm + 1e-9)     # a cell or two at a level
+        res[rounds] = {"air": L[air].sum(), "steps_air": L[steps & air].sum(), "removed": run.removed_mm3.sum(),
+                       "plunges": int((down & ~air).sum()), "rapids": int((run.rapid_depth_mm > 0).sum()),
+                       "holder": int((run.holder_depth_mm > 0).sum()), "rr": rr}
+    new, old = res[on], res[0]
+    assert new["plunges"] == 0 and new["rapids"] == 0 and new["holder"] == 0
+    assert new["rr"].n_plunges_into_material == 0
+    assert old["steps_air"] > 10.0 and new["steps_air"] < 0.2 * old["steps_air"]
+    assert new["air"] < old["air"]
+    assert new["removed"] >= old["removed"]
+    assert new["rr"].min_clearance_mm >= 0.5 - 1e-6
+
+
+def _cone(r0=20.0, r1=10.0, height=20.0, step=0.5):
+    """A cone's frustum standing on z = 0 (radius ``r0`` at the bottom, ``r1`` at the top), points ``step``
+    apart on its wall and its top."""
+    pts = []
+    for z in np.arange(0.0, height + 1e-9, step):
+        r = r0 + (r1 - r0) * z / height
+        n = int(2 * math.pi * r / step)
+        t = np.linspace(0, 2 * math.pi, n, endpoint=False)
+        pts.append(np.column_stack([r * np.cos(t), r * np.sin(t), np.full(n, z)]))
+    g = np.arange(-r1, r1 + 1e-9, step)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    m = np.hypot(X, Y) <= r1
+    pts.append(np.column_stack([X[m], Y[m], np.full(m.sum(), height)]))
+    return np.concatenate(pts)
+
+
+def test_pieces_ends_and_links_that_meet_no_material_on_the_stock_are_not_fed():
+    """On the stock view a piece's leading and trailing moves that meet no material as the level's cuts
+    so far left it are not cut (a loop is opened at its longest such run, a line cut to the parts that
+    meet material: :func:`~planning.toolpath.roughing.air._exact_ends`), and a feed link at the level
+    longer than LINK_LIFT_MM (plus LIFT_SLOWER times the lift's feeds) through air only, to a piece that starts in
+    air, is lifted over. On the
+    tilted dome, each step feeds less in air than the one before, the same material comes off, and
+    nothing plunges, brushes a rapid or meets the holder."""
+    import planning.toolpath.roughing.air as AM
+    from planning.toolpath.roughing.air import _exact_ends, _LevelAir
+
+    # the helper, with a made-up stock: material only where x > 5
+    air = _LevelAir(np.zeros((40, 40), bool), 0.0, 0.0, 0.5, 2.0, 2.0)
+
+    def meets(a, b, z):
+        return np.maximum(a[:, 0], b[:, 0]) > 5.0
+
+    xs = np.arange(0.0, 10.01, 1.0)
+    chain = np.column_stack([xs, np.full_like(xs, 3.0)])
+    cells = np.arange(xs.size)
+    k = AM.KEEP_LEAD                                   # leading moves in air kept (the way in from the side)
+    got = _exact_ends(air, chain, cells, 40, meets, 0.0, False, False)
+    assert got is not None and np.allclose(got[0], chain[5 - k:]) and np.array_equal(got[1], cells[5 - k:])
+    assert _exact_ends(air, chain[:5], cells[:5], 40, meets, 0.0, False, False) is None
+    # a loop about the square [0, 10] x [0, 10]: opened at its run of moves with x <= 5
+    t = np.concatenate([np.arange(0, 10), np.full(10, 10.0), np.arange(10, 0, -1), np.zeros(10)])
+    u = np.concatenate([np.zeros(10), np.arange(0, 10), np.full(10, 10.0), np.arange(10, 0, -1)])
+    loop = np.vstack([np.column_stack([t, u]), [[0.0, 0.0]]])
+    lcells = np.arange(loop.shape[0]) % (loop.shape[0] - 1)
+    got = _exact_ends(air, loop, lcells, 40, meets, 0.0, True, False)
+    assert got is not None
+    hit = meets(got[0][:-1], got[0][1:], 0.0)
+    assert hit[k:].all() and not hit[:k].any() and hit.size == int(meets(loop[:-1], loop[1:], 0.0).sum()) + k
+    # a line from x = 0 to 10 (cells of the row j = 6): cut to the parts that meet material
+    line = np.array([[0.0, 3.0], [10.0, 3.0]])
+    lc = np.array([0 * 40 + 6, 19 * 40 + 6])
+    got = _exact_ends(air, line, lc, 40, meets, 0.0, False, True)
+    part = AM.LINE_PART_RT * 2.0
+    assert got is not None and 4.0 - k * part <= got[0][0, 0] <= 5.0 - (k - 1) * part
+    assert got[0][1, 0] == pytest.approx(10.0)
+    assert got[1][0] // 40 == int(math.floor(got[0][0, 0] / 0.5)) and got[1][1] == lc[1] and got[1][0] % 40 == 6
+
+    cloud = _dome()
+    lo, hi = np.array([-26.0, -26.0, -0.5]), np.array([26.0, 26.0, 24.0])
+    stock = _box(lo, hi)
+    frame = _tilted_frame(cloud)
+    cloud_f = frame.to_frame(cloud)
+    kw = {"tool_radius_mm": SHAPE.radius_mm, "step_down_mm": 3.0, "stock_allowance_mm": 0.5,
+          "floor_z_mm": float(cloud_f[:, 2].min()) + 0.5, "stock_points_mm": frame.to_frame(stock.boundary_points()),
+          "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces, "safe_z_mm": float(cloud_f[:, 2].max()) + 30.0,
+          "rapid_clearance_mm": 0.5}
+    link = AM.LINK_LIFT_MM
+    assert AM.EXACT_ENDS and link < 1e6
+    res = []
+    # the lifts' feeds counted at the roughing feed (LIFT_SLOWER = 1): the dome's links through air are then
+    # long enough to lift over (at the default, 4 x, none is here)
+    for ends, lift, slower in ((False, 1e9, AM.LIFT_SLOWER), (True, 1e9, AM.LIFT_SLOWER), (True, link, 1.0)):
+        monkeypatch_ = pytest.MonkeyPatch()
+        monkeypatch_.setattr(AM, "EXACT_ENDS", ends)
+        monkeypatch_.setattr(AM, "LINK_LIFT_MM", lift)
+        monkeypatch_.setattr(AM, "LIFT_SLOWER", slower)
+        try:
+            rr = roughing_paths(cloud_f, stock_view=StockView(stock, frame, SHAPE), **kw)
+        finally:
+            monkeypatch_.undo()
+        pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
+        air_ = feed & (run.removed_mm3 < 1e-6)
+        res.append((L[air_].sum(), run.removed_mm3.sum(), int((down & ~air_).sum()),
+                    int((run.rapid_depth_mm > 0).sum()), int((run.holder_depth_mm > 0).sum()),
+                    rr.n_plunges_into_material))
+    (a0, r0, *_), (a1, r1, *c1), (a2, r2, *c2) = res
+    assert a1 < a0 and a2 < a1
+    assert r1 == pytest.approx(r0, rel=1e-3) and r2 == pytest.approx(r0, rel=1e-3)
+    assert c1 == [0, 0, 0, 0] and c2 == [0, 0, 0, 0]

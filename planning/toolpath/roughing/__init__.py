@@ -62,7 +62,8 @@ plunges everywhere, as before).
 - :mod:`~planning.toolpath.roughing.regions`: a level's clearing region, its connected components
   and its boundary loops (marching squares).
 - :mod:`~planning.toolpath.roughing.clearing`: the clearing lines clipped to the region and the
-  offset contours (Tchanchane & Bey).
+  offset contours (Tchanchane & Bey); on the stock view the contours' staircase steps away from the
+  walls are replaced by chords where the exact clearance keeps the allowance.
 - :mod:`~planning.toolpath.roughing.ordering`: the order of a level's pieces (components,
   boustrophedon zones, contours).
 - :mod:`~planning.toolpath.roughing.links`: feed links at the level (Popescu: shortest paths on a
@@ -78,7 +79,8 @@ the runs (only the 2 x 2 blocks that can be mixed), the links' grid searches (in
 arrays reused), the coarse material map; per entry into material a few disc queries of the map and
 the chords of the candidate helices (numba); then one counting sort of the cloud for the
 verification. Rest roughing adds one pass over the stock points and two disc maxima per set-up.
-The holder adds one disc maximum per piece per set-up (the cloud), and per level two passes over
+On the stock view, one more counting sort of the cloud per set-up and per level up to HUG_ROUNDS
+clearance calls for the contours' chords. The holder adds one disc maximum per piece per set-up (the cloud), and per level two passes over
 the raster (the candidates' box, the mask in it) and, where the map has changed, one disc maximum
 per piece of the material map over blocks of cells (about HOLDER_BLOCKS blocks per radius). The
 default raster of the femur-like case is about 1300 x 650 cells.

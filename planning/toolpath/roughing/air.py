@@ -13,6 +13,23 @@ of such vertices (:meth:`_LevelAir.trim_chain`). So a line that only runs along 
 its neighbour already cleared, or past the stock's edge, is not fed through the air; the gaps inside a
 line are kept (it stays one piece). Conservative: a cell counts as swept only when wholly inside a
 cut, so a line is never trimmed where material may be left.
+
+**The stock decides the ends** (:func:`_exact_ends`, EXACT_ENDS). The cells leave a rim of a cell at
+every cut's edge and count the allowance beside a wall as material to cut, so pieces still start and
+end in air. After the cells' trim, the piece's moves (a line's in parts of about LINE_PART_RT cutter
+radii) are asked at once whether the cutter, without its shank and holder, swept along them meets the
+stock view's material deeper than MEET_DEPTH_MM, on the view as the level's cuts so far left it
+(``_LevelAir.meets``: :meth:`planning.toolpath.roughing.levels._LiveStock.meets`, the simulation's own
+collision kernel); the leading and trailing moves that meet none are not cut (a loop is opened at its
+longest run of them) and a piece none of whose moves meets any is skipped. A move that meets nothing
+before the piece is cut meets nothing when it is cut, so no material is lost. The same question decides
+the feed links at the level (:func:`planning.toolpath.roughing.levels._cut_level`): a link longer than
+LINK_LIFT_MM plus LIFT_SLOWER times the lift's feeds (the retract's rise there, more beside a wall, and
+the feed down) that meets no material, to a
+piece whose start the cutter meets none at either, is not fed: the tool lifts and the entry
+(:mod:`planning.toolpath.roughing.entries`) comes straight down there, in the air the level has cut
+(where the next piece starts in material, the link is kept: it brings the tool in from the side, where a
+lift would need a helix or ramp, longer to run).
 """
 
 from __future__ import annotations
@@ -87,6 +104,7 @@ class _LevelAir:
         self.Rt = float(Rt)
         self.r_swept = float(Rf) - math.sqrt(0.5) * float(h)
         self.n_marked = 0
+        self.meets = None      # ``meets(a, b, z)``: whether moves meet material on the stock view, or None
 
     def mark(self, polylines: list) -> None:
         """Mark what the polylines ``polylines[n_marked:]`` (the level's cuts, (m,2) each) swept."""
@@ -148,3 +166,82 @@ class _LevelAir:
         order = [(first - 1 + t) % m for t in range(m - best_len + 2)]
         return xy[order], cells[order]
 
+
+
+#: A piece's move meets material on the stock view when the cutter swept along it is deeper in the
+#: material than this (mm): below it a move removes next to nothing (a re-pass along a cut it made)
+MEET_DEPTH_MM = 1e-4
+#: Leading moves in air a piece keeps before its first move that meets material (:func:`_exact_ends`;
+#: 1: its start is then in air, that move bringing the cutter in from the side). 0 (all go): on the
+#: reference cases keeping one changed little and was not measured on its own for the machining time
+KEEP_LEAD = 0
+#: Whether the pieces' ends are asked of the stock view (:func:`_exact_ends`)
+EXACT_ENDS = True
+#: On the stock view a feed link at the level longer than this (mm) that meets no material, to a piece
+#: that starts in air, is not fed: the tool lifts over it (a retract and a feed down of about the rapid
+#: clearance each)
+LINK_LIFT_MM = 2.0
+#: How many times slower than the roughing feed a lift's feeds run (the default plunge feed, 500 mm/min,
+#: against the roughing feed, 2000): a link is lifted over only where it is longer than LINK_LIFT_MM plus
+#: this many times the lift's feed up and down, so that the lift is no slower than the link
+LIFT_SLOWER = 4.0
+#: A clearing line is asked of the stock view in parts about this many cutter radii long
+LINE_PART_RT = 0.5
+
+
+def _longest_cyclic_run(flag: np.ndarray) -> tuple[int, int]:
+    """(start, length) of the longest cyclic run of True in ``flag`` (1-D bool, not all True); the first
+    such run on a tie."""
+    m = flag.size
+    r = int(np.argmax(~flag))                           # a False: no run wraps past it
+    f = np.roll(flag, -r).astype(np.int8)
+    e = np.flatnonzero(np.diff(np.concatenate([[0], f, [0]])))
+    if e.size == 0:
+        return 0, 0
+    starts, ends = e[::2], e[1::2]
+    k = int(np.argmax(ends - starts))
+    return (int(starts[k]) + r) % m, int(ends[k] - starts[k])
+
+
+def _exact_ends(air: _LevelAir, xy: np.ndarray, cells: np.ndarray, ny: int, meets, z: float, loop: bool,
+                line: bool):
+    """A piece (after :meth:`_LevelAir.trim` / :meth:`_LevelAir.trim_chain`) without its leading and
+    trailing moves that meet no material on the stock view (``meets(a (k,2), b (k,2), z) -> (k,) bool``),
+    a closed chain opened at its longest run of such moves, a line cut to whole parts of about
+    LINE_PART_RT x Rt: (xy, cells), or None when no move meets material. The moves are asked all at once
+    of the stock as the level's cuts so far left it: a move that meets nothing there meets nothing when
+    it is cut, so no material a piece would cut is lost."""
+    if line:
+        a, b = xy[0], xy[-1]
+        L = float(np.hypot(*(b - a)))
+        n = max(1, int(math.ceil(L / (LINE_PART_RT * air.Rt))))
+        t = np.linspace(0.0, 1.0, n + 1)
+        pts = a[None, :] + t[:, None] * (b - a)[None, :]
+        hit = np.asarray(meets(pts[:-1], pts[1:], z), dtype=bool)
+        if not hit.any():
+            return None
+        k0, k1 = max(int(np.argmax(hit)) - KEEP_LEAD, 0), n - 1 - int(np.argmax(hit[::-1]))
+        if k0 == 0 and k1 == n - 1:
+            return xy, cells
+        # the new ends' cells: on the line's row, within its run of cells
+        j = int(cells[0]) % ny
+        ia, ib = int(cells[0]) // ny, int(cells[-1]) // ny
+        lo_i, hi_i = min(ia, ib), max(ia, ib)
+        ends = np.array([pts[k0], pts[k1 + 1]])
+        ii = np.clip(np.floor((ends[:, 0] - air.x0) / air.h).astype(np.int64), lo_i, hi_i)
+        return ends, ii * ny + j
+    hit = np.asarray(meets(xy[:-1], xy[1:], z), dtype=bool)
+    if not hit.any():
+        return None
+    if hit.all():
+        return xy, cells
+    m = hit.size
+    if not loop:
+        k0, k1 = max(int(np.argmax(hit)) - KEEP_LEAD, 0), m - 1 - int(np.argmax(hit[::-1]))
+        return xy[k0:k1 + 2], cells[k0:k1 + 2]
+    # a loop (xy[0] == xy[-1], move k from vertex k to k + 1): its longest cyclic run of moves that meet
+    # nothing goes; the chain starts at the vertex after that run and ends at the vertex where it began
+    start, length = _longest_cyclic_run(~hit)
+    length -= min(KEEP_LEAD, length)                   # KEEP_LEAD moves into the material stay
+    order = (start + length + np.arange(m - length + 1)) % m
+    return xy[order], cells[order]

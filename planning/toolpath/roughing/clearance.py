@@ -9,7 +9,8 @@ others); :class:`~planning.toolpath.roughing.levels.RoughingPath` reports it as
 ``min_clearance_mm`` (>= the allowance - 1e-6 mm by construction). Points more than Rt below the
 lowest tip are left out (farther than Rt from the tool). Cost: one counting sort of the cloud
 (:func:`_bin_highest_first`), then a scan of the cells near each move (numba, parallel over chunks
-of moves).
+of moves). :class:`_MoveClearance` asks the same kernel of many separate moves against one binning
+(the contour's chords on the stock view, :func:`planning.toolpath.roughing.clearing._hug`).
 """
 
 from __future__ import annotations
@@ -222,3 +223,45 @@ def min_tool_clearance(xyz_mm, points, *, tool_radius_mm: float, corner_radius_m
     if not best[k] < reach:
         return ToolClearance(math.inf, -1, -1)
     return ToolClearance(float(best[k]), int(mv[k]), int(pi[k]))
+
+
+class _MoveClearance:
+    """The exact clearance test of :func:`min_tool_clearance` asked of many single moves: the cloud
+    ``points`` (N,3) binned once (the same raster and counting sort), then :meth:`keeps` says of each
+    horizontal move at a tip height whether the tool swept along it keeps at least a clearance (the
+    roughing's wall-hugging contour chords, :func:`planning.toolpath.roughing.clearing._hug`)."""
+
+    def __init__(self, points, tool_radius_mm: float, corner_radius_mm: float = 0.0):
+        Rt, rc = _check_tool(tool_radius_mm, corner_radius_mm)
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        self.Rf, self.rc, self.n = Rt - rc, rc, pts.shape[0]
+        if self.n == 0:
+            return
+        lo, hi, _ = _bounds(pts)
+        c = min(max(Rt / 8.0, 0.25), 2.0)
+        c = max(c, float((hi[:2] - lo[:2]).max()) / 4000.0, 1e-9)
+        self.x0, self.y0, self.c = float(lo[0]), float(lo[1]), c
+        self.nx = int((hi[0] - lo[0]) / c) + 1
+        self.ny = int((hi[1] - lo[1]) / c) + 1
+        self.binned = _bin_highest_first(pts, self.x0, self.y0, c, self.nx, self.ny, CLEARANCE_BLOCK)
+
+    def keeps(self, a_xy, b_xy, z: float, need_mm: float) -> np.ndarray:
+        """(k,) bool: whether the tool, its tip at height ``z``, moved from ``a_xy[i]`` to ``b_xy[i]``
+        ((k,2) each) keeps a clearance of at least ``need_mm`` from every point (exact: a horizontal
+        move)."""
+        a_xy = np.asarray(a_xy, dtype=np.float64).reshape(-1, 2)
+        b_xy = np.asarray(b_xy, dtype=np.float64).reshape(-1, 2)
+        k = a_xy.shape[0]
+        if k == 0 or self.n == 0:
+            return np.ones(k, dtype=bool)
+        # the moves a_i -> b_i are the odd moves of the path a_0, b_0, a_1, b_1, ...; one chunk per move
+        xyz = np.empty((2 * k, 3))
+        xyz[0::2, :2], xyz[1::2, :2], xyz[:, 2] = a_xy, b_xy, float(z)
+        reach = max(float(need_mm), 0.0) + 1e-3
+        best = np.empty(2 * k)
+        mv = np.empty(2 * k, np.int64)
+        pi = np.empty(2 * k, np.int64)
+        sp, order, start, cmax, bmax = self.binned
+        _clearance(sp, order, start, cmax, bmax, CLEARANCE_BLOCK, self.x0, self.y0, self.c, self.nx, self.ny, xyz,
+                   self.Rf, self.rc, reach, 2 * k, best, mv, pi)
+        return best[1::2] >= float(need_mm) - 1e-9

@@ -15,7 +15,20 @@ the midpoints between an allowed and a forbidden cell centre, allowed cells 8-co
 with the material that stays on the right of the travel (climb milling with a clockwise, M3,
 spindle); where the region ends at its limit around the stock the contour is not cut (air).
 Every path point lies within ``h`` of an allowed cell centre (lines ``h / sqrt(2)``, contour
-``0.8 h``, links below ``0.96 h``), hence is safe.
+``0.8 h``, links below ``0.96 h``), hence is safe (but for the chords below, which the exact
+clearance makes safe).
+
+**Hugging the walls** (:func:`_hug`; on the stock view only, issue 30). The contour is a staircase
+of raster cells; along a wall at an angle to the raster, each step away from the part moves the tool
+into the room it has just cut and feeds through air (on the slot case most of the roughing's air was
+such steps of 0.3-0.45 mm). A vertex where the chain turns right (towards the part) and that lies
+within ``h`` of the chord of its two neighbours is dropped when the tool moved along that chord at the
+level keeps the allowance from every cloud point (the exact clearance of
+:mod:`planning.toolpath.roughing.clearance`, :class:`~planning.toolpath.roughing.clearance._MoveClearance`:
+the cloud binned once per set-up, one kernel call per round for all the level's chords). The chord
+lies between the staircase and the part, so it cuts at least what the steps cut; at most every other
+vertex of a run of candidates goes per round, HUG_ROUNDS rounds. A chain's ends stay; the lines and
+the contour on the box or the points alone are unchanged.
 """
 
 from __future__ import annotations
@@ -140,3 +153,55 @@ def _contour_pieces(region, G, thr, runs, x0, y0, h) -> list[_Piece]:
             out.append(_Piece(comp, xy, cell[run], "loop" if closed else "start", False))
     return out
 
+
+
+#: Rounds of :func:`_hug` (each drops at most every other vertex of a run of candidates)
+HUG_ROUNDS = 2
+
+
+def _hug(pieces: list[_Piece], keeps, z: float, need_mm: float, h: float) -> list[_Piece]:
+    """The contour pieces with their staircase's steps away from the part taken out where the exact
+    clearance allows (module docstring, "Hugging the walls"): a vertex where the chain turns right (the
+    part side) and that lies within ``h`` of the chord of its two neighbours is dropped when the tool
+    moved along that chord at height ``z`` keeps ``need_mm`` (the allowance) from the cloud
+    (``keeps(a (k,2), b (k,2), z, need) -> (k,) bool``:
+    :meth:`planning.toolpath.roughing.clearance._MoveClearance.keeps`). A chain's first and last vertex
+    stay; lines are returned as they are."""
+    out = list(pieces)
+    idx = [k for k, p in enumerate(out) if not p.is_line and p.xy.shape[0] >= 3]
+    for _ in range(HUG_ROUNDS):
+        cand, owner = [], []
+        for k in idx:
+            xy = out[k].xy
+            p, v, n = xy[:-2], xy[1:-1], xy[2:]
+            d1, d2, ch = v - p, n - v, n - p
+            cross = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+            L = np.hypot(ch[:, 0], ch[:, 1])
+            # the vertex's distance from the chord: |cross| / |chord|
+            ok = (cross < -1e-12) & (-cross <= h * L + 1e-12)
+            j = np.flatnonzero(ok) + 1                      # vertex index in xy
+            if j.size == 0:
+                continue
+            # at most every other vertex of a run of consecutive candidates (the chords must not overlap)
+            run_start = np.concatenate([[True], np.diff(j) != 1])
+            pos = np.arange(j.size) - np.maximum.accumulate(np.where(run_start, np.arange(j.size), 0))
+            j = j[pos % 2 == 0]
+            cand.append(j)
+            owner.append(k)
+        if not cand:
+            break
+        a = np.concatenate([out[k].xy[j - 1] for k, j in zip(owner, cand)])
+        b = np.concatenate([out[k].xy[j + 1] for k, j in zip(owner, cand)])
+        good = keeps(a, b, z, need_mm)
+        if not good.any():
+            break
+        s = 0
+        for k, j in zip(owner, cand):
+            g = good[s:s + j.size]
+            s += j.size
+            if g.any():
+                keep = np.ones(out[k].xy.shape[0], dtype=bool)
+                keep[j[g]] = False
+                pc = out[k]
+                out[k] = _Piece(pc.comp, pc.xy[keep], pc.cells[keep], pc.ends, pc.is_line, pc.row)
+    return out

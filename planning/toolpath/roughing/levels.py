@@ -62,10 +62,12 @@ from planning.toolpath.moves import (
     lines,
     path_length_mm,
 )
-from planning.toolpath.roughing.air import _LevelAir
-from planning.toolpath.roughing.clearance import min_tool_clearance
+import planning.toolpath.roughing.air as air_mod
+from planning.toolpath.roughing.air import _exact_ends, _LevelAir
+from planning.toolpath.roughing.clearance import _MoveClearance, min_tool_clearance
 from planning.toolpath.roughing.clearing import (
     _contour_pieces,
+    _hug,
     _line_pieces,
     _line_ys,
     _Piece,
@@ -321,6 +323,12 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
         mat = _MaterialMap(grid, stock.box_lo, stock.box_hi, stock.z_top, Rt)
         levels = _levels(stock.z_top, stock.floor, step, step_down_mm)
     ys = _line_ys(stock.box_lo, stock.box_hi, grid.h, Rt, rc, s)
+    hug = None
+    if slab is not None and contour:   # on the stock view: the contour's steps away from the walls taken out
+        chords = _MoveClearance(pts, Rt, rc)
+
+        def hug(pieces_, z_):
+            return _hug(pieces_, chords.keeps, z_, a, h)
     forb = _ForbiddenMap(grid.cmax, grid.h, Rt, rc, a, stock.big)
     ent = _Entries(cfg, mat, fine, forb.G, Rt, rc, edge=(Rt + h) if rest else h, win=win)
     # on the stock view, the map is read on one ray family; the other two may keep slivers of up to
@@ -334,7 +342,7 @@ def roughing_paths(cloud_frame, *, tool_radius_mm: float, corner_radius_mm: floa
                                                                     stock.z_top, hold, slab, travel_cells,
                                                                     live,
                                                                     None if obs is None else
-                                                                    _disc_max(obs, h, Rt + HOLDER_GAP_MM + h))
+                                                                    _disc_max(obs, h, Rt + HOLDER_GAP_MM + h), hug)
     air_top = fine if rest else _box_tops(grid, stock)
     return _result(pts, w, cur, levels, level_retracts, removed, stock, Rt, rc, grid.h, s,
                    rest=rest, ent=ent, air_top=air_top, before=before, after=mat.volume_above(stock.floor, wmask),
@@ -581,6 +589,28 @@ class _LiveStock:
             return float(z) + out if math.isfinite(out) else -math.inf
         return rise
 
+    def meets(self, w):
+        """``meets(a (k,2), b (k,2), z) -> (k,) bool``: whether the cutter (its flutes, without the shank
+        and holder pieces), its tip at height z, moved from a to b meets the view's material deeper than
+        :data:`~planning.toolpath.roughing.air.MEET_DEPTH_MM` (the view brought up to date with ``w``'s
+        moves; :func:`planning.simulate.dexel.collide`, the simulation's own kernel)."""
+        from planning.simulate.dexel import collide
+
+        sh = self.view.shape
+        cutter = replace(sh, pieces=())
+        axis = self.view.frame.rotation[2]
+
+        def meets(a, b, z):
+            self.sync(w)
+            a = np.asarray(a, dtype=np.float64).reshape(-1, 2)
+            b = np.asarray(b, dtype=np.float64).reshape(-1, 2)
+            zz = np.full((a.shape[0], 1), float(z))
+            s = self.view.frame.to_part(np.hstack([a, zz]))
+            e = self.view.frame.to_part(np.hstack([b, zz]))
+            ax = np.broadcast_to(axis, s.shape)
+            return collide(self.view.stock, s, e, ax, cutter, which="tool") > air_mod.MEET_DEPTH_MM
+        return meets
+
     def column_clear_many(self, w, clearance_mm: float):
         """The writer's ``column_clear_many(points (n,3), top)``: :meth:`column_clear` of n tips at once."""
         def clear(points, top):
@@ -696,7 +726,7 @@ ENTRY_GAP_EXTRA_MM = 0.15
 
 def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, ys, oneway, contour, safe, Rt, rc,
                 progress, ent: _Entries, near=None, z_top=math.inf, hold: _HolderMap | None = None, slab=None,
-                travel=None, live=None, obstacle_near=None):
+                travel=None, live=None, obstacle_near=None, hug=None):
     """Cut every level from the top down: its region (rest roughing, ``near`` not None: only the
     cells whose ``near`` is above the level; ``hold`` not None: without the cells the holder
     blocks, and lifts that keep the holder clear; ``slab`` not None: only the cells ``slab(z, z_above)``
@@ -705,7 +735,9 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
     None: without the cells where it (the obstacles' top within Rt + HOLDER_GAP_MM) is above the
     level less that gap; ``live`` not None: the
     moves of every level run on the stock view before the next level is planned
-    (:class:`_LiveStock`); ``travel`` not None: only the cells within the machine's travel at the level), pieces,
+    (:class:`_LiveStock`); ``travel`` not None: only the cells within the machine's travel at the level;
+    ``hug`` not None: ``hug(pieces, z)`` gives the level's pieces with the contours' steps away from the
+    walls taken out, :func:`~planning.toolpath.roughing.clearing._hug`), pieces,
     order, links and entries, lowering the
     remaining material along the cut. Returns (the moves, the last tip (None when nothing was
     cut), lifts within each level, the volume removed at each level, the cells the holder blocked
@@ -741,6 +773,8 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
             near_z, has = slab(float(z), float(levels[li - 1]) if li else math.inf)
             limit = limit & near_z
             air = _LevelAir(has, x0, y0, h, Rt, Rt - rc)
+            if live is not None and air_mod.EXACT_ENDS:
+                air.meets = live.meets(w)
         if travel is not None:
             limit = limit & travel(x0, y0, h, nx, ny, float(z))
         if obstacle_near is not None:  # no cutter within Rt + the gap of a fixture, the riser or the table
@@ -764,6 +798,8 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
             pieces = _line_pieces(lines_at, runs, ys, x0, y0, h, ny, oneway)
             if contour:
                 pieces += _contour_pieces(region, forb.G, thr, runs, x0, y0, h)
+                if hug is not None:
+                    pieces = hug(pieces, float(z))
             if pieces:
                 deepest = float(z)
             ent.thr = thr
@@ -856,6 +892,16 @@ def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock
         n_holder_blocked_cells=0 if blocked is None else int(blocked.sum()), deepest_cut_mm=float(deepest))
 
 
+def _retract_rise(w: _Writer, xy, z: float, safe: float) -> float:
+    """How far a retract from the tip (``xy``, ``z``) feeds up (:func:`~planning.toolpath.roughing.links._retract`
+    without its step off a wall): ``w.gap``, or up to where the tool grown by the rapid clearance clears
+    the material on the stock view."""
+    zr = z + w.gap
+    if w.column_clear is not None:
+        zr = max(zr, float(w.column_clear(float(xy[0]), float(xy[1]), z, safe)))
+    return min(zr, safe) - z
+
+
 def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, level_retracts, li, ent: _Entries,
                mat: _MaterialMap, Rt, rc, air: _LevelAir | None = None):
     """Cut the pieces of one level in the order of
@@ -864,7 +910,12 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
     lowered along what was cut (cells the flat bottom, or the corner, surely swept) before each
     entry and at the end. With ``air`` (:class:`~planning.toolpath.roughing.air._LevelAir`) a clearing
     line is trimmed, just before it is cut, to the span where its disc still meets material of the
-    level that the level's cuts so far have not swept, and skipped when there is none; a piece that no
+    level that the level's cuts so far have not swept, and skipped when there is none, and on the stock view
+    any piece loses the ends whose moves meet no material there (``air.meets``:
+    :func:`~planning.toolpath.roughing.air._exact_ends`), and a link at the level longer than
+    LINK_LIFT_MM (plus LIFT_SLOWER times the retract's rise, :func:`_retract_rise`, and the feed down)
+    that meets none, to a piece that
+    starts in air, is lifted over instead of fed; a piece that no
     entry fits (a straight plunge only) is tried again after the level's other pieces, which may have
     swept its material (it is then trimmed away as air) or cut beside it (a side entry or a link at the
     level), and is left (``n_pieces_left``) only when it still cannot be entered. Returns the
@@ -892,18 +943,35 @@ def _cut_level(w: _Writer, lv: _Level, pieces: list[_Piece], cur, safe, oneway, 
             if trimmed is None:      # only air left along it
                 continue
             xy, cells = trimmed
+            if air.meets is not None:   # its ends as the stock itself shows them
+                loop = piece.ends == "loop" and xy.shape[0] > 2 and bool(np.all(xy[0] == xy[-1]))
+                trimmed = _exact_ends(air, xy, cells, lv.ny, air.meets, z, loop, piece.is_line)
+                if trimmed is None:
+                    continue
+                xy, cells = trimmed
         q = xy[0]
         linked = False
         if here is not None and here[2] == piece.comp and not (oneway and piece.is_line and prev_line):
             worth = max(4.0 * lv.Rt, _lift_cost(lv, here[0], q, z, safe))     # longest link kept at the level
             dist = float(np.hypot(*(q - here[0])))
-            if dist <= worth and lv.visible(here[0], q):
+            if dist <= worth and air is not None and air.meets is not None and dist > air_mod.LINK_LIFT_MM \
+                    and not air.meets(np.array([here[0], q]), np.array([q, q]), z).any() \
+                    and dist > air_mod.LINK_LIFT_MM + air_mod.LIFT_SLOWER * (_retract_rise(w, here[0], z, safe) + w.gap):
+                pass      # through air all the way: lifted over (the entry finds a way in beside q)
+            elif dist <= worth and lv.visible(here[0], q):
                 w.add([q[0], q[1], z], USE_CUT)
                 swept.append(np.array([here[0], q]))
                 cut_all.append(swept[-1])
                 linked = True
             elif dist <= worth:
                 path = lv.grid_path(here[0], here[1], q, cells[0], worth)
+                if path is not None and air is not None and air.meets is not None:
+                    long_ = float(np.hypot(*np.diff(path, axis=0).T).sum())
+                    if long_ > air_mod.LINK_LIFT_MM and not air.meets(np.vstack([path[:-1], q]), np.vstack([path[1:], q]),
+                                                                      z).any() \
+                            and long_ > air_mod.LINK_LIFT_MM + air_mod.LIFT_SLOWER * (_retract_rise(w, here[0], z, safe)
+                                                                                     + w.gap):
+                        path = None   # through air all the way: lifted over
                 if path is not None:
                     w.add(np.column_stack([path[1:], np.full(path.shape[0] - 1, z)]), USE_CUT)
                     swept.append(path)

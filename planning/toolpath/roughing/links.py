@@ -12,7 +12,10 @@ straight link stays in the region (sampled every h / 4), else along a shortest p
 so no path truly within the limit is missed and the path found is within 1 % of the shortest; the
 octile bound; a bucket queue; within the box that can hold a short enough path), shortened by line
 of sight, provided that link is no longer than twice the diameter or than lifting (up and down
-counted as feed, the rapid across as 1 / RAPID_RATIO of its length). Otherwise (another
+counted as feed, the rapid across as 1 / RAPID_RATIO of its length), and, on the stock view, unless it
+meets no material there, nor does the cutter at its end, and is longer than ``LINK_LIFT_MM`` plus
+LIFT_SLOWER times the lift's feeds up and down
+(:mod:`planning.toolpath.roughing.air`: a lift then feeds less through air). Otherwise (another
 component, a one-way return, a new level, a long link) the tool lifts: retract GAP_MM (1 mm) at
 feed (``USE_RETRACT``), rapid up to the link height (straight up from a safe position is safe),
 rapid across, rapid down to GAP_MM above the remaining material under the tool disc, and plunge

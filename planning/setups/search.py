@@ -69,6 +69,7 @@ from planning.setups.bounds import (
     _top_sums,
 )
 from planning.setups.heuristics import _heuristics, _local_search, _timeout_fallback
+from planning.setups.kernels import _Bits
 from planning.setups.lagrange import _price_bound, _prices
 from planning.setups.problem import (
     _key_cover,
@@ -78,6 +79,14 @@ from planning.setups.problem import (
     _wgram,
     _wgram_t,
 )
+
+
+def _bits_of(prob: _Problem) -> _Bits:
+    """The problem's classes as bit sets (built once per problem)."""
+    b = getattr(prob, "_bits", None)
+    if b is None:
+        b = prob._bits = _Bits(prob.A, prob.w)
+    return b
 
 
 class _Timeout(Exception):
@@ -151,6 +160,9 @@ class _Search:
         # leaves that tie the best coverage (on range scans the once-covered classes outnumber the
         # newly covered ones 2:1 below the root, and Q was the largest product; issue 32)
         self.track_overlap = mode == "overlap"
+        # the last two axes of a coverage search: every pair counted on bit sets, stopping at the
+        # first words that show it misses the coverage (planning.setups.kernels), not from P
+        self.bits = None if self.track_overlap or prob.has_conflicts else _bits_of(prob)
         self.best_key = None
         self.best_sel = None
         if incumbent is not None:
@@ -229,10 +241,13 @@ class _Search:
             self.timeout_bound = bound
             raise _Timeout
 
-    def _node(self, node, r):
+    def _count_node(self):
         self.nodes += 1
         if self.max_nodes is not None and self.nodes > self.max_nodes:
             raise _Budget
+
+    def _node(self, node, r):
+        self._count_node()
         if r == 1:
             self._leaves1(node)
         elif r == 2:
@@ -266,6 +281,9 @@ class _Search:
         M = cand.size
         if M < 2:
             return
+        if self.bits is not None:
+            self._bit_pairs(S, cand, self.bits.uncovered(S))
+            return
         allowed = self._allowed(cand)
         covm = cov + g[:, None] + g[None, :] - node["P"]
         ok = allowed & (covm >= floor)
@@ -278,6 +296,18 @@ class _Search:
             Q, P = node["Q"], node["P"]
             ovs = ov + h[ia] + h[ib] - Q[ia, ib] + P[ia, ib]
         self._pick(S, list(zip(ia.tolist(), ib.tolist(), strict=True)), covs, ovs, cand)
+
+    def _bit_pairs(self, S, cand, unc):
+        """The leaves of a node with two axes to add (chosen ``S``, its uncovered classes ``unc`` as
+        bit set words): every pair of ``cand`` reaching the floor, counted on bit sets
+        (:mod:`planning.setups.kernels`), offered as :meth:`_leaves2` offers them."""
+        smax = math.floor(self.W - self._floor() + 1e-9)
+        if smax < 0 or cand.size < 2:
+            return
+        ia, ib, left = self.bits.pairs_within(unc, cand, smax)
+        if ia.size:
+            self._pick(S, list(zip(ia.tolist(), ib.tolist(), strict=True)), self.W - left.astype(np.float64),
+                       None, cand)
 
     def _pick(self, S, pos_tuples, covs, ovs, cand):
         """Best of the evaluated leaves (positions into cand) offered to the incumbent; ``ovs`` None
@@ -332,6 +362,15 @@ class _Search:
         else:
             frame_lbs = np.zeros(order.size)
         frame = [frame_lbs, 0]
+        leaves = None
+        if r == 3 and self.bits is not None:
+            # every child's pairs at once, on bit sets (planning.setups.kernels): the triples that
+            # reach the floor now; a child's are filtered again by the floor when its turn comes
+            smax = math.floor(self.W - floor + 1e-9)
+            leaves = self.bits.triples_within(self.bits.uncovered(S), cand, order, max(smax, -1))
+            pos = np.empty(M, np.int64)
+            pos[order] = np.arange(order.size)
+            starts = np.searchsorted(pos[leaves[:, 0]], np.arange(order.size + 1))
         self.frames.append(frame)
         depth = len(S)
         try:
@@ -345,6 +384,14 @@ class _Search:
                 if self._dominated(k1[j], k2[j], S + [int(cand[j])], cand[after], r - 1):
                     if k1[j] > self.best_key[0]:
                         break  # children are sorted by k1: all following ones are dominated too
+                    continue
+                if leaves is not None:  # the pairs after j: the kernel's triples above
+                    self._count_node()
+                    rows = leaves[starts[t]:starts[t + 1]]
+                    rows = rows[rows[:, 3] <= math.floor(self.W - self._floor() + 1e-9)]
+                    if rows.shape[0]:
+                        self._pick(S, [tuple(x) for x in rows[:, :3].tolist()],
+                                   self.W - rows[:, 3].astype(np.float64), None, cand)
                     continue
                 child = self._child(node, j, after, r - 1)
                 if child is not None:
@@ -429,7 +476,7 @@ class _Search:
         cand2 = node["cand"][after]
         child = dict(S=node["S"] + [axis], cov=cov, ov=ov, cand=cand2, g=g, h=h,
                      P=None, Q=None, deg=None, U=None)
-        if rc >= 2:
+        if rc >= 3 or (rc == 2 and self.bits is None):  # two left on bit sets: no P (_leaves2)
             col = p.AT[axis]
             ix = np.ix_(after, after)
             # the candidates' rows of the axes x classes matrix over the classes that count only:

@@ -1,0 +1,164 @@
+"""Set-up selection, the last two axes of a coverage search on bit sets (numba).
+
+Stage 5 (set-ups) of the pipeline, Makki et al. 2010 §3.1 made exact by :mod:`planning.setups.search`.
+Near the largest coverage (range scans, issue 32: the best 4 or 5 axes leave a handful of points) the
+search's bounds prune little above the leaves, and most of its time went into nodes with two axes
+still to add, each paying for a weighted Gram matrix of its candidates over its uncovered classes
+(``P``) to evaluate every pair.  There, almost every pair leaves far more than the allowed few points
+uncovered, which a count over the uncovered classes shows after a word or two: the classes are kept
+as bit sets (one 64-bit word per 64 classes, per axis), the weights as bit planes, and a pair is
+dropped as soon as the weight it leaves uncovered exceeds the allowance.  The words are visited
+heaviest first (the uncovered weight of each word at the node), so that a pair that misses is seen to
+miss early.  Every pair that reaches the coverage is returned with its exact uncovered weight: the
+same leaves the Gram matrix gives, so the search's answer does not change.
+
+The kernels are ``@njit(cache=True)`` with explicit signatures: compiled (or loaded from numba's
+cache, :mod:`planning.kernel_cache`) when this module is imported, never in the middle of a search.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+_M1 = np.uint64(0x5555555555555555)
+_M2 = np.uint64(0x3333333333333333)
+_M4 = np.uint64(0x0F0F0F0F0F0F0F0F)
+_H01 = np.uint64(0x0101010101010101)
+_S1 = np.uint64(1)
+_S2 = np.uint64(2)
+_S4 = np.uint64(4)
+_S56 = np.uint64(56)
+
+
+@njit("int64(uint64)", cache=True)
+def _popcount(x):
+    """Set bits of a 64-bit word (SWAR)."""
+    x = x - ((x >> _S1) & _M1)
+    x = (x & _M2) + ((x >> _S2) & _M2)
+    x = (x + (x >> _S4)) & _M4
+    return np.int64((x * _H01) >> _S56)
+
+
+@njit("int64(uint64[::1], uint64[:, ::1], uint64[:, ::1], int64, int64[::1], int64[::1], int64[::1])",
+      cache=True)
+def _pairs_within(unc, B, planes, smax, ia, ib, uo):
+    """Pairs a < b of the rows of ``B`` (candidate axes x words: the classes each sees) that leave at
+    most ``smax`` weight of ``unc`` (the uncovered classes, same words) uncovered; ``planes`` (bit
+    planes x words): bit p of each class's weight.  Writes the pairs and their uncovered weight into
+    ``ia``, ``ib``, ``uo`` (room for every pair) and returns how many there are."""
+    M, nw = B.shape
+    P = planes.shape[0]
+    xa = np.empty(nw, np.uint64)
+    n = 0
+    for a in range(M):
+        for i in range(nw):
+            xa[i] = unc[i] & ~B[a, i]
+        for b in range(a + 1, M):
+            acc = 0
+            for i in range(nw):
+                x = xa[i] & ~B[b, i]
+                if x != 0:
+                    for p in range(P):
+                        acc += _popcount(x & planes[p, i]) << p
+                    if acc > smax:
+                        break
+            if acc <= smax:
+                ia[n] = a
+                ib[n] = b
+                uo[n] = acc
+                n += 1
+    return n
+
+
+@njit("int64(uint64[::1], uint64[:, ::1], uint64[:, ::1], int64[::1], int64, int64[:, ::1])", cache=True)
+def _triples_within(unc, B, planes, js, smax, out):
+    """Triples j < l < q of the rows of ``B``, j among ``js`` (in that order), that leave at most
+    ``smax`` weight of ``unc`` uncovered (as :func:`_pairs_within`).  Writes rows (j, l, q, weight
+    left) into ``out`` (room for every triple) in the order of ``js``, then l, then q; returns how
+    many."""
+    M, nw = B.shape
+    P = planes.shape[0]
+    xj = np.empty(nw, np.uint64)
+    n = 0
+    for t in range(js.shape[0]):
+        j = js[t]
+        for i in range(nw):
+            xj[i] = unc[i] & ~B[j, i]
+        for ll in range(j + 1, M):
+            for q in range(ll + 1, M):
+                acc = 0
+                for i in range(nw):
+                    x = xj[i] & ~B[ll, i] & ~B[q, i]
+                    if x != 0:
+                        for p in range(P):
+                            acc += _popcount(x & planes[p, i]) << p
+                        if acc > smax:
+                            break
+                if acc <= smax:
+                    out[n, 0] = j
+                    out[n, 1] = ll
+                    out[n, 2] = q
+                    out[n, 3] = acc
+                    n += 1
+    return n
+
+
+class _Bits:
+    """The classes of a :class:`~planning.setups.problem._Problem` as bit sets: ``axes`` (m, words)
+    the classes each reduced axis sees, ``planes`` (bit planes, words) the weights, ``valid`` (words,)
+    the classes that exist (the last word is partly empty)."""
+
+    def __init__(self, A: np.ndarray, w: np.ndarray):
+        C, m = A.shape
+        nw = max(1, (C + 63) // 64)
+        pad = nw * 64 - C
+
+        def pack(rows):  # (k, C) bool -> (k, nw) uint64, class c at bit c % 64 of word c // 64
+            rows = np.concatenate([rows, np.zeros((rows.shape[0], pad), bool)], axis=1)
+            return np.ascontiguousarray(np.packbits(rows, axis=1, bitorder="little").view("<u8").astype(np.uint64))
+
+        self.axes = pack(np.ascontiguousarray(A.T))
+        nplanes = max(1, int(w.max(initial=1)).bit_length())
+        self.planes = pack(((w[None, :] >> np.arange(nplanes)[:, None]) & 1).astype(bool))
+        self.valid = pack(np.ones((1, C), bool))[0]
+        self.shift = np.arange(nplanes, dtype=np.int64)[:, None]
+
+    def uncovered(self, sel) -> np.ndarray:
+        """The words of the classes no axis of ``sel`` sees."""
+        u = self.valid.copy()
+        for a in sel:
+            u &= ~self.axes[a]
+        return u
+
+    def pairs_within(self, u: np.ndarray, cand: np.ndarray, smax: int):
+        """(ia, ib, left): the pairs of positions ia < ib into ``cand`` (reduced axes) that leave at
+        most ``smax`` weight of the classes ``u`` (words, e.g. :meth:`uncovered`) uncovered, with the
+        weight they leave."""
+        M = cand.size
+        cap = M * (M - 1) // 2
+        ia, ib, uo = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
+        if cap == 0:
+            return ia, ib, uo
+        n = _pairs_within(*self._words(u, cand), int(smax), ia, ib, uo)
+        return ia[:n], ib[:n], uo[:n]
+
+    def triples_within(self, u: np.ndarray, cand: np.ndarray, js: np.ndarray, smax: int) -> np.ndarray:
+        """Rows (j, l, q, left) of the triples of positions j < l < q into ``cand``, j among ``js`` (in
+        that order), that leave at most ``smax`` weight of ``u`` uncovered, with the weight left."""
+        M = cand.size
+        cap = M * (M - 1) * (M - 2) // 6
+        out = np.empty((max(cap, 1), 4), np.int64)
+        if cap == 0 or js.size == 0:
+            return out[:0]
+        n = _triples_within(*self._words(u, cand), np.ascontiguousarray(js, dtype=np.int64), int(smax), out)
+        return out[:n]
+
+    def _words(self, u, cand):
+        """The words of ``u`` that hold classes, heaviest first (a subset that misses the coverage is
+        seen to miss after a few), with the candidates' and the weights' words in the same order."""
+        nz = np.flatnonzero(u)
+        wt = (np.bitwise_count(self.planes[:, nz] & u[nz][None, :]).astype(np.int64) << self.shift).sum(axis=0)
+        order = nz[np.argsort(-wt, kind="stable")]
+        return (np.ascontiguousarray(u[order]), np.ascontiguousarray(self.axes[np.ix_(cand, order)]),
+                np.ascontiguousarray(self.planes[:, order]))

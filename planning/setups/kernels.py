@@ -40,6 +40,18 @@ def _popcount(x):
     return np.int64((x * _H01) >> _S56)
 
 
+@njit("int64(uint64[::1], uint64[::1], uint64[::1], uint64[:, ::1])", cache=True)
+def _weight(x, b1, b2, planes):
+    """Weight of the classes in ``x`` that neither ``b1`` nor ``b2`` holds (weights as bit planes)."""
+    acc = 0
+    for i in range(x.shape[0]):
+        y = x[i] & ~b1[i] & ~b2[i]
+        if y != 0:
+            for p in range(planes.shape[0]):
+                acc += _popcount(y & planes[p, i]) << p
+    return acc
+
+
 @njit("int64(uint64[::1], uint64[:, ::1], uint64[:, ::1], int64, int64[::1], int64[::1], int64[::1])",
       cache=True)
 def _pairs_within(unc, B, planes, smax, ia, ib, uo):
@@ -48,7 +60,6 @@ def _pairs_within(unc, B, planes, smax, ia, ib, uo):
     planes x words): bit p of each class's weight.  Writes the pairs and their uncovered weight into
     ``ia``, ``ib``, ``uo`` (room for every pair) and returns how many there are."""
     M, nw = B.shape
-    P = planes.shape[0]
     xa = np.empty(nw, np.uint64)
     n = 0
     for a in range(M):
@@ -56,13 +67,12 @@ def _pairs_within(unc, B, planes, smax, ia, ib, uo):
             xa[i] = unc[i] & ~B[a, i]
         for b in range(a + 1, M):
             acc = 0
-            for i in range(nw):
-                x = xa[i] & ~B[b, i]
-                if x != 0:
-                    for p in range(P):
-                        acc += _popcount(x & planes[p, i]) << p
-                    if acc > smax:
-                        break
+            for i in range(nw):  # every class weighs at least 1: the count bounds the weight
+                acc += _popcount(xa[i] & ~B[b, i])
+                if acc > smax:
+                    break
+            if acc <= smax:
+                acc = _weight(xa, B[b], B[b], planes)
             if acc <= smax:
                 ia[n] = a
                 ib[n] = b
@@ -78,7 +88,6 @@ def _triples_within(unc, B, planes, js, smax, out):
     left) into ``out`` (room for every triple) in the order of ``js``, then l, then q; returns how
     many."""
     M, nw = B.shape
-    P = planes.shape[0]
     xj = np.empty(nw, np.uint64)
     n = 0
     for t in range(js.shape[0]):
@@ -88,13 +97,12 @@ def _triples_within(unc, B, planes, js, smax, out):
         for ll in range(j + 1, M):
             for q in range(ll + 1, M):
                 acc = 0
-                for i in range(nw):
-                    x = xj[i] & ~B[ll, i] & ~B[q, i]
-                    if x != 0:
-                        for p in range(P):
-                            acc += _popcount(x & planes[p, i]) << p
-                        if acc > smax:
-                            break
+                for i in range(nw):  # every class weighs at least 1: the count bounds the weight
+                    acc += _popcount(xj[i] & ~B[ll, i] & ~B[q, i])
+                    if acc > smax:
+                        break
+                if acc <= smax:
+                    acc = _weight(xj, B[ll], B[q], planes)
                 if acc <= smax:
                     out[n, 0] = j
                     out[n, 1] = ll
@@ -122,7 +130,6 @@ class _Bits:
         nplanes = max(1, int(w.max(initial=1)).bit_length())
         self.planes = pack(((w[None, :] >> np.arange(nplanes)[:, None]) & 1).astype(bool))
         self.valid = pack(np.ones((1, C), bool))[0]
-        self.shift = np.arange(nplanes, dtype=np.int64)[:, None]
 
     def uncovered(self, sel) -> np.ndarray:
         """The words of the classes no axis of ``sel`` sees."""
@@ -158,7 +165,6 @@ class _Bits:
         """The words of ``u`` that hold classes, heaviest first (a subset that misses the coverage is
         seen to miss after a few), with the candidates' and the weights' words in the same order."""
         nz = np.flatnonzero(u)
-        wt = (np.bitwise_count(self.planes[:, nz] & u[nz][None, :]).astype(np.int64) << self.shift).sum(axis=0)
-        order = nz[np.argsort(-wt, kind="stable")]
+        order = nz[np.argsort(-np.bitwise_count(u[nz]), kind="stable")]
         return (np.ascontiguousarray(u[order]), np.ascontiguousarray(self.axes[np.ix_(cand, order)]),
                 np.ascontiguousarray(self.planes[:, order]))

@@ -297,6 +297,28 @@ class _Search:
             ovs = ov + h[ia] + h[ib] - Q[ia, ib] + P[ia, ib]
         self._pick(S, list(zip(ia.tolist(), ib.tolist(), strict=True)), covs, ovs, cand)
 
+    def _bit_triples(self, S, cand, order):
+        """The children ``order`` (positions into ``cand``, in that order) of a node with three axes
+        to add: every triple j < l < q reaching the floor, counted at once on bit sets
+        (:mod:`planning.setups.kernels`), then each child's offered as :meth:`_leaves2` would offer
+        its pairs (filtered again by the floor, which rises as the incumbent improves).  Each child
+        counts as a node; a child without such a triple costs nothing more."""
+        self._check_time()
+        for _ in range(order.size):
+            self._count_node()
+        smax = math.floor(self.W - self._floor() + 1e-9)
+        if smax < 0:
+            return
+        leaves = self.bits.triples_within(self.bits.uncovered(S), cand, order, smax)
+        if leaves.shape[0] == 0:
+            return
+        cut = np.flatnonzero(np.diff(leaves[:, 0])) + 1
+        for rows in np.split(leaves, cut):
+            rows = rows[rows[:, 3] <= math.floor(self.W - self._floor() + 1e-9)]
+            if rows.shape[0]:
+                self._pick(S, [tuple(x) for x in rows[:, :3].tolist()], self.W - rows[:, 3].astype(np.float64),
+                           None, cand)
+
     def _bit_pairs(self, S, cand, unc):
         """The leaves of a node with two axes to add (chosen ``S``, its uncovered classes ``unc`` as
         bit set words): every pair of ``cand`` reaching the floor, counted on bit sets
@@ -349,9 +371,15 @@ class _Search:
         if M < r:
             return
         allowed = self._allowed(cand)
-        lub = self._price_bounds(node, allowed, r) if self.mu is not None else None
-        viable, k1, k2, lb = _branch_bounds(cov, ov, g, h, P, Q, allowed, r, floor, self.mode, lub)
-        if r == 3 and M <= _TENSOR_MAX and viable.any():
+        if P is None:  # three axes left on bit sets (no Gram matrix): the best gains bound the children
+            cub = cov + np.minimum(*_top_sums(g, r))
+            if self.mu is not None:
+                cub = np.minimum(cub, self.W - node["M"] + np.minimum(*_top_sums(node["s"], r)))
+            viable, k1, k2, lb = cub >= floor, -cub, ov + h, ov + h
+        else:
+            lub = self._price_bounds(node, allowed, r) if self.mu is not None else None
+            viable, k1, k2, lb = _branch_bounds(cov, ov, g, h, P, Q, allowed, r, floor, self.mode, lub)
+        if r == 3 and P is not None and M <= _TENSOR_MAX and viable.any():
             viable &= _pairs_exist(node, allowed, floor, self._overlap_incumbent())
         idx = np.flatnonzero(viable)
         if idx.size == 0:
@@ -362,15 +390,9 @@ class _Search:
         else:
             frame_lbs = np.zeros(order.size)
         frame = [frame_lbs, 0]
-        leaves = None
         if r == 3 and self.bits is not None:
-            # every child's pairs at once, on bit sets (planning.setups.kernels): the triples that
-            # reach the floor now; a child's are filtered again by the floor when its turn comes
-            smax = math.floor(self.W - floor + 1e-9)
-            leaves = self.bits.triples_within(self.bits.uncovered(S), cand, order, max(smax, -1))
-            pos = np.empty(M, np.int64)
-            pos[order] = np.arange(order.size)
-            starts = np.searchsorted(pos[leaves[:, 0]], np.arange(order.size + 1))
+            self._bit_triples(S, cand, order)
+            return
         self.frames.append(frame)
         depth = len(S)
         try:
@@ -384,14 +406,6 @@ class _Search:
                 if self._dominated(k1[j], k2[j], S + [int(cand[j])], cand[after], r - 1):
                     if k1[j] > self.best_key[0]:
                         break  # children are sorted by k1: all following ones are dominated too
-                    continue
-                if leaves is not None:  # the pairs after j: the kernel's triples above
-                    self._count_node()
-                    rows = leaves[starts[t]:starts[t + 1]]
-                    rows = rows[rows[:, 3] <= math.floor(self.W - self._floor() + 1e-9)]
-                    if rows.shape[0]:
-                        self._pick(S, [tuple(x) for x in rows[:, :3].tolist()],
-                                   self.W - rows[:, 3].astype(np.float64), None, cand)
                     continue
                 child = self._child(node, j, after, r - 1)
                 if child is not None:
@@ -459,7 +473,8 @@ class _Search:
             keep &= ov + h <= inc[0]
         if np.count_nonzero(keep) < rc:
             return None
-        if rc >= 2 and not _completable(self.p, node, after, keep, s1, g, h, cov, ov, rc, floor, inc):
+        if (rc == 2 or (rc == 3 and self.bits is None)) and not _completable(
+                self.p, node, after, keep, s1, g, h, cov, ov, rc, floor, inc):
             return None
         if not keep.all():
             sub = np.flatnonzero(keep)
@@ -476,7 +491,7 @@ class _Search:
         cand2 = node["cand"][after]
         child = dict(S=node["S"] + [axis], cov=cov, ov=ov, cand=cand2, g=g, h=h,
                      P=None, Q=None, deg=None, U=None)
-        if rc >= 3 or (rc == 2 and self.bits is None):  # two left on bit sets: no P (_leaves2)
+        if rc >= 4 or (rc >= 2 and self.bits is None):  # two or three left on bit sets: no P
             col = p.AT[axis]
             ix = np.ix_(after, after)
             # the candidates' rows of the axes x classes matrix over the classes that count only:

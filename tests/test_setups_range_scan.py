@@ -200,8 +200,9 @@ def test_small_max_cover_is_the_exact_best_of_one_and_two_axes(range_matrices):
 @pytest.fixture
 def kernel_calls(monkeypatch):
     """How many times the coverage searches counted pairs and triples on bit sets."""
-    seen = {"pairs": 0, "triples": 0}
+    seen = {"pairs": 0, "triples": 0, "quads": 0}
     real_pairs, real_triples = kernels._Bits.pairs_within, kernels._Bits.triples_within
+    real_quads = kernels._Bits.quads_within
 
     def pairs(self, *a, **kw):
         seen["pairs"] += 1
@@ -211,7 +212,12 @@ def kernel_calls(monkeypatch):
         seen["triples"] += 1
         return real_triples(self, *a, **kw)
 
+    def quads(self, *a, **kw):
+        seen["quads"] += 1
+        return real_quads(self, *a, **kw)
+
     monkeypatch.setattr(kernels._Bits, "pairs_within", pairs)
+    monkeypatch.setattr(kernels._Bits, "quads_within", quads)
     monkeypatch.setattr(kernels._Bits, "triples_within", triples)
     return seen
 
@@ -247,16 +253,43 @@ def test_bit_set_counts_are_exact(seed):
         assert [tuple(r) for r in rows.tolist()] == ref
 
 
+@pytest.mark.parametrize("seed", range(8))
+def test_bit_set_quadruples_are_exact(seed):
+    """The quadruples kernel, with its filter of each child's candidates by their gains (from the
+    node's Gram matrix), against sums over the class rows: it returns every quadruple that leaves
+    at most the allowance, and only those, in the children's order."""
+    rng = np.random.default_rng(100 + seed)
+    C, m = int(rng.integers(1, 250)), int(rng.integers(5, 12))
+    A = rng.random((C, m)) < rng.uniform(0.2, 0.7)
+    w = rng.integers(1, int(rng.integers(2, 100)), C)
+    bits = kernels._Bits(A, w)
+    cand = np.arange(1, m)
+    u = bits.uncovered([0])
+    left = ~A[:, 0]
+    Y, wl = A[left][:, cand].astype(float), w[left].astype(float)
+    g, P = wl @ Y, (Y * wl[:, None]).T @ Y
+    quads = [(*t, int(w[left & ~A[:, cand[list(t)]].any(axis=1)].sum()))
+             for t in itertools.combinations(range(cand.size), 4)]
+    js = rng.permutation(cand.size)
+    rank = {int(j): i for i, j in enumerate(js)}
+    for smax in {0, 3, int(np.median([q[4] for q in quads])), 10**6}:
+        rows, nodes = bits.quads_within(u, cand, g, P, js, smax)
+        ref = sorted((q for q in quads if q[4] <= smax), key=lambda q: (rank[q[0]], *q[1:4]))
+        assert [tuple(r) for r in rows.tolist()] == ref
+        assert nodes[0] == js.size
+    assert bits.quads_within(u, cand, g, P, js, 10**6, cap=1)[0] is None or len(quads) <= 1
+
+
 @pytest.mark.parametrize("shape", ["half_sphere", "slot", "femur_like"])
 def test_infeasible_by_a_few_points_with_four_and_five_setups_match_brute_force(range_matrices, shape,
                                                                                 kernel_calls):
-    """Four and five set-ups on 15 columns, targets one and a few points above the largest coverage
-    C* (and C* itself): the same answer as the exhaustive enumeration, with the last three axes of
-    the searches counted on bit sets."""
+    """Three, four and five set-ups on 15 columns, targets one and a few points above the largest
+    coverage C* (and C* itself): the same answer as the exhaustive enumeration, with the last three
+    and four axes of the searches counted on bit sets."""
     n = range_matrices[shape].shape[0]
     for seed in range(2):
         V = column_subset(range_matrices[shape], 15, 20 + seed)
-        for K in (4, 5):
+        for K in (3, 4, 5):
             cstar = brute_force_setups(V, coverage=1.0, max_setups=K).covered
             for req in (cstar, cstar + 1, cstar + 3):
                 if req > n:
@@ -265,4 +298,4 @@ def test_infeasible_by_a_few_points_with_four_and_five_setups_match_brute_force(
                 ref = brute_force_setups(V, **params)
                 assert answer(select_setups(V, **params)) == answer(ref), (shape, seed, K, req)
                 assert (ref.status == "infeasible") == (req > cstar)
-    assert kernel_calls["triples"] > 0
+    assert kernel_calls["triples"] > 0 and kernel_calls["quads"] > 0

@@ -112,6 +112,87 @@ def _triples_within(unc, B, planes, js, smax, out):
     return n
 
 
+@njit("float64(float64[::1], boolean[::1], int64)", cache=True)
+def _top_sum(g, ok, r):
+    """Sum of the r largest ``g`` where ``ok`` (all of them where fewer)."""
+    best = np.full(r, -1.0)
+    for i in range(g.shape[0]):
+        if ok[i] and g[i] > best[r - 1]:
+            t = r - 1
+            while t > 0 and best[t - 1] < g[i]:
+                best[t] = best[t - 1]
+                t -= 1
+            best[t] = g[i]
+    tot = 0.0
+    for t in range(r):
+        if best[t] > 0.0:
+            tot += best[t]
+    return tot
+
+
+@njit("int64(uint64[::1], uint64[:, ::1], uint64[:, ::1], float64[::1], float64[:, ::1], float64, int64[::1], "
+      "int64, int64[:, ::1], int64[::1])", cache=True)
+def _quads_within(unc, B, planes, g, P, wunc, js, smax, out, nodes):
+    """Quadruples j < l < q < s of the rows of ``B``, j among ``js`` (in that order), that leave at
+    most ``smax`` weight of ``unc`` (total weight ``wunc``) uncovered.  ``g`` and ``P``: the weight of
+    ``unc`` each row sees and each pair sees together (the node's gains and Gram matrix), from which
+    each j's later rows are filtered first as the search filters a child's candidates (the weight
+    left by j, less the three best gains after j, or the gain of l and the two best others, must
+    not exceed ``smax``: each row's gain after j is ``g_l - P_jl``).  Writes rows (j, l, q, s, weight
+    left) into ``out``; returns how many, or -1 when ``out`` is too small.  ``nodes[0]`` counts the
+    children j and ``nodes[1]`` the l kept under them."""
+    M, nw = B.shape
+    xj = np.empty(nw, np.uint64)
+    xl = np.empty(nw, np.uint64)
+    gj = np.empty(M)
+    keep = np.zeros(M, np.bool_)
+    n = 0
+    for t in range(js.shape[0]):
+        j = js[t]
+        nodes[0] += 1
+        left_j = wunc - g[j]
+        for ll in range(M):
+            gj[ll] = g[ll] - P[j, ll]
+            keep[ll] = ll > j
+        for _ in range(2):  # the child's candidates, then the child's children among them
+            top3 = _top_sum(gj, keep, 3)
+            top2 = _top_sum(gj, keep, 2)
+            for ll in range(j + 1, M):
+                if keep[ll] and (left_j - min(top3, gj[ll] + top2) > smax + 1e-9):
+                    keep[ll] = False
+        for i in range(nw):
+            xj[i] = unc[i] & ~B[j, i]
+        for ll in range(j + 1, M):
+            if not keep[ll]:
+                continue
+            nodes[1] += 1
+            for i in range(nw):
+                xl[i] = xj[i] & ~B[ll, i]
+            for q in range(ll + 1, M):
+                if not keep[q]:
+                    continue
+                for s in range(q + 1, M):
+                    if not keep[s]:
+                        continue
+                    acc = 0
+                    for i in range(nw):  # every class weighs at least 1: the count bounds the weight
+                        acc += _popcount(xl[i] & ~B[q, i] & ~B[s, i])
+                        if acc > smax:
+                            break
+                    if acc <= smax:
+                        acc = _weight(xl, B[q], B[s], planes)
+                    if acc <= smax:
+                        if n >= out.shape[0]:
+                            return -1
+                        out[n, 0] = j
+                        out[n, 1] = ll
+                        out[n, 2] = q
+                        out[n, 3] = s
+                        out[n, 4] = acc
+                        n += 1
+    return n
+
+
 class _Bits:
     """The classes of a :class:`~planning.setups.problem._Problem` as bit sets: ``axes`` (m, words)
     the classes each reduced axis sees, ``planes`` (bit planes, words) the weights, ``valid`` (words,)
@@ -160,6 +241,28 @@ class _Bits:
             return out[:0]
         n = _triples_within(*self._words(u, cand), np.ascontiguousarray(js, dtype=np.int64), int(smax), out)
         return out[:n]
+
+    def quads_within(self, u: np.ndarray, cand: np.ndarray, g, P, js: np.ndarray, smax: int,
+                     cap: int = 1 << 16):
+        """(rows, nodes): rows (j, l, q, s, left) of the quadruples of positions j < l < q < s into
+        ``cand`` (j among ``js``, in that order) leaving at most ``smax`` weight of ``u`` uncovered,
+        with l, q, s among the candidates that pass the gain filters of :func:`_quads_within` (``g``,
+        ``P``: the gains and Gram matrix of ``cand`` over ``u``); ``nodes`` (children, grandchildren
+        visited).  Rows None when more than ``cap`` quadruples qualify."""
+        out = np.empty((cap, 5), np.int64)
+        nodes = np.zeros(2, np.int64)
+        if cand.size < 4 or js.size == 0:
+            return out[:0], nodes
+        n = _quads_within(*self._words(u, cand), np.ascontiguousarray(g, dtype=np.float64),
+                          np.ascontiguousarray(P, dtype=np.float64), float(self.weight_of(u)),
+                          np.ascontiguousarray(js, dtype=np.int64), int(smax), out, nodes)
+        if n < 0:
+            return None, nodes
+        return out[:n], nodes
+
+    def weight_of(self, u) -> int:
+        """The weight of the classes of ``u``."""
+        return int(sum(int(np.bitwise_count(self.planes[p] & u).sum()) << p for p in range(self.planes.shape[0])))
 
     def _words(self, u, cand):
         """The words of ``u`` that hold classes, heaviest first (a subset that misses the coverage is

@@ -241,8 +241,8 @@ class _Search:
             self.timeout_bound = bound
             raise _Timeout
 
-    def _count_node(self):
-        self.nodes += 1
+    def _count_node(self, count=1):
+        self.nodes += count
         if self.max_nodes is not None and self.nodes > self.max_nodes:
             raise _Budget
 
@@ -304,8 +304,7 @@ class _Search:
         its pairs (filtered again by the floor, which rises as the incumbent improves).  Each child
         counts as a node; a child without such a triple costs nothing more."""
         self._check_time()
-        for _ in range(order.size):
-            self._count_node()
+        self._count_node(order.size)
         smax = math.floor(self.W - self._floor() + 1e-9)
         if smax < 0:
             return
@@ -318,6 +317,29 @@ class _Search:
             if rows.shape[0]:
                 self._pick(S, [tuple(x) for x in rows[:, :3].tolist()], self.W - rows[:, 3].astype(np.float64),
                            None, cand)
+
+    def _bit_quads(self, S, cand, g, P, order) -> bool:
+        """The children ``order`` of a node with four axes to add, as :meth:`_bit_triples` one level
+        up: each child's candidates filtered by their gains (from the node's ``g`` and ``P``, as
+        :meth:`_child` filters them), then every quadruple reaching the floor counted on bit sets
+        and offered per child.  False (nothing done) where too many quadruples reach the floor."""
+        self._check_time()
+        smax = math.floor(self.W - self._floor() + 1e-9)
+        if smax < 0:
+            return True
+        leaves, nodes = self.bits.quads_within(self.bits.uncovered(S), cand, g, P, order, smax)
+        if leaves is None:
+            return False
+        self._count_node(int(nodes.sum()))
+        if leaves.shape[0] == 0:
+            return True
+        cut = np.flatnonzero(np.diff(leaves[:, 0])) + 1
+        for rows in np.split(leaves, cut):
+            rows = rows[rows[:, 4] <= math.floor(self.W - self._floor() + 1e-9)]
+            if rows.shape[0]:
+                self._pick(S, [tuple(x) for x in rows[:, :4].tolist()], self.W - rows[:, 4].astype(np.float64),
+                           None, cand)
+        return True
 
     def _bit_pairs(self, S, cand, unc):
         """The leaves of a node with two axes to add (chosen ``S``, its uncovered classes ``unc`` as
@@ -392,6 +414,8 @@ class _Search:
         frame = [frame_lbs, 0]
         if r == 3 and self.bits is not None:
             self._bit_triples(S, cand, order)
+            return
+        if r == 4 and self.bits is not None and self._bit_quads(S, cand, g, P, order):
             return
         self.frames.append(frame)
         depth = len(S)

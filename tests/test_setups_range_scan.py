@@ -299,3 +299,19 @@ def test_infeasible_by_a_few_points_with_four_and_five_setups_match_brute_force(
                 assert answer(select_setups(V, **params)) == answer(ref), (shape, seed, K, req)
                 assert (ref.status == "infeasible") == (req > cstar)
     assert kernel_calls["triples"] > 0 and kernel_calls["quads"] > 0
+
+
+def test_bit_sets_only_near_the_largest_coverage(range_matrices):
+    """The kernels count the last axes only where at most search._BITS_SHARE of the points may be
+    left uncovered (far below the ceiling every subset is counted to its end there); never in the
+    least-overlap search or with zone conflicts."""
+    V = range_matrices["half_sphere"]
+    prob = _Problem(V, None, 1, 1)
+    W = float(prob.w.sum())
+    near = search._Search(prob, 3, "cover", W * (1 - search._BITS_SHARE / 2), 1e18)
+    far = search._Search(prob, 3, "cover", W * (1 - search._BITS_SHARE * 2), 1e18)
+    assert near._bits_now() and not far._bits_now()
+    assert not search._Search(prob, 3, "overlap", W * 0.999, 1e18)._bits_now()
+    zone = np.zeros(V.shape[0], bool)
+    zone[::3] = True
+    assert not search._Search(_Problem(V, zone, 1, 1), 3, "cover", W * 0.999, 1e18)._bits_now()

@@ -113,6 +113,11 @@ _NEAR_CEILING = 0.005
 # (every pair evaluated exactly from the Gram matrix, a few milliseconds), while the LP costs 0.5-2 s
 # on range-scan matrices (18k classes x 133 axes: range half sphere R 100 mm, issue 32)
 _MIN_PRICE_R = 3
+# the last two to four axes of a coverage search are counted on bit sets (planning.setups.kernels)
+# where at most this share of the points may be left uncovered: there a subset that misses is seen
+# to miss after a word or two; far below the largest coverage (femur-like 0.90: 7.5 %) every subset
+# is counted to its end, and the Gram matrices were quicker
+_BITS_SHARE = 0.05
 # progress from inside a search: the children of the nodes down to this depth (the root 0) tell where
 # the search is, the root's always, the deeper ones at most every _PROGRESS_EVERY_S seconds (a root
 # child of a least-overlap search on a range scan took up to 0.7 s, issue 34)
@@ -241,6 +246,12 @@ class _Search:
             self.timeout_bound = bound
             raise _Timeout
 
+    def _bits_now(self) -> bool:
+        """Whether the last axes are counted on bit sets now: in the coverage searches without zone
+        conflicts, once the coverage still allowed to be missed is at most :data:`_BITS_SHARE` of
+        the points (the floor only rises, so a node built for them keeps them)."""
+        return self.bits is not None and self.W - self._floor() <= _BITS_SHARE * self.W
+
     def _count_node(self, count=1):
         self.nodes += count
         if self.max_nodes is not None and self.nodes > self.max_nodes:
@@ -281,7 +292,7 @@ class _Search:
         M = cand.size
         if M < 2:
             return
-        if self.bits is not None:
+        if node["P"] is None or self._bits_now():
             self._bit_pairs(S, cand, self.bits.uncovered(S))
             return
         allowed = self._allowed(cand)
@@ -401,7 +412,7 @@ class _Search:
         else:
             lub = self._price_bounds(node, allowed, r) if self.mu is not None else None
             viable, k1, k2, lb = _branch_bounds(cov, ov, g, h, P, Q, allowed, r, floor, self.mode, lub)
-        if r == 3 and P is not None and M <= _TENSOR_MAX and viable.any():
+        if r == 3 and P is not None and M <= _TENSOR_MAX and viable.any() and not self._bits_now():
             viable &= _pairs_exist(node, allowed, floor, self._overlap_incumbent())
         idx = np.flatnonzero(viable)
         if idx.size == 0:
@@ -412,10 +423,10 @@ class _Search:
         else:
             frame_lbs = np.zeros(order.size)
         frame = [frame_lbs, 0]
-        if r == 3 and self.bits is not None:
+        if r == 3 and (P is None or self._bits_now()):
             self._bit_triples(S, cand, order)
             return
-        if r == 4 and self.bits is not None and self._bit_quads(S, cand, g, P, order):
+        if r == 4 and self._bits_now() and self._bit_quads(S, cand, g, P, order):
             return
         self.frames.append(frame)
         depth = len(S)
@@ -497,7 +508,8 @@ class _Search:
             keep &= ov + h <= inc[0]
         if np.count_nonzero(keep) < rc:
             return None
-        if (rc == 2 or (rc == 3 and self.bits is None)) and not _completable(
+        bits = self._bits_now()  # the child's last two or three axes on bit sets: no P, no pre-check
+        if (rc == 2 or (rc == 3 and not bits)) and not _completable(
                 self.p, node, after, keep, s1, g, h, cov, ov, rc, floor, inc):
             return None
         if not keep.all():
@@ -515,7 +527,7 @@ class _Search:
         cand2 = node["cand"][after]
         child = dict(S=node["S"] + [axis], cov=cov, ov=ov, cand=cand2, g=g, h=h,
                      P=None, Q=None, deg=None, U=None)
-        if rc >= 4 or (rc >= 2 and self.bits is None):  # two or three left on bit sets: no P
+        if rc >= 4 or (rc >= 2 and not self._bits_now()):  # two or three left on bit sets: no P
             col = p.AT[axis]
             ix = np.ix_(after, after)
             # the candidates' rows of the axes x classes matrix over the classes that count only:

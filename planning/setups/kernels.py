@@ -160,20 +160,30 @@ def _quads_within(unc, B, planes, g, P, wunc, js, smax, out, nodes):
             for ll in range(j + 1, M):
                 if keep[ll] and (left_j - min(top3, gj[ll] + top2) > smax + 1e-9):
                     keep[ll] = False
+        # the kept rows after j by falling gain: a row's gain after j and l is at most its gain after
+        # j, so the weight j and l leave less the gains of the two rows added bounds what a
+        # quadruple leaves from below, and once that bound fails it fails for every later row
+        idx = np.flatnonzero(keep)
+        idx = idx[np.argsort(-gj[idx], kind="mergesort")]
+        K = idx.shape[0]
         for i in range(nw):
             xj[i] = unc[i] & ~B[j, i]
-        for ll in range(j + 1, M):
-            if not keep[ll]:
-                continue
+        for a in range(K - 2):
+            ll = idx[a]
+            left_l = left_j - gj[ll]
+            if left_l - gj[idx[a + 1]] - gj[idx[a + 2]] > smax + 1e-9:
+                break
             nodes[1] += 1
             for i in range(nw):
                 xl[i] = xj[i] & ~B[ll, i]
-            for q in range(ll + 1, M):
-                if not keep[q]:
-                    continue
-                for s in range(q + 1, M):
-                    if not keep[s]:
-                        continue
+            for b in range(a + 1, K - 1):
+                q = idx[b]
+                if left_l - gj[q] - gj[idx[b + 1]] > smax + 1e-9:
+                    break
+                for c in range(b + 1, K):
+                    s = idx[c]
+                    if left_l - gj[q] - gj[s] > smax + 1e-9:
+                        break
                     acc = 0
                     for i in range(nw):  # every class weighs at least 1: the count bounds the weight
                         acc += _popcount(xl[i] & ~B[q, i] & ~B[s, i])
@@ -184,10 +194,17 @@ def _quads_within(unc, B, planes, g, P, wunc, js, smax, out, nodes):
                     if acc <= smax:
                         if n >= out.shape[0]:
                             return -1
+                        r0, r1, r2 = ll, q, s  # the three in increasing order
+                        if r0 > r1:
+                            r0, r1 = r1, r0
+                        if r1 > r2:
+                            r1, r2 = r2, r1
+                        if r0 > r1:
+                            r0, r1 = r1, r0
                         out[n, 0] = j
-                        out[n, 1] = ll
-                        out[n, 2] = q
-                        out[n, 3] = s
+                        out[n, 1] = r0
+                        out[n, 2] = r1
+                        out[n, 3] = r2
                         out[n, 4] = acc
                         n += 1
     return n
@@ -207,6 +224,10 @@ class _Bits:
             rows = np.concatenate([rows, np.zeros((rows.shape[0], pad), bool)], axis=1)
             return np.ascontiguousarray(np.packbits(rows, axis=1, bitorder="little").view("<u8").astype(np.uint64))
 
+        # the classes seen by the fewest axes first: the words a subset that misses the coverage
+        # leaves uncovered come first among those of a node (see _words)
+        perm = np.argsort(A.sum(axis=1), kind="stable")
+        A, w = A[perm], w[perm]
         self.axes = pack(np.ascontiguousarray(A.T))
         nplanes = max(1, int(w.max(initial=1)).bit_length())
         self.planes = pack(((w[None, :] >> np.arange(nplanes)[:, None]) & 1).astype(bool))
@@ -258,16 +279,20 @@ class _Bits:
                           np.ascontiguousarray(js, dtype=np.int64), int(smax), out, nodes)
         if n < 0:
             return None, nodes
-        return out[:n], nodes
+        out = out[:n]
+        rank = np.empty(cand.size, np.int64)
+        rank[js] = np.arange(js.size)
+        return out[np.lexsort((out[:, 3], out[:, 2], out[:, 1], rank[out[:, 0]]))], nodes
 
     def weight_of(self, u) -> int:
         """The weight of the classes of ``u``."""
         return int(sum(int(np.bitwise_count(self.planes[p] & u).sum()) << p for p in range(self.planes.shape[0])))
 
     def _words(self, u, cand):
-        """The words of ``u`` that hold classes, heaviest first (a subset that misses the coverage is
-        seen to miss after a few), with the candidates' and the weights' words in the same order."""
-        nz = np.flatnonzero(u)
-        order = nz[np.argsort(-np.bitwise_count(u[nz]), kind="stable")]
+        """The words of ``u`` that hold classes, with the candidates' and the weights' words: in class
+        order, the classes seen by the fewest axes first (a subset that misses the coverage is seen
+        to miss after a few words; on the range half sphere this beat ordering the node's words by
+        their uncovered count, 0.63 against 0.78 s of kernel for 1.0 / 5)."""
+        order = np.flatnonzero(u)
         return (np.ascontiguousarray(u[order]), np.ascontiguousarray(self.axes[np.ix_(cand, order)]),
                 np.ascontiguousarray(self.planes[:, order]))

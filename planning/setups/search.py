@@ -406,11 +406,11 @@ class _Search:
         allowed = self._allowed(cand)
         if P is None:  # three axes left on bit sets (no Gram matrix): the best gains bound the children
             cub = cov + np.minimum(*_top_sums(g, r))
-            if self.mu is not None:
+            if node.get("s") is not None:
                 cub = np.minimum(cub, self.W - node["M"] + np.minimum(*_top_sums(node["s"], r)))
             viable, k1, k2, lb = cub >= floor, -cub, ov + h, ov + h
         else:
-            lub = self._price_bounds(node, allowed, r) if self.mu is not None else None
+            lub = self._price_bounds(node, allowed, r) if node.get("Pm") is not None else None
             viable, k1, k2, lb = _branch_bounds(cov, ov, g, h, P, Q, allowed, r, floor, self.mode, lub)
         if r == 3 and P is not None and M <= _TENSOR_MAX and viable.any() and not self._bits_now():
             viable &= _pairs_exist(node, allowed, floor, self._overlap_incumbent())
@@ -500,7 +500,7 @@ class _Search:
         # with the best other gains, already rules it out cannot appear in this subtree
         keep = cov + np.minimum(*_top_sums(g, rc)) >= floor
         sc = Mc = None
-        if self.mu is not None:  # the same with the prices: W - M + (best rc price gains)
+        if node.get("Pm") is not None:  # the same with the prices: W - M + (best rc price gains)
             sc = node["s"][after] - node["Pm"][j, after]
             Mc = node["M"] - node["s"][j]
             keep &= self.W - Mc + np.minimum(*_top_sums(sc, rc)) >= floor
@@ -527,6 +527,8 @@ class _Search:
         cand2 = node["cand"][after]
         child = dict(S=node["S"] + [axis], cov=cov, ov=ov, cand=cand2, g=g, h=h,
                      P=None, Q=None, deg=None, U=None)
+        if rc == 4 and self._bits_now():  # its quadruples on bit sets: the prices no longer needed
+            sc = None
         if rc >= 4 or (rc >= 2 and not self._bits_now()):  # two or three left on bit sets: no P
             col = p.AT[axis]
             ix = np.ix_(after, after)

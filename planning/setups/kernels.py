@@ -159,6 +159,7 @@ def _quads_within(unc, B, planes, g, P, wunc, js, smax, out, nodes):
     xj = np.empty(nw, np.uint64)
     xl = np.empty(nw, np.uint64)
     gj = np.empty(M)
+    gjl = np.empty(M)
     keep = np.zeros(M, np.bool_)
     n = 0
     for t in range(js.shape[0]):
@@ -190,14 +191,23 @@ def _quads_within(unc, B, planes, g, P, wunc, js, smax, out, nodes):
             nodes[1] += 1
             for i in range(nw):
                 xl[i] = xj[i] & ~B[ll, i]
+            # a row's gain after j and l: the classes after j that l sees too weigh at least
+            # P_lq less those j sees as well (at most the smaller of P_jl, P_jq)
+            for c in range(a + 1, K):
+                q = idx[c]
+                gjl[q] = gj[q] - max(0.0, P[ll, q] - min(P[j, ll], P[j, q]))
             for b in range(a + 1, K - 1):
                 q = idx[b]
                 if left_l - gj[q] - gj[idx[b + 1]] > smax + 1e-9:
                     break
+                if left_l - gjl[q] - gj[idx[b + 1]] > smax + 1e-9:
+                    continue
                 for c in range(b + 1, K):
                     s = idx[c]
                     if left_l - gj[q] - gj[s] > smax + 1e-9:
                         break
+                    if left_l - gjl[q] - gjl[s] > smax + 1e-9:
+                        continue
                     acc = 0
                     for i in range(nw):  # every class weighs at least 1: the count bounds the weight
                         acc += _popcount(xl[i] & ~B[q, i] & ~B[s, i])

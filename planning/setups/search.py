@@ -87,6 +87,13 @@ from planning.setups.problem import (
 )
 
 
+def _gather(prob: _Problem, rows, cols) -> np.ndarray:
+    """The axes x classes matrix at ``rows`` x ``cols``, as floats: the boolean rows first, then
+    their columns (a quarter of the time of a 2-D fancy index of the float matrix: 0.7 against 3 ms
+    for 100 axes x 4,500 classes, the size of a range scan's node one axis below the root)."""
+    return np.take(prob.AT[rows], cols, axis=1).astype(prob.ftype)
+
+
 def _bits_of(prob: _Problem) -> _Bits:
     """The problem's classes as bit sets (built once per problem)."""
     b = getattr(prob, "_bits", None)
@@ -558,19 +565,19 @@ class _Search:
                 if R0.size >= R1.size:  # P from scratch over R0 where fewer
                     R0 = None
             if R0 is not None:
-                Y0 = p.ATf[np.ix_(cand2, R0)]
+                Y0 = _gather(p, cand2, R0)
                 child["P"] = _wgram_t(Y0, p.wf[R0])
                 if sc is not None:
                     child["Pm"] = _wgram_t(Y0, self.mu[R0])
             else:
-                Y1 = p.ATf[np.ix_(cand2, R1)]
+                Y1 = _gather(p, cand2, R1)
                 G1 = _wgram_t(Y1, p.wf[R1])
                 child["P"] = node["P"][ix] - G1
                 if sc is not None:
                     child["Pm"] = node["Pm"][ix] - _wgram_t(Y1, self.mu[R1])
             if self.track_overlap:
                 R2 = np.flatnonzero((deg == 1) & col)  # classes j turns into overlap
-                Y2 = p.ATf[np.ix_(cand2, R2)]
+                Y2 = _gather(p, cand2, R2)
                 child["Q"] = node["Q"][ix] + G1 - _wgram_t(Y2, p.wf[R2])
         if sc is not None:
             child.update(s=sc, M=Mc)

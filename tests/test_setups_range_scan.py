@@ -315,3 +315,35 @@ def test_bit_sets_only_near_the_largest_coverage(range_matrices):
     zone = np.zeros(V.shape[0], bool)
     zone[::3] = True
     assert not search._Search(_Problem(V, zone, 1, 1), 3, "cover", W * 0.999, 1e18)._bits_now()
+
+
+def test_price_rounds_stop_when_the_bound_stops_falling(range_matrices, monkeypatch):
+    """The search's LP (min_gain): column generation stops after the first round that lowered the
+    bound by less than min_gain points; the prices stay valid (the bound never below the best
+    coverage of r axes), and without min_gain every round runs as before."""
+    from planning.setups import lagrange
+    from planning.setups.heuristics import _heuristics
+
+    solves = []
+    real = lagrange._solve_dual
+
+    def solve(*a, **kw):
+        solves.append(1)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(lagrange, "_solve_dual", solve)
+    more = 0
+    for shape, r in itertools.product(range_matrices, (3, 4, 5)):
+        prob = _Problem(range_matrices[shape], None, 1, 1)
+        start = _heuristics(prob, r)[r][0]
+        runs = {}
+        for gain in (None, 0.0, np.inf):
+            solves.clear()
+            runs[gain] = (lagrange._prices(prob, r, start, min_gain=gain)[1], len(solves))
+        assert runs[0.0] == runs[None]
+        assert runs[np.inf][1] == min(2, runs[None][1])
+        more += runs[None][1] > 2
+        assert runs[np.inf][0] >= runs[None][0] - 1e-9
+        best = select_setups(range_matrices[shape], coverage=1.0, max_setups=r).covered
+        assert runs[np.inf][0] >= best
+    assert more  # some LP here needs more than two rounds without min_gain

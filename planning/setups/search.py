@@ -122,6 +122,9 @@ _PROBE_NODES = 40
 # the points more than required: near the largest coverage the price bound prunes most subtrees
 # (femur-like, 0.94: 677 -> 93 nodes), far below it it prunes little and costs a Gram product a node
 _NEAR_CEILING = 0.005
+# the LP's column generation stops once a round lowered the bound by less than this many points
+# (planning.setups.lagrange._prices; a weaker bound only prunes less, the answers stay exact)
+_PRICE_MIN_GAIN = 1.0
 # the fewest axes the prices are computed for: a search for one or two axes is settled at its root
 # (every pair evaluated exactly from the Gram matrix, a few milliseconds), while the LP costs 0.5-2 s
 # on range-scan matrices (18k classes x 133 axes: range half sphere R 100 mm, issue 32)
@@ -737,7 +740,7 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
     if kmax >= _MIN_PRICE_R and not (kmax in heur and heur[kmax][1] >= req):
         if progress:
             progress(0.05, f"can {kmax} set-ups reach the coverage at all?")
-        prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=deadline)
+        prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=deadline, min_gain=_PRICE_MIN_GAIN)
         price_r = kmax
         if bound < req:
             sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound)
@@ -776,7 +779,7 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
             try:
                 s.run()
             except _Budget:  # a hard proof: the prices for k, then the search again with them
-                prices, _ = _prices(prob, k, heur.get(k, (None,))[0], deadline=deadline)
+                prices, _ = _prices(prob, k, heur.get(k, (None,))[0], deadline=deadline, min_gain=_PRICE_MIN_GAIN)
                 price_r = k
                 if _price_bound(prob, prices, k) < req:
                     continue  # proven at the root: no k axes reach the coverage
@@ -789,14 +792,14 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
             break
     if kstar is None:
         if price_r != kmax and kmax >= _MIN_PRICE_R:
-            prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=deadline)
+            prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=deadline, min_gain=_PRICE_MIN_GAIN)
         sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound)
         return _Outcome("infeasible", sel, None, note)
     # stage 2: least overlap at k*
     inc = _local_search(prob, found, "overlap", req)
     if (price_r != kstar and kstar >= _MIN_PRICE_R and kstar in heur
             and heur[kstar][1] - req <= _NEAR_CEILING * prob.n):
-        prices, bound = _prices(prob, kstar, heur[kstar][0], deadline=deadline)
+        prices, bound = _prices(prob, kstar, heur[kstar][0], deadline=deadline, min_gain=_PRICE_MIN_GAIN)
         # kept only where the bound is near the coverage asked (it prunes nothing far above it)
         price_r = kstar if bound - req <= _NEAR_CEILING * prob.n and bound < prob.w.sum() else None
     s = _Search(prob, kstar, "overlap", req, deadline, incumbent=inc,

@@ -336,14 +336,7 @@ class _Search:
         if smax < 0:
             return
         leaves = self.bits.triples_within(self.bits.uncovered(S), cand, order, smax)
-        if leaves.shape[0] == 0:
-            return
-        cut = np.flatnonzero(np.diff(leaves[:, 0])) + 1
-        for rows in np.split(leaves, cut):
-            rows = rows[rows[:, 3] <= math.floor(self.W - self._floor() + 1e-9)]
-            if rows.shape[0]:
-                self._pick(S, [tuple(x) for x in rows[:, :3].tolist()], self.W - rows[:, 3].astype(np.float64),
-                           None, cand)
+        self._offer_children(S, cand, order, leaves)
 
     def _bit_quads(self, S, cand, g, P, order) -> bool:
         """The children ``order`` of a node with four axes to add, as :meth:`_bit_triples` one level
@@ -358,15 +351,29 @@ class _Search:
         if leaves is None:
             return False
         self._count_node(int(nodes.sum()))
-        if leaves.shape[0] == 0:
-            return True
-        cut = np.flatnonzero(np.diff(leaves[:, 0])) + 1
-        for rows in np.split(leaves, cut):
-            rows = rows[rows[:, 4] <= math.floor(self.W - self._floor() + 1e-9)]
-            if rows.shape[0]:
-                self._pick(S, [tuple(x) for x in rows[:, :4].tolist()], self.W - rows[:, 4].astype(np.float64),
-                           None, cand)
+        self._offer_children(S, cand, order, leaves)
         return True
+
+    def _offer_children(self, S, cand, order, leaves):
+        """A kernel's leaves (rows: positions into ``cand``, the child first, the weight left last,
+        grouped by child in the order of ``order``) offered child by child as the search would
+        (filtered by the floor of the moment), with the progress reports of the children of a node
+        down to :data:`_PROGRESS_DEPTH`."""
+        depth = len(S)
+        report = self.progress is not None and depth <= _PROGRESS_DEPTH
+        if leaves.shape[0] == 0 and not report:
+            return
+        pos = np.empty(cand.size, np.int64)
+        pos[order] = np.arange(order.size)
+        starts = np.searchsorted(pos[leaves[:, 0]], np.arange(order.size + 1))
+        for t in (range(order.size) if report else np.flatnonzero(np.diff(starts))):
+            if report:
+                self._report(depth, int(t), order.size)
+            rows = leaves[starts[t]:starts[t + 1]]
+            rows = rows[rows[:, -1] <= math.floor(self.W - self._floor() + 1e-9)]
+            if rows.shape[0]:
+                self._pick(S, [tuple(x) for x in rows[:, :-1].tolist()], self.W - rows[:, -1].astype(np.float64),
+                           None, cand)
 
     def _bit_pairs(self, S, cand, unc):
         """The leaves of a node with two axes to add (chosen ``S``, its uncovered classes ``unc`` as

@@ -80,8 +80,8 @@ def _solve_dual(prob: _Problem, cols: np.ndarray, r: int, presolve: bool, second
     return res.x[: cols.size], -np.asarray(res.ineqlin.marginals, dtype=np.float64)
 
 
-def _prices(prob: _Problem, r: int, start=None, rounds: int = 4, deadline: float | None = None
-            ) -> tuple[np.ndarray, float]:
+def _prices(prob: _Problem, r: int, start=None, rounds: int = 4, deadline: float | None = None,
+            min_gain: float | None = None) -> tuple[np.ndarray, float]:
     """Prices (C,) in [0, w] on a dyadic grid from the LP dual for r axes, and the root bound.
 
     The LP runs on a subset of the classes (column generation): the classes that ``start`` (a good
@@ -90,7 +90,10 @@ def _prices(prob: _Problem, r: int, start=None, rounds: int = 4, deadline: float
     added and the LP solved again, at most ``rounds`` times.  On the femur-like case the first
     subset is already optimal (12k of 31k classes; 0.3-0.4 s instead of 2-4 s for the whole LP
     with presolve).  Any prices are valid, so stopping early only weakens the bound; zero prices
-    (bound: every seen point) if the solver fails or ``deadline`` (``time.perf_counter()``) passes."""
+    (bound: every seen point) if the solver fails or ``deadline`` (``time.perf_counter()``) passes.
+    ``min_gain``: also stop once a round lowered the bound by less than this many points (the
+    search's use: on the range half sphere the rounds after the second moved it by 0.03-0.1 points
+    and cost a solve each, issue 32)."""
     C, m = prob.C, prob.m
     mu = np.zeros(C)
     if C == 0 or m == 0:
@@ -100,6 +103,7 @@ def _prices(prob: _Problem, r: int, start=None, rounds: int = 4, deadline: float
     else:
         cols = np.arange(C)
     Af = None
+    last = np.inf  # the bound after the last round (where min_gain is given)
     for _ in range(rounds):
         left = None if deadline is None else deadline - time.perf_counter()
         if left is not None and left <= 0:
@@ -116,6 +120,11 @@ def _prices(prob: _Problem, r: int, start=None, rounds: int = 4, deadline: float
             break
         if Af is None:
             Af = prob.A.astype(np.float64)
+        if min_gain is not None:
+            b = float(prob.w.sum()) - float(mu.sum()) + _top_r_sum(mu @ Af, r)
+            if last - b < min_gain:
+                break
+            last = b
         out = np.ones(C, bool)
         out[cols] = False
         add = np.flatnonzero(out & (Af @ got[1] < 1.0 - 1e-7))

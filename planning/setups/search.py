@@ -50,7 +50,13 @@ leaves of the best coverage, build ``P`` from the still uncovered classes where 
 than the newly covered ones, and gather only the candidates' columns.  Range half sphere R 100 mm
 (25,359 sampled points): 0.97 with max 2 set-ups 1.75 s -> 0.05 s, 0.995 with 3 1.52 s -> 0.62 s,
 0.999 with 4 18.0 s -> 3.1 s; coverage 1.0 with 5 (the best 5 leave 8 points) still takes ~50 s:
-there the LP relaxation covers every point and the search has no strong bound.
+there the LP relaxation covers every point and the search has no strong bound.  The leaves are what
+it costs there: the coverage searches now count the last two to four axes on bit sets
+(:mod:`planning.setups.kernels`, where at most ``_BITS_SHARE`` of the points may be left uncovered),
+a subset dropped after the first words of classes it leaves uncovered; nodes with three or four axes
+to add hand all their children to one kernel call (no child states, Gram matrices or pre-checks
+below them).  Same matrix, same run against 7f7b0d2: 1.0 with 5 49 s -> 1.6 s, 0.999 with 4
+3.1 s -> 0.7 s, 0.995 with 3 1.1 s -> 0.7 s (of which the LP is 0.5 s).
 """
 
 from __future__ import annotations
@@ -69,6 +75,7 @@ from planning.setups.bounds import (
     _top_sums,
 )
 from planning.setups.heuristics import _heuristics, _local_search, _timeout_fallback
+from planning.setups.kernels import _Bits
 from planning.setups.lagrange import _price_bound, _prices
 from planning.setups.problem import (
     _key_cover,
@@ -78,6 +85,21 @@ from planning.setups.problem import (
     _wgram,
     _wgram_t,
 )
+
+
+def _gather(prob: _Problem, rows, cols) -> np.ndarray:
+    """The axes x classes matrix at ``rows`` x ``cols``, as floats: the boolean rows first, then
+    their columns (a quarter of the time of a 2-D fancy index of the float matrix: 0.7 against 3 ms
+    for 100 axes x 4,500 classes, the size of a range scan's node one axis below the root)."""
+    return np.take(prob.AT[rows], cols, axis=1).astype(prob.ftype)
+
+
+def _bits_of(prob: _Problem) -> _Bits:
+    """The problem's classes as bit sets (built once per problem)."""
+    b = getattr(prob, "_bits", None)
+    if b is None:
+        b = prob._bits = _Bits(prob.A, prob.w)
+    return b
 
 
 class _Timeout(Exception):
@@ -100,10 +122,18 @@ _PROBE_NODES = 40
 # the points more than required: near the largest coverage the price bound prunes most subtrees
 # (femur-like, 0.94: 677 -> 93 nodes), far below it it prunes little and costs a Gram product a node
 _NEAR_CEILING = 0.005
+# the LP's column generation stops once a round lowered the bound by less than this many points
+# (planning.setups.lagrange._prices; a weaker bound only prunes less, the answers stay exact)
+_PRICE_MIN_GAIN = 1.0
 # the fewest axes the prices are computed for: a search for one or two axes is settled at its root
 # (every pair evaluated exactly from the Gram matrix, a few milliseconds), while the LP costs 0.5-2 s
 # on range-scan matrices (18k classes x 133 axes: range half sphere R 100 mm, issue 32)
 _MIN_PRICE_R = 3
+# the last two to four axes of a coverage search are counted on bit sets (planning.setups.kernels)
+# where at most this share of the points may be left uncovered: there a subset that misses is seen
+# to miss after a word or two; far below the largest coverage (femur-like 0.90: 7.5 %) every subset
+# is counted to its end, and the Gram matrices were quicker
+_BITS_SHARE = 0.05
 # progress from inside a search: the children of the nodes down to this depth (the root 0) tell where
 # the search is, the root's always, the deeper ones at most every _PROGRESS_EVERY_S seconds (a root
 # child of a least-overlap search on a range scan took up to 0.7 s, issue 34)
@@ -151,6 +181,9 @@ class _Search:
         # leaves that tie the best coverage (on range scans the once-covered classes outnumber the
         # newly covered ones 2:1 below the root, and Q was the largest product; issue 32)
         self.track_overlap = mode == "overlap"
+        # the last two axes of a coverage search: every pair counted on bit sets, stopping at the
+        # first words that show it misses the coverage (planning.setups.kernels), not from P
+        self.bits = None if self.track_overlap or prob.has_conflicts else _bits_of(prob)
         self.best_key = None
         self.best_sel = None
         if incumbent is not None:
@@ -229,10 +262,19 @@ class _Search:
             self.timeout_bound = bound
             raise _Timeout
 
-    def _node(self, node, r):
-        self.nodes += 1
+    def _bits_now(self) -> bool:
+        """Whether the last axes are counted on bit sets now: in the coverage searches without zone
+        conflicts, once the coverage still allowed to be missed is at most :data:`_BITS_SHARE` of
+        the points (the floor only rises, so a node built for them keeps them)."""
+        return self.bits is not None and self.W - self._floor() <= _BITS_SHARE * self.W
+
+    def _count_node(self, count=1):
+        self.nodes += count
         if self.max_nodes is not None and self.nodes > self.max_nodes:
             raise _Budget
+
+    def _node(self, node, r):
+        self._count_node()
         if r == 1:
             self._leaves1(node)
         elif r == 2:
@@ -266,6 +308,9 @@ class _Search:
         M = cand.size
         if M < 2:
             return
+        if node["P"] is None or self._bits_now():
+            self._bit_pairs(S, cand, self.bits.uncovered(S))
+            return
         allowed = self._allowed(cand)
         covm = cov + g[:, None] + g[None, :] - node["P"]
         ok = allowed & (covm >= floor)
@@ -278,6 +323,69 @@ class _Search:
             Q, P = node["Q"], node["P"]
             ovs = ov + h[ia] + h[ib] - Q[ia, ib] + P[ia, ib]
         self._pick(S, list(zip(ia.tolist(), ib.tolist(), strict=True)), covs, ovs, cand)
+
+    def _bit_triples(self, S, cand, order):
+        """The children ``order`` (positions into ``cand``, in that order) of a node with three axes
+        to add: every triple j < l < q reaching the floor, counted at once on bit sets
+        (:mod:`planning.setups.kernels`), then each child's offered as :meth:`_leaves2` would offer
+        its pairs (filtered again by the floor, which rises as the incumbent improves).  Each child
+        counts as a node; a child without such a triple costs nothing more."""
+        self._check_time()
+        self._count_node(order.size)
+        smax = math.floor(self.W - self._floor() + 1e-9)
+        if smax < 0:
+            return
+        leaves = self.bits.triples_within(self.bits.uncovered(S), cand, order, smax)
+        self._offer_children(S, cand, order, leaves)
+
+    def _bit_quads(self, S, cand, g, P, order) -> bool:
+        """The children ``order`` of a node with four axes to add, as :meth:`_bit_triples` one level
+        up: each child's candidates filtered by their gains (from the node's ``g`` and ``P``, as
+        :meth:`_child` filters them), then every quadruple reaching the floor counted on bit sets
+        and offered per child.  False (nothing done) where too many quadruples reach the floor."""
+        self._check_time()
+        smax = math.floor(self.W - self._floor() + 1e-9)
+        if smax < 0:
+            return True
+        leaves, nodes = self.bits.quads_within(self.bits.uncovered(S), cand, g, P, order, smax)
+        if leaves is None:
+            return False
+        self._count_node(int(nodes.sum()))
+        self._offer_children(S, cand, order, leaves)
+        return True
+
+    def _offer_children(self, S, cand, order, leaves):
+        """A kernel's leaves (rows: positions into ``cand``, the child first, the weight left last,
+        grouped by child in the order of ``order``) offered child by child as the search would
+        (filtered by the floor of the moment), with the progress reports of the children of a node
+        down to :data:`_PROGRESS_DEPTH`."""
+        depth = len(S)
+        report = self.progress is not None and depth <= _PROGRESS_DEPTH
+        if leaves.shape[0] == 0 and not report:
+            return
+        pos = np.empty(cand.size, np.int64)
+        pos[order] = np.arange(order.size)
+        starts = np.searchsorted(pos[leaves[:, 0]], np.arange(order.size + 1))
+        for t in (range(order.size) if report else np.flatnonzero(np.diff(starts))):
+            if report:
+                self._report(depth, int(t), order.size)
+            rows = leaves[starts[t]:starts[t + 1]]
+            rows = rows[rows[:, -1] <= math.floor(self.W - self._floor() + 1e-9)]
+            if rows.shape[0]:
+                self._pick(S, [tuple(x) for x in rows[:, :-1].tolist()], self.W - rows[:, -1].astype(np.float64),
+                           None, cand)
+
+    def _bit_pairs(self, S, cand, unc):
+        """The leaves of a node with two axes to add (chosen ``S``, its uncovered classes ``unc`` as
+        bit set words): every pair of ``cand`` reaching the floor, counted on bit sets
+        (:mod:`planning.setups.kernels`), offered as :meth:`_leaves2` offers them."""
+        smax = math.floor(self.W - self._floor() + 1e-9)
+        if smax < 0 or cand.size < 2:
+            return
+        ia, ib, left = self.bits.pairs_within(unc, cand, smax)
+        if ia.size:
+            self._pick(S, list(zip(ia.tolist(), ib.tolist(), strict=True)), self.W - left.astype(np.float64),
+                       None, cand)
 
     def _pick(self, S, pos_tuples, covs, ovs, cand):
         """Best of the evaluated leaves (positions into cand) offered to the incumbent; ``ovs`` None
@@ -319,9 +427,15 @@ class _Search:
         if M < r:
             return
         allowed = self._allowed(cand)
-        lub = self._price_bounds(node, allowed, r) if self.mu is not None else None
-        viable, k1, k2, lb = _branch_bounds(cov, ov, g, h, P, Q, allowed, r, floor, self.mode, lub)
-        if r == 3 and M <= _TENSOR_MAX and viable.any():
+        if P is None:  # three axes left on bit sets (no Gram matrix): the best gains bound the children
+            cub = cov + np.minimum(*_top_sums(g, r))
+            if node.get("s") is not None:
+                cub = np.minimum(cub, self.W - node["M"] + np.minimum(*_top_sums(node["s"], r)))
+            viable, k1, k2, lb = cub >= floor, -cub, ov + h, ov + h
+        else:
+            lub = self._price_bounds(node, allowed, r) if node.get("Pm") is not None else None
+            viable, k1, k2, lb = _branch_bounds(cov, ov, g, h, P, Q, allowed, r, floor, self.mode, lub)
+        if r == 3 and P is not None and M <= _TENSOR_MAX and viable.any() and not self._bits_now():
             viable &= _pairs_exist(node, allowed, floor, self._overlap_incumbent())
         idx = np.flatnonzero(viable)
         if idx.size == 0:
@@ -332,6 +446,11 @@ class _Search:
         else:
             frame_lbs = np.zeros(order.size)
         frame = [frame_lbs, 0]
+        if r == 3 and (P is None or self._bits_now()):
+            self._bit_triples(S, cand, order)
+            return
+        if r == 4 and self._bits_now() and self._bit_quads(S, cand, g, P, order):
+            return
         self.frames.append(frame)
         depth = len(S)
         try:
@@ -404,7 +523,7 @@ class _Search:
         # with the best other gains, already rules it out cannot appear in this subtree
         keep = cov + np.minimum(*_top_sums(g, rc)) >= floor
         sc = Mc = None
-        if self.mu is not None:  # the same with the prices: W - M + (best rc price gains)
+        if node.get("Pm") is not None:  # the same with the prices: W - M + (best rc price gains)
             sc = node["s"][after] - node["Pm"][j, after]
             Mc = node["M"] - node["s"][j]
             keep &= self.W - Mc + np.minimum(*_top_sums(sc, rc)) >= floor
@@ -412,7 +531,9 @@ class _Search:
             keep &= ov + h <= inc[0]
         if np.count_nonzero(keep) < rc:
             return None
-        if rc >= 2 and not _completable(self.p, node, after, keep, s1, g, h, cov, ov, rc, floor, inc):
+        bits = self._bits_now()  # the child's last two or three axes on bit sets: no P, no pre-check
+        if (rc == 2 or (rc == 3 and not bits)) and not _completable(
+                self.p, node, after, keep, s1, g, h, cov, ov, rc, floor, inc):
             return None
         if not keep.all():
             sub = np.flatnonzero(keep)
@@ -429,7 +550,9 @@ class _Search:
         cand2 = node["cand"][after]
         child = dict(S=node["S"] + [axis], cov=cov, ov=ov, cand=cand2, g=g, h=h,
                      P=None, Q=None, deg=None, U=None)
-        if rc >= 2:
+        if rc == 4 and self._bits_now():  # its quadruples on bit sets: the prices no longer needed
+            sc = None
+        if rc >= 4 or (rc >= 2 and not self._bits_now()):  # two or three left on bit sets: no P
             col = p.AT[axis]
             ix = np.ix_(after, after)
             # the candidates' rows of the axes x classes matrix over the classes that count only:
@@ -452,19 +575,19 @@ class _Search:
                 if R0.size >= R1.size:  # P from scratch over R0 where fewer
                     R0 = None
             if R0 is not None:
-                Y0 = p.ATf[np.ix_(cand2, R0)]
+                Y0 = _gather(p, cand2, R0)
                 child["P"] = _wgram_t(Y0, p.wf[R0])
                 if sc is not None:
                     child["Pm"] = _wgram_t(Y0, self.mu[R0])
             else:
-                Y1 = p.ATf[np.ix_(cand2, R1)]
+                Y1 = _gather(p, cand2, R1)
                 G1 = _wgram_t(Y1, p.wf[R1])
                 child["P"] = node["P"][ix] - G1
                 if sc is not None:
                     child["Pm"] = node["Pm"][ix] - _wgram_t(Y1, self.mu[R1])
             if self.track_overlap:
                 R2 = np.flatnonzero((deg == 1) & col)  # classes j turns into overlap
-                Y2 = p.ATf[np.ix_(cand2, R2)]
+                Y2 = _gather(p, cand2, R2)
                 child["Q"] = node["Q"][ix] + G1 - _wgram_t(Y2, p.wf[R2])
         if sc is not None:
             child.update(s=sc, M=Mc)
@@ -624,7 +747,7 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
     if kmax >= _MIN_PRICE_R and not (kmax in heur and heur[kmax][1] >= req):
         if progress:
             progress(0.05, f"can {kmax} set-ups reach the coverage at all?")
-        prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=deadline)
+        prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=deadline, min_gain=_PRICE_MIN_GAIN)
         price_r = kmax
         if bound < req:
             sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound)
@@ -663,7 +786,7 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
             try:
                 s.run()
             except _Budget:  # a hard proof: the prices for k, then the search again with them
-                prices, _ = _prices(prob, k, heur.get(k, (None,))[0], deadline=deadline)
+                prices, _ = _prices(prob, k, heur.get(k, (None,))[0], deadline=deadline, min_gain=_PRICE_MIN_GAIN)
                 price_r = k
                 if _price_bound(prob, prices, k) < req:
                     continue  # proven at the root: no k axes reach the coverage
@@ -676,14 +799,14 @@ def _solve_bnb(prob: _Problem, K: int, deadline: float, progress) -> _Outcome:
             break
     if kstar is None:
         if price_r != kmax and kmax >= _MIN_PRICE_R:
-            prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=deadline)
+            prices, bound = _prices(prob, kmax, heur.get(kmax, (None,))[0], deadline=deadline, min_gain=_PRICE_MIN_GAIN)
         sel, note = _bnb_best_cover(prob, K, deadline, heur, progress, prices, bound)
         return _Outcome("infeasible", sel, None, note)
     # stage 2: least overlap at k*
     inc = _local_search(prob, found, "overlap", req)
     if (price_r != kstar and kstar >= _MIN_PRICE_R and kstar in heur
             and heur[kstar][1] - req <= _NEAR_CEILING * prob.n):
-        prices, bound = _prices(prob, kstar, heur[kstar][0], deadline=deadline)
+        prices, bound = _prices(prob, kstar, heur[kstar][0], deadline=deadline, min_gain=_PRICE_MIN_GAIN)
         # kept only where the bound is near the coverage asked (it prunes nothing far above it)
         price_r = kstar if bound - req <= _NEAR_CEILING * prob.n and bound < prob.w.sum() else None
     s = _Search(prob, kstar, "overlap", req, deadline, incumbent=inc,

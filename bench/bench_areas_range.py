@@ -53,8 +53,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 CASES = ("range_femur", "range_half_sphere", "femur_like")
-#: the README's own-scan example ("Planning your own scan")
-RANGE_OVERRIDES = ("visibility.cone_deg=[10,60]", "setups.max_setups=4")
+#: the README's own-scan example ("Planning your own scan"): defaults on a 100 mm riser
+RANGE_OVERRIDES = ("fixtures.fixture_height_mm=100",)
+#: that example before commit 47143a2 (``--old-settings``; the issue 32 figures measured before it)
+OLD_RANGE_OVERRIDES = ("visibility.cone_deg=[10,60]", "setups.max_setups=4")
 #: scripts/demo_service.py CONFIGS["femur_like"]
 UNIFORM_OVERRIDES = ('normals.method="sphere_throwing"', "normals.sphere_diameter_mm=7.0", "tool.diameter_mm=6.0",
                      "fixtures.fixture_height_mm=150.0", "visibility.cone_deg=[10,60]", "visibility.global=true",
@@ -87,6 +89,72 @@ def reference_figures(sp: np.ndarray, labels: np.ndarray, line: np.ndarray | Non
         across = same_view & (line[pairs[:, 0]] != line[pairs[:, 1]])
         out["along_share"] = float(cut[along].mean()) if along.any() else 0.0
         out["across_share"] = float(cut[across].mean()) if across.any() else 0.0
+    return out
+
+
+def reference_pairs(sp: np.ndarray) -> np.ndarray:
+    """The reference neighbourhood's pairs (module docstring)."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(sp)
+    d8, _ = tree.query(sp, k=9, workers=-1)
+    return tree.query_pairs(REF_RADIUS_FACTOR * float(np.median(d8[:, 8])), output_type="ndarray")
+
+
+def freed_allowed(graph, allowed: np.ndarray, min_region_mm2: float) -> np.ndarray:
+    """``allowed`` (n,k) with every forced piece (connected points that only one chosen set-up
+    sees, all the same one) smaller than ``min_region_mm2`` free to take any set-up: what the
+    labelling could reach if those specks of visibility were noise (not an allowed labelling)."""
+    from planning.areas.regions import components
+
+    n, k = allowed.shape
+    e = graph.edges
+    out = allowed.copy()
+    forced = allowed.sum(axis=1) == 1
+    for j in range(k):
+        fj = forced & allowed[:, j]
+        comp, nc = components(n, e, fj[e[:, 0]] & fj[e[:, 1]])
+        size = np.bincount(comp[fj], weights=graph.area_mm2[fj], minlength=nc)
+        out[fj & (size[comp] < min_region_mm2)] = True
+    return out
+
+
+def bound_figures(graph, pairs: np.ndarray, labels: np.ndarray, sub: np.ndarray, min_region_mm2: float) -> dict:
+    """``--bound``: the least label-change share any labelling the visibility allows can reach
+    (:func:`planning.areas.bound.least_label_changes`, on the plan graph and on the reference
+    pairs), the same with the forced specks under ``min_region_mm2`` freed (:func:`freed_allowed`),
+    and per area the points outside the largest of its regions within their piece of the set the
+    area may cover (its set-up sees them, or none does): a split there is the labelling's, a split
+    between pieces is forced by the visibility."""
+    from planning.areas.bound import least_label_changes
+    from planning.areas.regions import components, label_regions
+
+    n, k = sub.shape
+    allowed = sub | ~sub.any(axis=1)[:, None]
+    out = {}
+    for name, e, allow in (("plan", graph.edges, allowed), ("reference", pairs, allowed),
+                           ("plan_freed", graph.edges, freed_allowed(graph, allowed, min_region_mm2))):
+        t = time.perf_counter()
+        b = least_label_changes(e, allow)
+        m = max(e.shape[0], 1)
+        out[name] = {"bound_share": b.bound / m, "cut_share": b.cut / m, "fractional_points": b.fractional_points,
+                     "freed_points": int((allow.sum(axis=1) > allowed.sum(axis=1)).sum()),
+                     "lp_s": round(time.perf_counter() - t, 2)}
+    comp, nc = label_regions(graph, labels)
+    e = graph.edges
+    unforced = []
+    for j in range(k):
+        mine = labels == j
+        mcomp, mn = components(n, e, allowed[e[:, 0], j] & allowed[e[:, 1], j])
+        best = np.zeros(mn, np.int64)                     # per piece, the size of its largest region
+        rsize = np.bincount(comp[mine], minlength=nc)
+        piece_of = np.full(nc, -1, np.int64)
+        piece_of[comp[mine]] = mcomp[mine]
+        has = rsize > 0
+        np.maximum.at(best, piece_of[has], rsize[has])
+        kept = int(best.sum())
+        unforced.append((int(mine.sum()) - kept) / max(int(mine.sum()), 1))
+    out["unforced_split_share"] = unforced
     return out
 
 
@@ -149,7 +217,7 @@ def _config(case: str, extra: list[str]):
 
 
 def run_case(case: str, n_points: int, extra: list[str], cache: str | None, png_dir: str | None,
-             tag: str | None, file_normals: bool = False) -> dict:
+             tag: str | None, file_normals: bool = False, bound: bool = False) -> dict:
     """Plan ``case`` (areas and what they need only); its figures."""
     from planning import pipeline
     from planning.areas.assign import assign_areas
@@ -171,6 +239,7 @@ def run_case(case: str, n_points: int, extra: list[str], cache: str | None, png_
         fig.update(areas_s=round(time.perf_counter() - t1, 3), from_cache=True, k=len(z["selected"]),
                    status=None, coverage=None)
         points, sample_index, normals = z["points"], z["sample_index"], z["normals"]
+        visibility, selected = z["visibility"], z["selected"]
     else:
         captured = {}
         real = pipeline.assign_areas
@@ -198,6 +267,7 @@ def run_case(case: str, n_points: int, extra: list[str], cache: str | None, png_
             os.makedirs(cache, exist_ok=True)
             np.savez_compressed(stash, **captured)
         points, sample_index, normals = captured["points"], captured["sample_index"], captured["normals"]
+        visibility, selected = captured["visibility"], captured["selected"]
     sp = points[sample_index]
     g = _graph()(sp, normals, cfg.areas.neighbours)
     real_edges = ~g.bond
@@ -218,6 +288,10 @@ def run_case(case: str, n_points: int, extra: list[str], cache: str | None, png_
                                              np.asarray(s.meta["view"])[sample_index])
     else:
         fig["reference"] = reference_figures(sp, areas.labels, None, None)
+    if bound:
+        z_sel = np.asarray(selected, dtype=np.int64)
+        fig["bound"] = bound_figures(g, reference_pairs(sp), areas.labels, np.asarray(visibility, bool)[:, z_sel],
+                                     cfg.areas.min_region_mm2)
     if png_dir and tag:
         os.makedirs(png_dir, exist_ok=True)
         name = {"range_femur": "range_femur", "range_half_sphere": "range_half_sphere"}.get(case, case)
@@ -242,11 +316,20 @@ def _lines(fig: dict) -> list[str]:
             f"regions {fig['n_regions']}"),
            (f"   reference graph (r {ref['radius_mm']} mm, {ref['pairs_per_point']} pairs/point): label-change share "
             f"{ref['share']:.2%}{lines}")]
+    bd = fig.get("bound")
+    if bd:
+        for name, label in (("plan", "plan graph"), ("reference", "reference graph"),
+                            ("plan_freed", f"plan graph, {bd['plan_freed']['freed_points']} points of forced specks freed")):
+            b = bd[name]
+            gap = "exact" if b["fractional_points"] == 0 else f"LP, {b['fractional_points']} fractional points"
+            out.append(f"   least share any allowed labelling reaches, {label}: {b['bound_share']:.2%} ({gap}; "
+                       f"a labelling at {b['cut_share']:.2%}; {b['lp_s']:.1f} s)")
     for i, a in enumerate(fig["areas"]):
         ok = a["largest_region_share"] >= 0.9 or a["n_regions"] <= a["min_regions"]
+        split = f", split within a visible piece {bd['unforced_split_share'][i]:.1%}" if bd else ""
         out.append(f"   area {i}: {a['n_points']:6d} points, {a['n_regions']:4d} regions (min {a['min_regions']}, "
                    f"visible {a['n_visible_regions']}, small {a['n_small_regions']}), largest {a['largest_region_share']:.1%}"
-                   f"{'' if ok else '  <- under 90 % and above min_regions'}")
+                   f"{split}{'' if ok else '  <- under 90 % and above min_regions'}")
     if "png" in fig:
         out.append(f"   picture {fig['png']} ({fig['png_bytes'] / 1024:.0f} KB)")
     return out
@@ -291,6 +374,11 @@ def main() -> int:
                     help="take neighbour_graph from this file instead (the code before a change: "
                          "git show HEAD:planning/areas/graph.py > /tmp/graph_before.py)")
     ap.add_argument("--cache", default=None, help="keep / reuse the areas stage's inputs here")
+    ap.add_argument("--bound", action="store_true",
+                    help="also the least label-change share the visibility allows (an LP per graph, seconds each; "
+                         "planning/areas/bound.py) and per area the split within one visible piece")
+    ap.add_argument("--old-settings", action="store_true",
+                    help="the range cases with the own-scan settings before 47143a2 (cone [10,60], 4 set-ups)")
     ap.add_argument("--png-dir", default=None)
     ap.add_argument("--tag", default=None, help="picture name suffix (before, after)")
     ap.add_argument("--json", default=None, help="write the figures (JSON) here")
@@ -299,6 +387,9 @@ def main() -> int:
     if args.compare:
         compare(*args.compare)
         return 0
+    if args.old_settings:
+        global RANGE_OVERRIDES
+        RANGE_OVERRIDES = OLD_RANGE_OVERRIDES
     print(f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())} (1/5/15 min)", flush=True)
     if args.graph:
         import importlib.util
@@ -314,7 +405,7 @@ def main() -> int:
     figs = []
     for case in args.cases:
         n = args.uniform_points if case == "femur_like" else args.points
-        fig = run_case(case, n, args.set, args.cache, args.png_dir, args.tag, args.file_normals)
+        fig = run_case(case, n, args.set, args.cache, args.png_dir, args.tag, args.file_normals, args.bound)
         figs.append(fig)
         print("\n".join(_lines(fig)), flush=True)
     if args.json:

@@ -19,8 +19,8 @@ areas come out striped. This bench plans each case with the tool paths, roughing
   striped labelling changes mostly across lines).
 
 Cases (``--cases``): ``range_femur`` and ``range_half_sphere`` (40,000 points, seed 0, no normals from
-the file) planned like the README's own scan: ``visibility.cone_deg=[10,60]``,
-``setups.max_setups=4``, every other parameter at its default; ``femur_like`` (the uniform sample,
+the file) planned like the README's own scan: every parameter at its default but
+``fixtures.fixture_height_mm=100``; ``femur_like`` (the uniform sample,
 ``--uniform-points``, default 300,000) with scripts/demo_service.py's femur configuration (sphere
 throwing 7 mm, tool 6 mm, riser 150 mm, cone [10, 60], global visibility and travel, coverage 0.85,
 max 5 set-ups). ``--set`` adds overrides to every case.
@@ -28,7 +28,18 @@ max 5 set-ups). ``--set`` adds overrides to every case.
 ``--png-dir DIR --tag NAME`` also writes ``DIR/areas_<shape>_<NAME>.png`` per case (``<shape>`` =
 ``range_femur``, ``range_half_sphere``, ``femur_like``): the input points coloured by area, seen
 orthographically from two opposite sides (left and right half), nearest point on top, shaded by
-the normal. ``--cache DIR`` keeps the inputs of the areas stage per case (``DIR/<case>.npz``) and, when
+the normal; with ``--bound`` also ``DIR/areas_<shape>_<NAME>_least.png``, an allowed labelling with
+the fewest label changes on the plan graph (the LP's).
+
+``--bound`` (issue 32 item 2) adds, per case: the least label-change share any labelling can reach
+when every point keeps a set-up that sees it (:func:`planning.areas.bound.least_label_changes`, an
+LP lower bound, exact when its solution is integral) on the plan graph and on the reference pairs;
+the same with the forced specks under ``areas.min_region_mm2`` freed (what the visibility's speckle
+costs); and per area the share of its points outside the largest of its regions within their piece
+of the area's visible set (regions in different pieces are forced apart by the visibility; within
+a piece the labelling chose the split), with what joining those regions by corridors would cost
+(:func:`corridor_join`). ``--old-settings``: the range cases with cone [10, 60] and 4 set-ups (the
+own-scan example before 47143a2, the settings of the first issue 32 figures). ``--cache DIR`` keeps the inputs of the areas stage per case (``DIR/<case>.npz``) and, when
 they are there, runs only :func:`planning.areas.assign.assign_areas` on them (same visibility and
 set-ups, for trying the areas code quickly; the seconds are then that call's).
 
@@ -119,6 +130,50 @@ def freed_allowed(graph, allowed: np.ndarray, min_region_mm2: float) -> np.ndarr
     return out
 
 
+def corridor_join(graph, labels: np.ndarray, allowed: np.ndarray, j: int, rounds: int = 200):
+    """``labels`` with area ``j``'s regions that share a piece of its visible set (``allowed[:, j]``)
+    joined to that piece's largest region, each by the corridor of fewest points to relabel
+    (Dijkstra over the points ``j`` may take, nearest region first): (labels, points relabelled).
+    A figure of what one region per visible piece would cost, not a rule of the plan (a corridor
+    one point wide is no better to machine than the seam it saves)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    from planning.areas.regions import components, label_regions
+
+    lab = np.asarray(labels, np.int64).copy()
+    n = lab.shape[0]
+    e = graph.edges
+    ok = allowed[e[:, 0], j] & allowed[e[:, 1], j]
+    ee = e[ok]
+    mcomp, mn = components(n, e, ok)
+    added = 0
+    for _ in range(rounds):
+        comp, nc = label_regions(graph, lab)
+        mine = lab == j
+        size = np.bincount(comp[mine], minlength=nc)
+        piece = np.full(nc, -1, np.int64)
+        piece[comp[mine]] = mcomp[mine]
+        regs = np.flatnonzero(size > 0)
+        multi = np.flatnonzero(np.bincount(piece[regs], minlength=mn) > 1)
+        if multi.size == 0:
+            break
+        rr = regs[piece[regs] == multi[0]]
+        big = rr[np.argmax(size[rr])]
+        enter = (lab != j).astype(np.float64) + 1e-6             # cost of a corridor's point
+        m = coo_matrix((np.r_[enter[ee[:, 1]], enter[ee[:, 0]]], (np.r_[ee[:, 0], ee[:, 1]], np.r_[ee[:, 1], ee[:, 0]])),
+                       shape=(n, n)).tocsr()
+        d, pred, _ = dijkstra(m, indices=np.flatnonzero(comp == big), min_only=True, return_predecessors=True)
+        targets = np.flatnonzero(np.isin(comp, rr) & (comp != big))
+        v = int(targets[np.argmin(d[targets])])
+        while v >= 0 and comp[v] != big:
+            if lab[v] != j:
+                lab[v] = j
+                added += 1
+            v = int(pred[v])
+    return lab, added
+
+
 def bound_figures(graph, pairs: np.ndarray, labels: np.ndarray, sub: np.ndarray, min_region_mm2: float) -> dict:
     """``--bound``: the least label-change share any labelling the visibility allows can reach
     (:func:`planning.areas.bound.least_label_changes`, on the plan graph and on the reference
@@ -136,6 +191,8 @@ def bound_figures(graph, pairs: np.ndarray, labels: np.ndarray, sub: np.ndarray,
                            ("plan_freed", graph.edges, freed_allowed(graph, allowed, min_region_mm2))):
         t = time.perf_counter()
         b = least_label_changes(e, allow)
+        if name == "plan":
+            out["least_labels"] = b.labels                  # for the picture; not written to the JSON
         m = max(e.shape[0], 1)
         out[name] = {"bound_share": b.bound / m, "cut_share": b.cut / m, "fractional_points": b.fractional_points,
                      "freed_points": int((allow.sum(axis=1) > allowed.sum(axis=1)).sum()),
@@ -155,6 +212,19 @@ def bound_figures(graph, pairs: np.ndarray, labels: np.ndarray, sub: np.ndarray,
         kept = int(best.sum())
         unforced.append((int(mine.sum()) - kept) / max(int(mine.sum()), 1))
     out["unforced_split_share"] = unforced
+    joins = []
+    for j in range(k):
+        if unforced[j] == 0:
+            joins.append(None)
+            continue
+        lab, added = corridor_join(graph, labels, allowed, j)
+        c2, n2 = label_regions(graph, lab)
+        sizes = np.bincount(c2[lab == j])
+        sizes = sizes[sizes > 0]
+        joins.append({"corridor_points": added, "share": float((lab[e[:, 0]] != lab[e[:, 1]]).mean()),
+                      "regions_all": int(n2), "regions": int(sizes.size),
+                      "largest_region_share": float(sizes.max() / sizes.sum())})
+    out["corridors"] = joins
     return out
 
 
@@ -299,6 +369,12 @@ def run_case(case: str, n_points: int, extra: list[str], cache: str | None, png_
         nrm = normals[areas.nearest_sample] if areas.nearest_sample is not None else None
         fig["png"] = path
         fig["png_bytes"] = picture(path, points, nrm, areas.input_labels)
+        if bound and areas.nearest_sample is not None:
+            least = os.path.join(png_dir, f"areas_{name}_{tag}_least.png")
+            picture(least, points, nrm, fig["bound"]["least_labels"][areas.nearest_sample])
+            fig["png_least"] = least
+    if bound:
+        fig["bound"].pop("least_labels")
     return fig
 
 
@@ -326,12 +402,22 @@ def _lines(fig: dict) -> list[str]:
                        f"a labelling at {b['cut_share']:.2%}; {b['lp_s']:.1f} s)")
     for i, a in enumerate(fig["areas"]):
         ok = a["largest_region_share"] >= 0.9 or a["n_regions"] <= a["min_regions"]
-        split = f", split within a visible piece {bd['unforced_split_share'][i]:.1%}" if bd else ""
+        split, flag = "", "  <- under 90 % and above min_regions"
+        if bd:
+            u = bd["unforced_split_share"][i]
+            split = f", split within a visible piece {u:.1%}"
+            flag = flag if u < 0.1 else flag + ", 10 % or more split within a visible piece"
+            c = bd["corridors"][i]
+            if c:
+                split += (f" (joined by corridors of {c['corridor_points']} points: {c['regions']} regions, largest "
+                          f"{c['largest_region_share']:.1%}, share {c['share']:.2%}, all regions {c['regions_all']})")
         out.append(f"   area {i}: {a['n_points']:6d} points, {a['n_regions']:4d} regions (min {a['min_regions']}, "
                    f"visible {a['n_visible_regions']}, small {a['n_small_regions']}), largest {a['largest_region_share']:.1%}"
-                   f"{split}{'' if ok else '  <- under 90 % and above min_regions'}")
+                   f"{split}{'' if ok else flag}")
     if "png" in fig:
         out.append(f"   picture {fig['png']} ({fig['png_bytes'] / 1024:.0f} KB)")
+    if "png_least" in fig:
+        out.append(f"   picture of a labelling with the least label changes on the plan graph: {fig['png_least']}")
     return out
 
 

@@ -69,3 +69,46 @@ def test_the_plans_labelling_never_cuts_fewer_edges_than_the_bound():
     b = least_label_changes(g.edges, allowed)
     assert b.bound <= cut_weight(g.edges, a.labels) + 1e-7
     assert a.label_change_share * len(g.edges) == pytest.approx(cut_weight(g.edges, a.labels))
+
+
+def _bench():
+    import importlib.util
+    import os
+
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "bench", "bench_areas_range.py")
+    spec = importlib.util.spec_from_file_location("bench_areas_range_under_test", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _grid_graph(nx, ny):
+    from planning.areas.graph import SurfaceGraph
+
+    idx = np.arange(nx * ny).reshape(ny, nx)
+    edges = np.concatenate([np.stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()], 1),
+                            np.stack([idx[:-1, :].ravel(), idx[1:, :].ravel()], 1)])
+    m = edges.shape[0]
+    return SurfaceGraph(edges=edges, length_mm=np.ones(m), seam_mm=np.ones(m), normal_angle_deg=np.zeros(m),
+                        area_mm2=np.ones(nx * ny), bond=np.zeros(m, bool))
+
+
+def test_bench_frees_only_forced_specks_under_the_size():
+    g = _grid_graph(6, 1)                                 # a path 0-1-2-3-4-5, 1 mm^2 a point
+    allowed = np.array([[1, 0], [1, 1], [0, 1], [0, 1], [0, 1], [1, 1]], bool)
+    freed = _bench().freed_allowed(g, allowed, 2.0)       # the 1-point speck at 0 goes, the 3-point one stays
+    assert freed[0].all() and freed[1].all() and freed[5].all()
+    assert (freed[2:5] == allowed[2:5]).all()
+    assert least_label_changes(g.edges, freed).bound <= least_label_changes(g.edges, allowed).bound
+
+
+def test_bench_corridor_joins_two_regions_of_one_visible_piece_by_the_fewest_points():
+    # a 7 x 3 grid: set-up 0 on the left and right columns, set-up 1 between; row 0 may be 0 throughout
+    g = _grid_graph(7, 3)
+    labels = np.ones(21, np.int64)
+    labels[[0, 7, 14, 6, 13, 20]] = 0
+    allowed = np.ones((21, 2), bool)
+    allowed[7:, 0] = False
+    allowed[[7, 14, 13, 20], 0] = True
+    lab, added = _bench().corridor_join(g, labels, allowed, 0)
+    assert added == 5 and (lab[:7] == 0).all() and allowed[np.arange(21), lab].all()

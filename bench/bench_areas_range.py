@@ -19,8 +19,8 @@ areas come out striped. This bench plans each case with the tool paths, roughing
   striped labelling changes mostly across lines).
 
 Cases (``--cases``): ``range_femur`` and ``range_half_sphere`` (40,000 points, seed 0, no normals from
-the file) planned like the README's own scan: ``visibility.cone_deg=[10,60]``,
-``setups.max_setups=4``, every other parameter at its default; ``femur_like`` (the uniform sample,
+the file) planned like the README's own scan: every parameter at its default but
+``fixtures.fixture_height_mm=100``; ``femur_like`` (the uniform sample,
 ``--uniform-points``, default 300,000) with scripts/demo_service.py's femur configuration (sphere
 throwing 7 mm, tool 6 mm, riser 150 mm, cone [10, 60], global visibility and travel, coverage 0.85,
 max 5 set-ups). ``--set`` adds overrides to every case.
@@ -28,7 +28,18 @@ max 5 set-ups). ``--set`` adds overrides to every case.
 ``--png-dir DIR --tag NAME`` also writes ``DIR/areas_<shape>_<NAME>.png`` per case (``<shape>`` =
 ``range_femur``, ``range_half_sphere``, ``femur_like``): the input points coloured by area, seen
 orthographically from two opposite sides (left and right half), nearest point on top, shaded by
-the normal. ``--cache DIR`` keeps the inputs of the areas stage per case (``DIR/<case>.npz``) and, when
+the normal; with ``--bound`` also ``DIR/areas_<shape>_<NAME>_least.png``, an allowed labelling with
+the fewest label changes on the plan graph (the LP's).
+
+``--bound`` (issue 32 item 2) adds, per case: the least label-change share any labelling can reach
+when every point keeps a set-up that sees it (:func:`planning.areas.bound.least_label_changes`, an
+LP lower bound, exact when its solution is integral) on the plan graph and on the reference pairs;
+the same with the forced specks under ``areas.min_region_mm2`` freed (what the visibility's speckle
+costs); and per area the share of its points outside the largest of its regions within their piece
+of the area's visible set (regions in different pieces are forced apart by the visibility; within
+a piece the labelling chose the split), with what joining those regions by corridors would cost
+(:func:`corridor_join`). ``--old-settings``: the range cases with cone [10, 60] and 4 set-ups (the
+own-scan example before 47143a2, the settings of the first issue 32 figures). ``--cache DIR`` keeps the inputs of the areas stage per case (``DIR/<case>.npz``) and, when
 they are there, runs only :func:`planning.areas.assign.assign_areas` on them (same visibility and
 set-ups, for trying the areas code quickly; the seconds are then that call's).
 
@@ -53,8 +64,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 CASES = ("range_femur", "range_half_sphere", "femur_like")
-#: the README's own-scan example ("Planning your own scan")
-RANGE_OVERRIDES = ("visibility.cone_deg=[10,60]", "setups.max_setups=4")
+#: the README's own-scan example ("Planning your own scan"): defaults on a 100 mm riser
+RANGE_OVERRIDES = ("fixtures.fixture_height_mm=100",)
+#: that example before commit 47143a2 (``--old-settings``; the issue 32 figures measured before it)
+OLD_RANGE_OVERRIDES = ("visibility.cone_deg=[10,60]", "setups.max_setups=4")
 #: scripts/demo_service.py CONFIGS["femur_like"]
 UNIFORM_OVERRIDES = ('normals.method="sphere_throwing"', "normals.sphere_diameter_mm=7.0", "tool.diameter_mm=6.0",
                      "fixtures.fixture_height_mm=150.0", "visibility.cone_deg=[10,60]", "visibility.global=true",
@@ -87,6 +100,131 @@ def reference_figures(sp: np.ndarray, labels: np.ndarray, line: np.ndarray | Non
         across = same_view & (line[pairs[:, 0]] != line[pairs[:, 1]])
         out["along_share"] = float(cut[along].mean()) if along.any() else 0.0
         out["across_share"] = float(cut[across].mean()) if across.any() else 0.0
+    return out
+
+
+def reference_pairs(sp: np.ndarray) -> np.ndarray:
+    """The reference neighbourhood's pairs (module docstring)."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(sp)
+    d8, _ = tree.query(sp, k=9, workers=-1)
+    return tree.query_pairs(REF_RADIUS_FACTOR * float(np.median(d8[:, 8])), output_type="ndarray")
+
+
+def freed_allowed(graph, allowed: np.ndarray, min_region_mm2: float) -> np.ndarray:
+    """``allowed`` (n,k) with every forced piece (connected points that only one chosen set-up
+    sees, all the same one) smaller than ``min_region_mm2`` free to take any set-up: what the
+    labelling could reach if those specks of visibility were noise (not an allowed labelling)."""
+    from planning.areas.regions import components
+
+    n, k = allowed.shape
+    e = graph.edges
+    out = allowed.copy()
+    forced = allowed.sum(axis=1) == 1
+    for j in range(k):
+        fj = forced & allowed[:, j]
+        comp, nc = components(n, e, fj[e[:, 0]] & fj[e[:, 1]])
+        size = np.bincount(comp[fj], weights=graph.area_mm2[fj], minlength=nc)
+        out[fj & (size[comp] < min_region_mm2)] = True
+    return out
+
+
+def corridor_join(graph, labels: np.ndarray, allowed: np.ndarray, j: int, rounds: int = 200):
+    """``labels`` with area ``j``'s regions that share a piece of its visible set (``allowed[:, j]``)
+    joined to that piece's largest region, each by the corridor of fewest points to relabel
+    (Dijkstra over the points ``j`` may take, nearest region first): (labels, points relabelled).
+    A figure of what one region per visible piece would cost, not a rule of the plan (a corridor
+    one point wide is no better to machine than the seam it saves)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    from planning.areas.regions import components, label_regions
+
+    lab = np.asarray(labels, np.int64).copy()
+    n = lab.shape[0]
+    e = graph.edges
+    ok = allowed[e[:, 0], j] & allowed[e[:, 1], j]
+    ee = e[ok]
+    mcomp, mn = components(n, e, ok)
+    added = 0
+    for _ in range(rounds):
+        comp, nc = label_regions(graph, lab)
+        mine = lab == j
+        size = np.bincount(comp[mine], minlength=nc)
+        piece = np.full(nc, -1, np.int64)
+        piece[comp[mine]] = mcomp[mine]
+        regs = np.flatnonzero(size > 0)
+        multi = np.flatnonzero(np.bincount(piece[regs], minlength=mn) > 1)
+        if multi.size == 0:
+            break
+        rr = regs[piece[regs] == multi[0]]
+        big = rr[np.argmax(size[rr])]
+        enter = (lab != j).astype(np.float64) + 1e-6             # cost of a corridor's point
+        m = coo_matrix((np.r_[enter[ee[:, 1]], enter[ee[:, 0]]], (np.r_[ee[:, 0], ee[:, 1]], np.r_[ee[:, 1], ee[:, 0]])),
+                       shape=(n, n)).tocsr()
+        d, pred, _ = dijkstra(m, indices=np.flatnonzero(comp == big), min_only=True, return_predecessors=True)
+        targets = np.flatnonzero(np.isin(comp, rr) & (comp != big))
+        v = int(targets[np.argmin(d[targets])])
+        while v >= 0 and comp[v] != big:
+            if lab[v] != j:
+                lab[v] = j
+                added += 1
+            v = int(pred[v])
+    return lab, added
+
+
+def bound_figures(graph, pairs: np.ndarray, labels: np.ndarray, sub: np.ndarray, min_region_mm2: float) -> dict:
+    """``--bound``: the least label-change share any labelling the visibility allows can reach
+    (:func:`planning.areas.bound.least_label_changes`, on the plan graph and on the reference
+    pairs), the same with the forced specks under ``min_region_mm2`` freed (:func:`freed_allowed`),
+    and per area the points outside the largest of its regions within their piece of the set the
+    area may cover (its set-up sees them, or none does): a split there is the labelling's, a split
+    between pieces is forced by the visibility."""
+    from planning.areas.bound import least_label_changes
+    from planning.areas.regions import components, label_regions
+
+    n, k = sub.shape
+    allowed = sub | ~sub.any(axis=1)[:, None]
+    out = {}
+    for name, e, allow in (("plan", graph.edges, allowed), ("reference", pairs, allowed),
+                           ("plan_freed", graph.edges, freed_allowed(graph, allowed, min_region_mm2))):
+        t = time.perf_counter()
+        b = least_label_changes(e, allow)
+        if name == "plan":
+            out["least_labels"] = b.labels                  # for the picture; not written to the JSON
+        m = max(e.shape[0], 1)
+        out[name] = {"bound_share": b.bound / m, "cut_share": b.cut / m, "fractional_points": b.fractional_points,
+                     "freed_points": int((allow.sum(axis=1) > allowed.sum(axis=1)).sum()),
+                     "lp_s": round(time.perf_counter() - t, 2)}
+    comp, nc = label_regions(graph, labels)
+    e = graph.edges
+    unforced = []
+    for j in range(k):
+        mine = labels == j
+        mcomp, mn = components(n, e, allowed[e[:, 0], j] & allowed[e[:, 1], j])
+        best = np.zeros(mn, np.int64)                     # per piece, the size of its largest region
+        rsize = np.bincount(comp[mine], minlength=nc)
+        piece_of = np.full(nc, -1, np.int64)
+        piece_of[comp[mine]] = mcomp[mine]
+        has = rsize > 0
+        np.maximum.at(best, piece_of[has], rsize[has])
+        kept = int(best.sum())
+        unforced.append((int(mine.sum()) - kept) / max(int(mine.sum()), 1))
+    out["unforced_split_share"] = unforced
+    joins = []
+    for j in range(k):
+        if unforced[j] == 0:
+            joins.append(None)
+            continue
+        lab, added = corridor_join(graph, labels, allowed, j)
+        c2, n2 = label_regions(graph, lab)
+        sizes = np.bincount(c2[lab == j])
+        sizes = sizes[sizes > 0]
+        joins.append({"corridor_points": added, "share": float((lab[e[:, 0]] != lab[e[:, 1]]).mean()),
+                      "regions_all": int(n2), "regions": int(sizes.size),
+                      "largest_region_share": float(sizes.max() / sizes.sum())})
+    out["corridors"] = joins
     return out
 
 
@@ -149,7 +287,7 @@ def _config(case: str, extra: list[str]):
 
 
 def run_case(case: str, n_points: int, extra: list[str], cache: str | None, png_dir: str | None,
-             tag: str | None, file_normals: bool = False) -> dict:
+             tag: str | None, file_normals: bool = False, bound: bool = False) -> dict:
     """Plan ``case`` (areas and what they need only); its figures."""
     from planning import pipeline
     from planning.areas.assign import assign_areas
@@ -171,6 +309,7 @@ def run_case(case: str, n_points: int, extra: list[str], cache: str | None, png_
         fig.update(areas_s=round(time.perf_counter() - t1, 3), from_cache=True, k=len(z["selected"]),
                    status=None, coverage=None)
         points, sample_index, normals = z["points"], z["sample_index"], z["normals"]
+        visibility, selected = z["visibility"], z["selected"]
     else:
         captured = {}
         real = pipeline.assign_areas
@@ -198,6 +337,7 @@ def run_case(case: str, n_points: int, extra: list[str], cache: str | None, png_
             os.makedirs(cache, exist_ok=True)
             np.savez_compressed(stash, **captured)
         points, sample_index, normals = captured["points"], captured["sample_index"], captured["normals"]
+        visibility, selected = captured["visibility"], captured["selected"]
     sp = points[sample_index]
     g = _graph()(sp, normals, cfg.areas.neighbours)
     real_edges = ~g.bond
@@ -218,6 +358,10 @@ def run_case(case: str, n_points: int, extra: list[str], cache: str | None, png_
                                              np.asarray(s.meta["view"])[sample_index])
     else:
         fig["reference"] = reference_figures(sp, areas.labels, None, None)
+    if bound:
+        z_sel = np.asarray(selected, dtype=np.int64)
+        fig["bound"] = bound_figures(g, reference_pairs(sp), areas.labels, np.asarray(visibility, bool)[:, z_sel],
+                                     cfg.areas.min_region_mm2)
     if png_dir and tag:
         os.makedirs(png_dir, exist_ok=True)
         name = {"range_femur": "range_femur", "range_half_sphere": "range_half_sphere"}.get(case, case)
@@ -225,6 +369,12 @@ def run_case(case: str, n_points: int, extra: list[str], cache: str | None, png_
         nrm = normals[areas.nearest_sample] if areas.nearest_sample is not None else None
         fig["png"] = path
         fig["png_bytes"] = picture(path, points, nrm, areas.input_labels)
+        if bound and areas.nearest_sample is not None:
+            least = os.path.join(png_dir, f"areas_{name}_{tag}_least.png")
+            picture(least, points, nrm, fig["bound"]["least_labels"][areas.nearest_sample])
+            fig["png_least"] = least
+    if bound:
+        fig["bound"].pop("least_labels")
     return fig
 
 
@@ -242,13 +392,32 @@ def _lines(fig: dict) -> list[str]:
             f"regions {fig['n_regions']}"),
            (f"   reference graph (r {ref['radius_mm']} mm, {ref['pairs_per_point']} pairs/point): label-change share "
             f"{ref['share']:.2%}{lines}")]
+    bd = fig.get("bound")
+    if bd:
+        for name, label in (("plan", "plan graph"), ("reference", "reference graph"),
+                            ("plan_freed", f"plan graph, {bd['plan_freed']['freed_points']} points of forced specks freed")):
+            b = bd[name]
+            gap = "exact" if b["fractional_points"] == 0 else f"LP, {b['fractional_points']} fractional points"
+            out.append(f"   least share any allowed labelling reaches, {label}: {b['bound_share']:.2%} ({gap}; "
+                       f"a labelling at {b['cut_share']:.2%}; {b['lp_s']:.1f} s)")
     for i, a in enumerate(fig["areas"]):
         ok = a["largest_region_share"] >= 0.9 or a["n_regions"] <= a["min_regions"]
+        split, flag = "", "  <- under 90 % and above min_regions"
+        if bd:
+            u = bd["unforced_split_share"][i]
+            split = f", split within a visible piece {u:.1%}"
+            flag = flag if u < 0.1 else flag + ", 10 % or more split within a visible piece"
+            c = bd["corridors"][i]
+            if c:
+                split += (f" (joined by corridors of {c['corridor_points']} points: {c['regions']} regions, largest "
+                          f"{c['largest_region_share']:.1%}, share {c['share']:.2%}, all regions {c['regions_all']})")
         out.append(f"   area {i}: {a['n_points']:6d} points, {a['n_regions']:4d} regions (min {a['min_regions']}, "
                    f"visible {a['n_visible_regions']}, small {a['n_small_regions']}), largest {a['largest_region_share']:.1%}"
-                   f"{'' if ok else '  <- under 90 % and above min_regions'}")
+                   f"{split}{'' if ok else flag}")
     if "png" in fig:
         out.append(f"   picture {fig['png']} ({fig['png_bytes'] / 1024:.0f} KB)")
+    if "png_least" in fig:
+        out.append(f"   picture of a labelling with the least label changes on the plan graph: {fig['png_least']}")
     return out
 
 
@@ -291,6 +460,11 @@ def main() -> int:
                     help="take neighbour_graph from this file instead (the code before a change: "
                          "git show HEAD:planning/areas/graph.py > /tmp/graph_before.py)")
     ap.add_argument("--cache", default=None, help="keep / reuse the areas stage's inputs here")
+    ap.add_argument("--bound", action="store_true",
+                    help="also the least label-change share the visibility allows (an LP per graph, seconds each; "
+                         "planning/areas/bound.py) and per area the split within one visible piece")
+    ap.add_argument("--old-settings", action="store_true",
+                    help="the range cases with the own-scan settings before 47143a2 (cone [10,60], 4 set-ups)")
     ap.add_argument("--png-dir", default=None)
     ap.add_argument("--tag", default=None, help="picture name suffix (before, after)")
     ap.add_argument("--json", default=None, help="write the figures (JSON) here")
@@ -299,6 +473,9 @@ def main() -> int:
     if args.compare:
         compare(*args.compare)
         return 0
+    if args.old_settings:
+        global RANGE_OVERRIDES
+        RANGE_OVERRIDES = OLD_RANGE_OVERRIDES
     print(f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())} (1/5/15 min)", flush=True)
     if args.graph:
         import importlib.util
@@ -314,7 +491,7 @@ def main() -> int:
     figs = []
     for case in args.cases:
         n = args.uniform_points if case == "femur_like" else args.points
-        fig = run_case(case, n, args.set, args.cache, args.png_dir, args.tag, args.file_normals)
+        fig = run_case(case, n, args.set, args.cache, args.png_dir, args.tag, args.file_normals, args.bound)
         figs.append(fig)
         print("\n".join(_lines(fig)), flush=True)
     if args.json:

@@ -258,8 +258,7 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     of every point within its area (0 the largest, 1 the next, ...; any value where the label is
     -1), each finished on its own; None: every area is one region. ``carried``: a
     :class:`planning.toolpath.carried.CarriedStock` (issue 16): the areas are done in its order on
-    its stock (rest roughing from what the roughing of the set-ups before left, planned while the
-    set-up before is finished: :mod:`planning.toolpath.finishing_worker`; every operation guarded by
+    its stock (rest roughing from what the set-ups before left; every operation guarded by
     :func:`planning.toolpath.guard.guard_toolpath`; finishing CL points where the assembly would
     touch the cloud, the stock, a fixture, go below the part's underside or leave the travel cut
     out); None: every area on its own from a stock box, nothing guarded (the collisions only counted).
@@ -277,7 +276,7 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     k = axes.shape[0]
     order = list(range(k)) if carried is None else list(carried.order)
     prog = _PathsProgress(progress, len(order))
-    # a second process for the first set-up's finishing passes and each next set-up's roughing (finishing_worker)
+    # the finishing passes of each set-up in a second process while this one roughs it (finishing_worker)
     worker = FinishingWorker.open(obstacles.shape[0]) if fp.enabled else None
     try:
         return _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, obstacles, max_slope_deg,
@@ -297,26 +296,6 @@ def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, ob
     reach = max([s.radius_mm for s in tool.segments] + [R])
     out: list[AreaPaths] = []
     pool = np.zeros(points.shape[0], dtype=bool)       # unmachined by a set-up before: handed on
-    window_reach = roughing_window_reach_mm(paths_params, tool)
-    # the stock a set-up's roughing is planned on and its safe height read from: the carried stock as the
-    # ROUGHING of the set-up before left it (its finishing only takes material off, within the part's
-    # allowance band and where the roughing could not go: more material is a safe assumption, and the
-    # guard runs the roughing on the stock as it really is), so that the next set-up's roughing can be
-    # planned (in the worker) while this process finishes the set-up before
-    rough_stock = None if carried is None else carried.stock
-    ahead: dict[int, tuple] = {}                       # area -> (frame, cloud_f, area_f, top, job, ticket)
-    todo = [i for i in order if (input_labels == i).any()]
-
-    def frame_of(i, stock):
-        frame, cloud_f, area_f, top = _frame_and_top(points, input_labels == i, axes[i], obstacles, fixtures, fp, R,
-                                                     reach)
-        if stock is not None:
-            # the stock left by the set-ups before, in this frame: its top raises the safe height
-            tops = frame.to_frame(stock.boundary_points())[:, 2]
-            if tops.size:
-                top = max(top, float(tops.max()))
-        return frame, cloud_f, area_f, top
-
     for n_done, i in enumerate(order):
         sec: dict[str, float] = {}
         t0 = time.perf_counter()
@@ -328,12 +307,13 @@ def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, ob
         extra = np.zeros_like(mine)
         if carried is not None and carried.visible is not None and pool.any():
             extra = pool & carried.visible[:, i] & ~mine
-        if i in ahead:
-            frame, cloud_f, area_f, top, rough_job, ticket = ahead.pop(i)
-        else:
-            frame, cloud_f, area_f, top = frame_of(i, rough_stock)
-            rough_job = _roughing_job(i, frame, cloud_f, area_f, top, paths_params, window_reach, carried, rough_stock)
-            ticket = None
+        frame, cloud_f, area_f, top = _frame_and_top(points, mine, axes[i], obstacles, fixtures, fp, R, reach)
+        stock_f = None
+        if carried is not None:
+            # the stock left by the set-ups before, in this frame: its top raises the safe height
+            stock_f = frame.to_frame(carried.stock.boundary_points())
+            if stock_f.shape[0]:
+                top = max(top, float(stock_f[:, 2].max()))
         safe = top + paths_params.safe_clearance_mm + R
         sec["frame"] = time.perf_counter() - t0
         ap = AreaPaths(area=i, frame=frame, safe_z_mm=safe, finishing=None, finishing_info=None, radius_mm=R,
@@ -346,11 +326,10 @@ def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, ob
                 masks.append(np.concatenate([extra, np.zeros(cloud_f.shape[0] - extra.shape[0], dtype=bool)]))
             # computed there while this process roughs (with the cloud's part of their check)
             check = None if (carried is None or five) else (frame, axes[i], tool, obstacles)
-            # (only when the worker is idle: while it plans this set-up's roughing, this process computes them)
-            if worker is not None and not worker.busy() and worker.submit(cloud_f, masks, faces, fp, R, tol, safe,
-                                                                          max_slope_deg, check):
+            if worker is not None and worker.submit(cloud_f, masks, faces, fp, R, tol, safe, max_slope_deg, check):
                 job = worker
-        _add_roughing(ap, rough_job, sec, worker=worker, ticket=ticket, progress=prog.step("roughing"))
+        _add_roughing(ap, cloud_f, area_f, top, paths_params, sec, roughing_window_reach_mm(paths_params, tool),
+                      stock_f=stock_f, carried=carried, progress=prog.step("roughing"))
         if ap.roughing is not None and ap.roughing.n_moves == 0:
             ap.roughing = None                 # rest roughing: nothing left above this area
         if carried is not None and ap.roughing is not None:
@@ -358,15 +337,6 @@ def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, ob
             _guard_roughing(ap, carried, top + paths_params.roughing.stock_margin_mm + paths_params.safe_clearance_mm,
                             progress=prog.step("guard_roughing"))
             sec["guard_roughing"] = time.perf_counter() - t0
-        if carried is not None:
-            rough_stock = carried.stock
-            k = todo.index(i) + 1
-            if worker is not None and k < len(todo):
-                # the next set-up's roughing, in the worker while this process finishes this one
-                nxt = todo[k]
-                f = frame_of(nxt, rough_stock)
-                next_job = _roughing_job(nxt, *f, paths_params, window_reach, carried, rough_stock)
-                ahead[nxt] = (*f, next_job, worker.submit_roughing(**next_job))
         if carried is not None and carried.normals is not None:
             # issue 16 item 1: the stock the finishing meets over this area (roughing allowance
             # where roughing reached; more where the roughing tool or its holder could not go)
@@ -478,74 +448,38 @@ def _frame_and_top(points, mine, axis, obstacles, fixtures, fp, R: float, reach:
     return frame, cloud_f, area_f, top
 
 
-def plan_roughing(area: int, frame: AreaFrame, cloud_f, area_f, top: float, paths_params, window_reach: float,
-                  stock=None, obstacles=None, roughing_shape=None, machine=None, rapid_clearance_mm: float = 0.0,
-                  resolution_mm: float = 1.0, progress=None):
-    """Step 3's roughing of one area (when enabled and there is stock above the area's floor; else
-    None): the tool centre within ``window_reach`` mm of the area's points
-    (:func:`roughing_window_reach_mm`), :func:`planning.toolpath.roughing.roughing_paths`. With
-    ``stock`` (the carried stock as the roughing of the set-up before left it), rest roughing: only
-    its material is cut, read on a :class:`StockView` of it with ``roughing_shape``, ``obstacles`` and
-    ``rapid_clearance_mm``, the tool tips kept within ``machine``'s travel (a
-    :class:`~planning.toolpath.guard.SetupMachine` or None). Returns ``(RoughingPath or None,
-    seconds)``. A function of its arguments alone: the finishing worker runs it for the next set-up
-    (:mod:`planning.toolpath.finishing_worker`)."""
+def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec: dict, window_reach: float,
+                  stock_f=None, carried=None, progress=None) -> None:
+    """Step 3: roughing (when enabled and there is stock above the area's floor) into ``ap``, the
+    tool centre within ``window_reach`` mm of the area's points (:func:`roughing_window_reach_mm`).
+    With ``carried``, rest roughing: only the material of the carried stock (its boundary points
+    ``stock_f`` in the area frame) is cut."""
     rp = paths_params.roughing
     safe_tip_z = top + rp.stock_margin_mm + paths_params.safe_clearance_mm
     floor = float(area_f[:, 2].min()) + rp.stock_allowance_mm
     stock_top = float(cloud_f[:, 2].max()) + rp.stock_margin_mm
-    stock_f = None
-    if stock is not None:
-        stock_f = frame.to_frame(stock.boundary_points())
+    if stock_f is not None:
         stock_top = float(stock_f[:, 2].max()) if stock_f.shape[0] else -math.inf
-    if not (rp.enabled and floor < stock_top):
-        return None, 0.0
-    t0 = time.perf_counter()
-    # with the carried stock: rest roughing, and the end mill's holder kept out of the stock and the part
-    rest = {} if stock is None else {
-        "stock_points_mm": stock_f, "stock_spacing_mm": resolution_mm, "holder_pieces": roughing_shape.pieces,
-        "stock_view": StockView(stock, frame, roughing_shape, obstacles=obstacles),
-        "travel_cells": None if machine is None else
-        _travel_cells(machine, frame, roughing_shape.gauge_length_mm, safe_tip_z),
-        "rapid_clearance_mm": rapid_clearance_mm}
-    rr = roughing_paths(cloud_f, tool_radius_mm=rp.diameter_mm / 2.0,
-                        corner_radius_mm=rp.corner_radius_mm, step_down_mm=rp.step_down_mm,
-                        stock_allowance_mm=rp.stock_allowance_mm, stock_margin_mm=rp.stock_margin_mm,
-                        stepover_mm=rp.stepover_mm, pattern=rp.pattern, floor_z_mm=floor,
-                        safe_z_mm=safe_tip_z,
-                        window_xy_mm=area_f[:, :2] if rp.window else None, window_reach_mm=window_reach, **rest,
-                        **_entry_args(rp), progress=None if progress is None else
-                        (lambda done, n: progress(done / max(n, 1), f"level {done}/{n}")))
-    return rr, time.perf_counter() - t0
-
-
-def _roughing_job(area: int, frame: AreaFrame, cloud_f, area_f, top: float, paths_params, window_reach: float,
-                  carried, stock) -> dict:
-    """:func:`plan_roughing`'s keyword arguments for one area, rest roughing on ``stock`` (with
-    ``carried``'s tools, obstacles and machines) when ``carried`` is given."""
-    job = {"area": area, "frame": frame, "cloud_f": cloud_f, "area_f": area_f, "top": float(top),
-           "paths_params": paths_params, "window_reach": float(window_reach)}
-    if carried is not None:
-        job.update(stock=stock, obstacles=carried.obstacles, roughing_shape=carried.roughing_shape,
-                   machine=None if carried.machines is None else carried.machines[area],
-                   rapid_clearance_mm=float(carried.rapid_clearance_mm), resolution_mm=float(carried.resolution_mm))
-    return job
-
-
-def _add_roughing(ap: AreaPaths, job: dict, sec: dict, worker=None, ticket: int | None = None, progress=None) -> None:
-    """Step 3: the roughing of ``job`` (:func:`_roughing_job`) into ``ap``: the worker's answer to
-    ``ticket`` when there is one (computed here when the worker failed), else :func:`plan_roughing` here."""
-    rr = None
-    t0 = time.perf_counter()
-    if worker is not None and ticket is not None:
-        try:
-            rr, _ = worker.roughing(ticket, progress)
-        except WorkerFailed as e:
-            _log.warning("finishing worker failed (%s): roughing computed in this process", e)
-            worker = None
-    if worker is None or ticket is None:
-        rr, _ = plan_roughing(**job, progress=progress)
-    if rr is not None:
+    if rp.enabled and floor < stock_top:
+        t0 = time.perf_counter()
+        # with the carried stock: rest roughing, and the end mill's holder kept out of the stock and the part
+        view = None if carried is None else StockView(carried.stock, ap.frame, carried.roughing_shape,
+                                                      obstacles=carried.obstacles)
+        rest = {} if carried is None else {"stock_points_mm": stock_f, "stock_spacing_mm": carried.resolution_mm,
+                                           "holder_pieces": carried.roughing_shape.pieces,
+                                           "stock_view": view,
+                                           "travel_cells": None if carried.machines is None else
+                                           _travel_cells(carried.machines[ap.area], ap.frame,
+                                                         carried.roughing_shape.gauge_length_mm, safe_tip_z),
+                                           "rapid_clearance_mm": carried.rapid_clearance_mm}
+        rr = roughing_paths(cloud_f, tool_radius_mm=rp.diameter_mm / 2.0,
+                            corner_radius_mm=rp.corner_radius_mm, step_down_mm=rp.step_down_mm,
+                            stock_allowance_mm=rp.stock_allowance_mm, stock_margin_mm=rp.stock_margin_mm,
+                            stepover_mm=rp.stepover_mm, pattern=rp.pattern, floor_z_mm=floor,
+                            safe_z_mm=safe_tip_z,
+                            window_xy_mm=area_f[:, :2] if rp.window else None, window_reach_mm=window_reach, **rest,
+                            **_entry_args(rp), progress=None if progress is None else
+                            (lambda done, n: progress(done / max(n, 1), f"level {done}/{n}")))
         ap.roughing, ap.roughing_info = rr.toolpath, rr
         sec["roughing"] = time.perf_counter() - t0
 

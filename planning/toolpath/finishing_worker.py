@@ -1,19 +1,15 @@
-"""The finishing passes of a set-up, and the roughing of the next one, computed in a second process
-(issue 30 item 3, "every core"; ``docs/design.md`` "Stock-first planning").
+"""The finishing passes of a set-up computed in a second process while the main one roughs it (issue 30
+item 3, "every core"; ``docs/design.md`` "Stock-first planning").
 
 A set-up's finishing passes (:func:`planning.toolpath.area_paths._region_finishing`: ball drop on the
 cloud, the passes made gouge safe and joined) depend on the cloud in the set-up's frame, the area's
 regions, the points handed on by the set-ups before and the safe height, all known when the set-up
-starts; they do not depend on the stock. A set-up's roughing depends on the stock as the roughing of
-the set-up before left it (:func:`planning.toolpath.area_paths.plan_roughing`; not on that set-up's
-finishing, which only takes material off within the part's allowance band), so it can be planned while
-the main process finishes the set-up before (cuts the blocked CL points out and runs the finishing on
-the stock). Both are mostly Python; threads would share one interpreter lock, a process does not. So
-:class:`FinishingWorker` takes the first set-up's passes while the main process roughs it, and each
-next set-up's roughing as soon as the set-up before is roughed and guarded; a set-up's passes go to the
-worker only when it is idle (else the main process computes them while the worker roughs). The
-results are the same functions of the same inputs, so the plan does not change (the tests compare).
-Jobs run one at a time in the order they were sent; the answers come back in that order.
+starts; they do not depend on the stock. The roughing of the same set-up (and its guard) depends on
+the stock, is mostly Python, and takes as long as the passes or longer. Threads would share one
+interpreter lock between the two; a process does not. So :class:`FinishingWorker` hands the passes
+of each set-up to one worker process when the set-up starts and the main process collects them when
+its roughing is done: on two cores the passes cost no wall time where they fit beside the roughing.
+The result is the same function on the same inputs, so the plan does not change (the tests compare).
 
 The worker is a fresh interpreter (``python -m planning.toolpath.finishing_worker``, one numba
 thread) fed pickled jobs on its standard input and answering on its standard output; it never
@@ -35,7 +31,6 @@ import logging
 import multiprocessing
 import os
 import pickle
-import queue
 import select
 import struct
 import subprocess
@@ -133,38 +128,21 @@ def _read_frame(stream):
     return pickle.loads(_read_exact(stream, n))
 
 
-class _FdReader:
-    """Reads a pipe's file descriptor with no buffer of its own: a buffered reader may take the next
-    answer's bytes in with the current one, where ``select`` on the descriptor no longer sees them."""
-
-    def __init__(self, fd: int):
-        self.fd = fd
-
-    def read(self, n: int) -> bytes:
-        return os.read(self.fd, min(n, 1 << 24))
-
-
 def _serve() -> int:
-    """The worker's loop: a job per frame on stdin (``("passes", (passes, check))`` or
-    ``("roughing", keyword arguments of plan_roughing)``), ``("ok", answer)`` or ``("error", exc)``
-    per frame on stdout in the same order, until stdin closes."""
+    """The worker's loop: a job per frame on stdin, ``("ok", FinishingPath)`` or ``("error", exc)``
+    per frame on stdout, until stdin closes."""
     numba.set_num_threads(1)
     src, dst = sys.stdin.buffer, sys.stdout.buffer
     sys.stdout = sys.stderr                  # nothing else may write on the answers' stream
     while True:
         try:
-            kind, job = _read_frame(src)
+            job = _read_frame(src)
         except EOFError:
             return 0
         try:
-            if kind == "roughing":
-                from planning.toolpath.area_paths import plan_roughing
-
-                answer = ("ok", plan_roughing(**job))
-            else:
-                passes, check = job
-                fin, _ = region_passes(*passes)
-                answer = ("ok", (fin, cloud_check(fin, passes[6], passes[4], check)))
+            passes, check = job
+            fin, _ = region_passes(*passes)
+            answer = ("ok", (fin, cloud_check(fin, passes[6], passes[4], check)))
         except Exception as e:                # noqa: BLE001 - the caller raises it as its own
             answer = ("error", e)
         _write_frame(dst, answer)
@@ -173,22 +151,14 @@ def _serve() -> int:
 # ------------------------------------------------------------------------------------------ caller
 
 class FinishingWorker:
-    """One worker process for the finishing passes of a plan's set-ups and the roughing of the next
-    set-up (module docstring). Use :meth:`open` (None when the worker would not pay or is not
-    allowed), :meth:`submit` when a set-up starts and :meth:`passes` when its finishing is due,
-    :meth:`submit_roughing` when a set-up's roughing is guarded and :meth:`roughing` when the next
-    set-up starts, :meth:`close` at the end. Jobs run one at a time in the order they were
-    submitted."""
+    """One worker process for the finishing passes of a plan's set-ups (module docstring). Use
+    :meth:`open` (None when the worker would not pay or is not allowed), :meth:`submit` when a set-up
+    starts, :meth:`passes` when its finishing is due, :meth:`close` at the end."""
 
     def __init__(self, proc: subprocess.Popen):
         self._proc: subprocess.Popen | None = proc
-        self._queue: queue.Queue = queue.Queue()
         self._writer: threading.Thread | None = None
         self._write_error: BaseException | None = None
-        self._sent = 0                     # jobs handed to the writer
-        self._read = 0                     # answers read
-        self._answers: dict[int, tuple] = {}
-        self._passes_ticket: int | None = None
 
     @classmethod
     def open(cls, n_points: int) -> FinishingWorker | None:
@@ -213,102 +183,53 @@ class FinishingWorker:
     def usable(self) -> bool:
         return self._proc is not None and self._proc.poll() is None
 
-    def _send(self, kind: str, job) -> int | None:
-        """Queue one job for the writer thread (the worker may still be starting, or busy: the pipe
-        fills); its ticket, or None when the worker is not usable."""
-        if not self.usable or self._write_error is not None:
-            return None
-        if self._writer is None:
-            proc, q = self._proc, self._queue
-
-            def write():
-                while True:
-                    frame = q.get()
-                    if frame is None:
-                        return
-                    try:
-                        _write_frame(proc.stdin, frame)
-                    except BaseException as e:        # noqa: BLE001 - reported by _wait()
-                        self._write_error = e
-                        return
-            self._writer = threading.Thread(target=write, name="finishing-worker-writer", daemon=True)
-            self._writer.start()
-        self._queue.put((kind, job))
-        self._sent += 1
-        return self._sent - 1
-
     def submit(self, cloud_f, region_masks, faces, fp, R: float, tol: float, safe: float,
                max_slope_deg: float, check=None) -> bool:
-        """Start one set-up's passes in the worker, and with ``check`` (:func:`cloud_check`'s) the cloud
-        reason of their check; False when the worker is not usable or a set-up's passes are still
-        due (compute the passes here)."""
-        if self._passes_ticket is not None:
+        """Start one set-up's passes in the worker (the job is written by a thread: the worker may still
+        be starting), and with ``check`` (:func:`cloud_check`'s) the cloud reason of their check;
+        False when the worker is not usable (compute the passes here)."""
+        if not self.usable or self._writer is not None:
             return False
         job = ((np.ascontiguousarray(cloud_f), list(region_masks), None if faces is None else np.asarray(faces),
                 fp, float(R), float(tol), float(safe), float(max_slope_deg)), check)
-        self._passes_ticket = self._send("passes", job)
-        return self._passes_ticket is not None
 
-    def submit_roughing(self, **job) -> int | None:
-        """Start a set-up's roughing in the worker (:func:`planning.toolpath.area_paths.plan_roughing`'s
-        keyword arguments); its ticket for :meth:`roughing`, or None when the worker is not usable."""
-        return self._send("roughing", job)
+        def write():
+            try:
+                _write_frame(self._proc.stdin, job)
+            except BaseException as e:        # noqa: BLE001 - reported by passes()
+                self._write_error = e
+        self._write_error = None
+        self._writer = threading.Thread(target=write, name="finishing-worker-writer", daemon=True)
+        self._writer.start()
+        return True
 
     def passes(self, progress: Callable[[float, str], None] | None = None):
-        """``(the passes, the cloud reason of their check or None)`` of the passes submitted last
+        """``(the passes, the cloud reason of their check or None)`` of the job submitted last
         (:func:`region_passes`, :func:`cloud_check`; waiting for them, ``progress(0, ...)`` about
         every second meanwhile). The worker's errors are raised here; :class:`WorkerFailed` when the worker
         died (it is closed; the caller computes the passes itself)."""
-        if self._passes_ticket is None:
+        if self._writer is None:
             raise WorkerFailed("no job submitted")
-        ticket, self._passes_ticket = self._passes_ticket, None
-        return self._wait(ticket, progress, "passes")
-
-    def roughing(self, ticket: int, progress: Callable[[float, str], None] | None = None):
-        """The answer of the roughing job ``ticket`` (:meth:`submit_roughing`; waiting for it as
-        :meth:`passes` does, errors likewise)."""
-        return self._wait(ticket, progress, "roughing")
-
-    def busy(self) -> bool:
-        """Whether a job submitted is not answered yet (the answers already written are read in, so the
-        test does not wait): the caller then computes a set-up's passes itself rather than queue them
-        behind the next set-up's roughing. False when the worker is not usable."""
-        if not self.usable:
-            return False
-        out = self._proc.stdout
-        try:
-            while self._read < self._sent and select.select([out], [], [], 0.0)[0]:
-                self._answers[self._read] = _read_frame(_FdReader(out.fileno()))
-                self._read += 1
-        except (EOFError, OSError, pickle.UnpicklingError, struct.error):
-            self.close()
-            return False
-        return self._read < self._sent
-
-    def _wait(self, ticket: int, progress, what: str):
         t0 = time.perf_counter()
         try:
-            out = self._proc.stdout if self._proc is not None else None
-            while ticket not in self._answers:
-                if out is None:
-                    raise WorkerFailed("the worker was closed")
-                if self._write_error is not None:
-                    raise WorkerFailed(f"a job could not be sent: {self._write_error}")
-                if not select.select([out], [], [], 1.0)[0]:
-                    if self._proc.poll() is not None:
-                        raise WorkerFailed(f"the worker exited with status {self._proc.returncode}")
-                    if progress is not None:
-                        progress(0.0, f"{what} from the worker process ({time.perf_counter() - t0:.0f} s)")
-                    continue
-                self._answers[self._read] = _read_frame(_FdReader(out.fileno()))
-                self._read += 1
+            out = self._proc.stdout
+            while not select.select([out], [], [], 1.0)[0]:
+                if self._proc.poll() is not None:
+                    raise WorkerFailed(f"the worker exited with status {self._proc.returncode}")
+                if progress is not None:
+                    progress(0.0, f"passes from the worker process ({time.perf_counter() - t0:.0f} s)")
+            self._writer.join()
+            if self._write_error is not None:
+                raise WorkerFailed(f"the job could not be sent: {self._write_error}")
+            kind, value = _read_frame(out)
         except (EOFError, OSError, pickle.UnpicklingError, struct.error) as e:
             self.close()
             raise WorkerFailed(f"the worker failed: {e!r}") from e
         except WorkerFailed:
             self.close()
             raise
-        kind, value = self._answers.pop(ticket)
+        finally:
+            self._writer = None
         if kind == "error":
             raise value
         return value
@@ -318,14 +239,6 @@ class FinishingWorker:
         proc, self._proc = self._proc, None
         if proc is None:
             return
-        if self._writer is not None:
-            self._queue.put(None)
-            self._writer.join(timeout=5.0)
-            if self._writer.is_alive():
-                # still writing a job the worker does not read (it waits to write an answer nobody reads
-                # any more): closing its input would wait for the writer's lock; end the worker first
-                proc.kill()
-                self._writer.join()
         try:
             proc.stdin.close()
         except OSError:

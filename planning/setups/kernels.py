@@ -56,7 +56,11 @@ def _popcount(x):
 
 @njit("int64(uint64[::1], uint64[::1], uint64[::1], uint64[:, ::1])", cache=True)
 def _weight(x, b1, b2, planes):
-    """Weight of the classes in ``x`` that neither ``b1`` nor ``b2`` holds (weights as bit planes)."""
+    """Weight of the classes in ``x`` that neither ``b1`` nor ``b2`` holds (weights as bit planes). The
+    kernels below count those classes first, word by word, and call this only when the count stays
+    within the allowance; that count is written out in each of them rather than called (a shared
+    ``_left_within(x, B[q], B[s], planes, smax)`` made the range half sphere's 1.0 / 5 proof 1.0 ->
+    1.8 s, 2.3 s without inlining: the row views per call)."""
     acc = 0
     for i in range(x.shape[0]):
         y = x[i] & ~b1[i] & ~b2[i]

@@ -149,18 +149,25 @@ def _run(tp, frame, stock, clearance):
     return pm, run, L, feed, down
 
 
-@pytest.fixture(scope="module")
-def tilted_dome():
-    """A dome on a block, roughed from a set-up tilted 70 degrees (the half sphere's), from the points of
-    the block's boundary only and from a stock view of it."""
+def _dome_case():
+    """The tilted dome's inputs: (cloud in the frame, the block's stock, the frame, the block's lower corner,
+    the roughing's keyword arguments on the block's boundary points)."""
     cloud = _dome()
     lo, hi = np.array([-26.0, -26.0, -0.5]), np.array([26.0, 26.0, 24.0])
     stock = _box(lo, hi)
     frame = _tilted_frame(cloud)
     cloud_f = frame.to_frame(cloud)
     kw = {"tool_radius_mm": SHAPE.radius_mm, "step_down_mm": 3.0, "stock_allowance_mm": 0.5,
-              "floor_z_mm": float(cloud_f[:, 2].min()) + 0.5, "stock_points_mm": frame.to_frame(stock.boundary_points()),
-              "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces, "safe_z_mm": float(cloud_f[:, 2].max()) + 30.0}
+          "floor_z_mm": float(cloud_f[:, 2].min()) + 0.5, "stock_points_mm": frame.to_frame(stock.boundary_points()),
+          "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces, "safe_z_mm": float(cloud_f[:, 2].max()) + 30.0}
+    return cloud_f, stock, frame, lo, kw
+
+
+@pytest.fixture(scope="module")
+def tilted_dome():
+    """A dome on a block, roughed from a set-up tilted 70 degrees (the half sphere's), from the points of
+    the block's boundary only and from a stock view of it."""
+    cloud_f, stock, frame, lo, kw = _dome_case()
     points = roughing_paths(cloud_f, **kw)
     viewed = roughing_paths(cloud_f, stock_view=StockView(stock, frame, SHAPE), rapid_clearance_mm=0.5, **kw)
     return frame, stock, lo, points, viewed
@@ -215,10 +222,7 @@ def test_entries_feed_down_through_air_the_stock_shows_and_never_into_it(tilted_
     assert down.sum() > 10
     assert np.all(run.removed_mm3[down] < 1e-6)
     monkeypatch.setattr(E, "ENTRY_FEED_GAP_MM", 1e3)
-    cloud_f = frame.to_frame(_dome())
-    kw = {"tool_radius_mm": SHAPE.radius_mm, "step_down_mm": 3.0, "stock_allowance_mm": 0.5,
-          "floor_z_mm": float(cloud_f[:, 2].min()) + 0.5, "stock_points_mm": frame.to_frame(stock.boundary_points()),
-          "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces, "safe_z_mm": float(cloud_f[:, 2].max()) + 30.0}
+    cloud_f, _, _, _, kw = _dome_case()
     slow = roughing_paths(cloud_f, stock_view=StockView(stock, frame, SHAPE), rapid_clearance_mm=0.5, **kw)
     assert slow.n_fed_down == 0
     air_slow, run_slow, *_ = entry_air(slow)
@@ -628,7 +632,6 @@ def test_boundary_tops_in_frame_are_the_highest_boundary_point_per_cell():
     t = np.linspace(0.0, 1.0, 40)[:, None]
     path = frame.to_part(np.column_stack([(-25.0 + 50.0 * t)[:, 0], np.full(40, 2.0), np.full(40, 3.0)]))
     cut(stock, path[:-1], path[1:], np.broadcast_to(frame.rotation[2], (39, 3)), SHAPE)
-    stock = stock.union(_plate()) if stock.same_grid(_plate()) else stock
     h, x0, y0, n = 0.5, -45.0, -45.0, 180
     for model in (stock, _plate()):
         p = frame.to_frame(model.boundary_points())
@@ -771,29 +774,19 @@ def test_pieces_ends_and_links_that_meet_no_material_on_the_stock_are_not_fed():
     assert got[0][1, 0] == pytest.approx(10.0)
     assert got[1][0] // 40 == int(math.floor(got[0][0, 0] / 0.5)) and got[1][1] == lc[1] and got[1][0] % 40 == 6
 
-    cloud = _dome()
-    lo, hi = np.array([-26.0, -26.0, -0.5]), np.array([26.0, 26.0, 24.0])
-    stock = _box(lo, hi)
-    frame = _tilted_frame(cloud)
-    cloud_f = frame.to_frame(cloud)
-    kw = {"tool_radius_mm": SHAPE.radius_mm, "step_down_mm": 3.0, "stock_allowance_mm": 0.5,
-          "floor_z_mm": float(cloud_f[:, 2].min()) + 0.5, "stock_points_mm": frame.to_frame(stock.boundary_points()),
-          "stock_spacing_mm": RES, "holder_pieces": SHAPE.pieces, "safe_z_mm": float(cloud_f[:, 2].max()) + 30.0,
-          "rapid_clearance_mm": 0.5}
+    cloud_f, stock, frame, lo, kw = _dome_case()
+    kw["rapid_clearance_mm"] = 0.5
     link = AM.LINK_LIFT_MM
     assert AM.EXACT_ENDS and link < 1e6
     res = []
     # the lifts' feeds counted at the roughing feed (LIFT_SLOWER = 1): the dome's links through air are then
     # long enough to lift over (at the default, 4 x, none is here)
     for ends, lift, slower in ((False, 1e9, AM.LIFT_SLOWER), (True, 1e9, AM.LIFT_SLOWER), (True, link, 1.0)):
-        monkeypatch_ = pytest.MonkeyPatch()
-        monkeypatch_.setattr(AM, "EXACT_ENDS", ends)
-        monkeypatch_.setattr(AM, "LINK_LIFT_MM", lift)
-        monkeypatch_.setattr(AM, "LIFT_SLOWER", slower)
-        try:
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(AM, "EXACT_ENDS", ends)
+            mp.setattr(AM, "LINK_LIFT_MM", lift)
+            mp.setattr(AM, "LIFT_SLOWER", slower)
             rr = roughing_paths(cloud_f, stock_view=StockView(stock, frame, SHAPE), **kw)
-        finally:
-            monkeypatch_.undo()
         pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
         air_ = feed & (run.removed_mm3 < 1e-6)
         res.append((L[air_].sum(), run.removed_mm3.sum(), int((down & ~air_).sum()),

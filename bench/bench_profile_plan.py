@@ -40,6 +40,8 @@ STEPS = (
     ("planning.toolpath.guard", "_FixtureMemo.check"), ("planning.toolpath.guard", "simulate_moves"),
     ("planning.toolpath.guard", "column_clear_z"), ("planning.toolpath.stock_view", "StockView.column_is_clear"),
     ("planning.toolpath.stock_view", "StockView.rapid_clear_z"),
+    ("planning.toolpath.roughing.levels", "_LiveStock.advance"),
+    ("planning.toolpath.roughing.levels", "_LiveStock._boundary_tops"),
 )
 
 

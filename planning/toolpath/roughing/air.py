@@ -150,18 +150,8 @@ class _LevelAir:
             a, b = max(int(k[0]) - 1, 0), min(int(k[-1]) + 1, len(use) - 1)
             return xy[a:b + 1], cells[a:b + 1]
         m = len(use) - 1                                  # the loop's vertices (the last repeats the first)
-        u = use[:m]
         # the longest cyclic run of vertices not used: the chain starts after it and ends before it
-        best_len, best_start, run, start = 0, 0, 0, 0
-        for t in range(2 * m):
-            if not u[t % m]:
-                if run == 0:
-                    start = t
-                run += 1
-                if run > best_len and run <= m:
-                    best_len, best_start = run, start
-            else:
-                run = 0
+        best_start, best_len = _longest_cyclic_run(~use[:m])
         first = (best_start + best_len) % m               # the first vertex used after the run
         order = [(first - 1 + t) % m for t in range(m - best_len + 2)]
         return xy[order], cells[order]

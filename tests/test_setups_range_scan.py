@@ -257,7 +257,8 @@ def test_bit_set_counts_are_exact(seed):
 def test_bit_set_quadruples_are_exact(seed):
     """The quadruples kernel, with its filter of each child's candidates by their gains (from the
     node's Gram matrix), against sums over the class rows: it returns every quadruple that leaves
-    at most the allowance, and only those, in the children's order."""
+    at most the allowance, and only those, in the children's order, however many parallel blocks
+    share the children."""
     rng = np.random.default_rng(100 + seed)
     C, m = int(rng.integers(1, 250)), int(rng.integers(5, 12))
     A = rng.random((C, m)) < rng.uniform(0.2, 0.7)
@@ -273,11 +274,13 @@ def test_bit_set_quadruples_are_exact(seed):
     js = rng.permutation(cand.size)
     rank = {int(j): i for i, j in enumerate(js)}
     for smax in {0, 3, int(np.median([q[4] for q in quads])), 10**6}:
-        rows, nodes = bits.quads_within(u, cand, g, P, js, smax)
         ref = sorted((q for q in quads if q[4] <= smax), key=lambda q: (rank[q[0]], *q[1:4]))
-        assert [tuple(r) for r in rows.tolist()] == ref
-        assert nodes[0] == js.size
-    assert bits.quads_within(u, cand, g, P, js, 10**6, cap=1)[0] is None or len(quads) <= 1
+        for blocks in (None, 1, 2, 3):  # the children shared out over parallel blocks: the same rows
+            rows, nodes = bits.quads_within(u, cand, g, P, js, smax, blocks=blocks)
+            assert [tuple(r) for r in rows.tolist()] == ref
+            assert nodes[0] == js.size
+    for blocks in (1, 3):  # more rows than room: None, whichever block overflows
+        assert bits.quads_within(u, cand, g, P, js, 10**6, cap=1, blocks=blocks)[0] is None or len(quads) <= 1
 
 
 @pytest.mark.parametrize("shape", ["half_sphere", "slot", "femur_like"])

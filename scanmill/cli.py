@@ -124,6 +124,12 @@ def _print_verification(r) -> None:
               f"{d.left_p50_mm:.3f}, p95 {d.left_p95_mm:.3f}, max {d.left_max_mm:.3f} mm; deepest cut below "
               f"the scan {d.gouge_max_mm:.3f} mm; simulated machining {v.machining_time_s / 60:.0f} min "
               f"(resolution {v.resolution_mm} mm, {r.artifacts.deviation_png})")
+    if v.finish is not None:
+        f = v.finish
+        print(f"  finish, measured exactly from the finishing moves: {f.finished_share:.1%} within "
+              f"{f.limit_mm:.3f} mm of the ball's surface ({f.reached_share:.1%} reached); material left over the "
+              f"reached points p50 {f.left_p50_mm:.3f}, p95 {f.left_p95_mm:.3f}, max {f.left_max_mm:.3f} mm; "
+              f"scallop p95 {f.scallop_p95_mm:.4f} mm; deepest below the scan {f.below_max_mm:.3f} mm")
 
 
 def cmd_plan(args) -> int:

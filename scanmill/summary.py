@@ -156,6 +156,10 @@ def _legacy_lines(plan: dict) -> list[str]:
                      + (f" ({int(n):,})" if n is not None else "") + " reached by no kept finishing move")
     if finished is not None:
         lines.append(f"finished within tolerance: {finished:.1%} of the scan points (simulation)")
+    exact = _get(v or {}, "finish", "finished_share")
+    if exact is not None:
+        lines.append(f"finished, measured exactly from the finishing moves: {exact:.1%} of the scan points within "
+                     f"{_get(v, 'finish', 'limit_mm')} mm (scallop p95 {_get(v, 'finish', 'scallop_p95_mm')} mm)")
     return lines
 
 

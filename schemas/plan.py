@@ -345,6 +345,31 @@ class DeviationFigures(_Out):
                                             "confirm are resolution artefacts (cusps and seams finer than the rays).")
 
 
+class FinishFigures(_Out):
+    """The finish measured exactly from the finishing moves (planning/simulate/finish.py): per scan point,
+    the distance from the point to the surface the finishing ball swept on the programs' feed moves
+    (positive: material left over it; negative: the ball went below it), lines exactly, arcs as the
+    reader's chords. Not on the stock model's rays: a scallop between passes is seen."""
+
+    n_points: int = Field(..., description="Scan points measured: all of them, or simulate.exact_finish_points drawn "
+                                           "at random from a larger scan.")
+    limit_mm: float = Field(..., description="paths.finishing.scallop_mm + tolerance_mm: at most this much material "
+                                             "left counts as finished, mm.")
+    finished_share: float = Field(
+        ..., description="Share of the points the ball came within limit_mm above and no deeper than tolerance_mm "
+                         "(plus the reader's 0.005 mm chords and the programs' last decimal) below.")
+    reached_share: float = Field(..., description="Share of the points some finishing move came near (the ball's "
+                                                  "centre within 2 R + 2 mm); the others are not finished.")
+    left_p50_mm: float = Field(..., description="Median material left over the reached points (0 where cut below), mm.")
+    left_p95_mm: float = Field(..., description="95th percentile of the material left over the reached points, mm.")
+    left_max_mm: float = Field(..., description="Most material left over a reached point, mm.")
+    scallop_p95_mm: float = Field(..., description="95th percentile of the material left over the finished points: "
+                                                   "the scallop the passes leave where they finish, mm.")
+    below_max_mm: float = Field(..., description="Deepest the finishing ball went below a scan point, mm (0: nowhere).")
+    n_below_tolerance: int = Field(..., description="Points the finishing ball went below by more than tolerance_mm "
+                                                    "(plus the reader's chords and the programs' last decimal).")
+
+
 class OperationFigures(_Out):
     """What one tool's moves in an area's program do on the simulated stock: how far they feed, how much of
     that cuts nothing (air), what they remove and how long they take. Air is measured on the stock model at
@@ -386,6 +411,8 @@ class AreaVerification(_Out):
     operations: list[OperationFigures] = Field(
         default_factory=list, description="The program's moves per tool (roughing first), as the simulation ran them.")
     deviation: DeviationFigures | None = None
+    finish: FinishFigures | None = Field(None, description="The area's points, measured exactly from every area's "
+                                                           "finishing moves.")
 
 
 class Verification(_Out):
@@ -402,6 +429,8 @@ class Verification(_Out):
     measuring_bound_mm: float | None = Field(None, description="Stated accuracy of the deviation figures, mm.")
     areas: list[AreaVerification] = Field(default_factory=list, description="In the order the set-ups run.")
     deviation: DeviationFigures | None = None
+    finish: FinishFigures | None = Field(None, description="The whole scan, measured exactly from the finishing "
+                                                           "moves (null: simulate.exact_finish is false).")
     rapids_into_material: int = 0
     holder_collisions: int = 0
     fixture_collisions: int = 0

@@ -16,6 +16,7 @@ import pytest
 from planning.inputs import Cloud
 from planning.inputs import samples
 from planning.pipeline import STAGES, run_plan
+from planning.simulate.motion import FEED
 from planning.simulate.program import check_travel
 from planning.simulate.rs274 import INSTALL_HINT, rs274_available, run_rs274
 from planning.simulate.verify import tool_shapes
@@ -113,6 +114,71 @@ def test_rs274_reads_the_linuxcnc_programs_within_the_travel(light_plan):
         assert check_travel(motion, profile) == [], (name, prog)
         read += 1
     assert read == len(outcome.result.setups)                 # every set-up has its program
+
+
+def _left_brute_force(points: np.ndarray, motions, finishing) -> np.ndarray:
+    """The material the finishing ball leaves over each point, by brute force: the distance from the
+    point to every finishing feed move's ball-centre segment (tip + R axis), less R, the least."""
+    R = finishing.radius_mm
+    segs = [(m.start_mm[k] + R * m.axis[k], m.end_mm[k] + R * m.axis[k]) for m in motions
+            for k in [np.flatnonzero((m.kind == FEED) & (m.tool == finishing.number))]]
+    c0 = np.concatenate([s[0] for s in segs])
+    c1 = np.concatenate([s[1] for s in segs])
+    best = np.full(points.shape[0], np.inf)
+    for a in range(0, c0.shape[0], 1000):
+        s0, d = c0[a:a + 1000], c1[a:a + 1000] - c0[a:a + 1000]
+        dd = np.maximum((d * d).sum(axis=1), 1e-300)
+        w = points[:, None, :] - s0[None]
+        t = np.clip((w * d[None]).sum(axis=2) / dd[None], 0.0, 1.0)
+        dist = np.linalg.norm(w - t[:, :, None] * d[None], axis=2)
+        best = np.minimum(best, dist.min(axis=1))
+    return best - R
+
+
+def test_the_exact_finish_agrees_with_the_programs_as_linuxcnc_reads_them(light_plan):
+    """Issue 31 item 1: the finish the verification measures exactly (``verification.finish``, from the
+    moves its reader took from the programs) against an independent measure: LinuxCNC's interpreter
+    reads the same programs (rs274), and the distance from each of 1,500 scan points to every
+    finishing feed move's ball-centre segment is taken by brute force. Per point they agree within
+    the reader's chord tolerance and the programs' last decimal; the kernel on the same moves agrees
+    to rounding; the finished share of those points lies within 3 points of the plan's."""
+    from planning.simulate.finish import finish_left_mm
+    from planning.simulate.program import read_program
+
+    assert rs274_available(), INSTALL_HINT
+    name, outcome = light_plan
+    p = outcome.result.parameters
+    v = outcome.result.verification
+    assert v.finish is not None and v.finish.n_points == outcome.points.shape[0]
+    from planning.orientations.kinematics import load_profile
+
+    profile = load_profile(p.machine.profile)
+    tools = tool_shapes(p, p.tool.assembly())
+    fin = tools[p.post.finishing_tool_number]
+    place = np.asarray(outcome.result.visibility.placement_mm, dtype=float)
+    motions = [run_rs274(outcome.extra["programs"][f"area_{a}.linuxcnc.nc"], program=f"area_{a}.linuxcnc.nc",
+                         area=a, profile=profile, placement_mm=place, tools=tools)
+               for a in outcome.result.machining_order]
+    rng = np.random.default_rng(7)
+    sub = rng.choice(outcome.points.shape[0], size=min(1500, outcome.points.shape[0]), replace=False)
+    pts = outcome.points[sub]
+    ref = _left_brute_force(pts, motions, fin)
+    kernel = finish_left_mm(pts, motions, fin)               # the same moves: the kernel is exact
+    near = ref < fin.radius_mm                               # well inside the kernel's reach
+    assert near.mean() > 0.5, name
+    assert np.isfinite(kernel[near]).all()
+    np.testing.assert_allclose(kernel[near], ref[near], atol=1e-9)
+    # the plan's own measure (the moves of its own reader), recomputed on the same points
+    read = [read_program(outcome.extra["programs"][f"area_{a}.linuxcnc.nc"], dialect="linuxcnc",
+                         program=f"area_{a}.linuxcnc.nc", area=a, profile=profile, placement_mm=place, tools=tools)
+            for a in outcome.result.machining_order]
+    mine = finish_left_mm(pts, read, fin)
+    assert np.abs(mine[near] - ref[near]).max() <= 0.005 + 2 * 10.0 ** -p.post.decimals, name
+    limit, tol = v.finish.limit_mm, p.paths.finishing.tolerance_mm
+    share = float(((ref <= limit) & (ref >= -(tol + 0.005 + 10.0 ** -p.post.decimals))).mean())
+    assert abs(share - v.finish.finished_share) <= 0.03, (name, share, v.finish)
+    assert v.finish.n_below_tolerance == 0 and v.finish.below_max_mm <= tol + 0.005 + 10.0 ** -p.post.decimals, \
+        (name, v.finish)
 
 
 def _counts(v) -> tuple:

@@ -115,14 +115,20 @@ def _grid(lo: np.ndarray, hi: np.ndarray, cell: float, n_pieces: int) -> tuple[n
 
 
 def penetration_mm(points: np.ndarray, motions: list[ProgramMotion], tools: dict[int, ToolShape],
-                   progress: Progress | None = None) -> np.ndarray:
+                   progress: Progress | None = None, beyond_mm: float = 0.0) -> np.ndarray:
     """(n,) how deep each of ``points`` (n,3, part frame, mm) lies inside the cutting part of a tool
     on any FEED move of ``motions`` (module docstring; ``tools`` by T number); ``-inf`` where no
     move's tool reaches it (<= 0: not cut) and at points with a non-finite coordinate.
 
     ``progress(fraction of the points measured, message)``: called once the moves are binned and then
     after every batch of points (:data:`PROGRESS_BATCHES`, :data:`PROGRESS_BATCH_S`), the fraction
-    rising to 1.0; the result is the same with or without it."""
+    rising to 1.0; the result is the same with or without it.
+
+    ``beyond_mm`` (>= 0): the moves are searched this much farther from each point, so that a ball's
+    depth down to ``-beyond_mm`` is settled by the bounded search alone (the ball layers' floor, below
+    which a point is measured again without the bounds, drops from 0 to ``-beyond_mm``): for points
+    that lie mostly outside the tools (:func:`planning.simulate.finish.finish_left_mm`). The depths are
+    those of the moves within the search, as without it; a larger search only finds more of them."""
     import numba
 
     pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
@@ -135,7 +141,7 @@ def penetration_mm(points: np.ndarray, motions: list[ProgramMotion], tools: dict
             b = min(n_all, a + MAX_POINTS)
             return lambda f, msg: progress((a + f * (b - a)) / n_all, msg)
 
-        return np.concatenate([penetration_mm(pts[a:a + MAX_POINTS], motions, tools, part(a))
+        return np.concatenate([penetration_mm(pts[a:a + MAX_POINTS], motions, tools, part(a), beyond_mm)
                                for a in range(0, n_all, MAX_POINTS)])
     out = np.full(pts.shape[0], -np.inf)
     finite = np.flatnonzero(np.isfinite(pts).all(axis=1))
@@ -169,7 +175,7 @@ def penetration_mm(points: np.ndarray, motions: list[ProgramMotion], tools: dict
     layers = []
     for shape, base, count in groups:
         R, L = float(shape.radius_mm), float(shape.flute_length_mm)
-        rq = 0.5 * PIECE_MM + _reach(shape)
+        rq = 0.5 * PIECE_MM + _reach(shape) + max(0.0, float(beyond_mm))
         if shape.kind == "ball":
             # a piece beyond the search radius holds no ball depth above 2 R + PIECE_MM / 2 - rq
             layers.append(_Layer(_k.NEAR, R, R, 0.0, R, rq, rq, 2.0 * R + 0.5 * PIECE_MM - rq, base, count))

@@ -39,6 +39,7 @@ from planning.simulate.tools import finishing_shape, roughing_shape
 from schemas.plan import (
     AreaVerification,
     DeviationFigures,
+    FinishFigures,
     OperationFigures,
     Verification,
     VerificationOffence,
@@ -236,6 +237,44 @@ def deviation_figures(dev: np.ndarray, limit_mm: float, gouge_mm: float,
         n_gouged=int(gouged.sum()), n_suspected=int(suspected.sum()))
 
 
+#: The seed of the points the exact finish is measured on, when there are more than ``exact_finish_points``.
+FINISH_SEED = 20261129
+
+
+def finish_sample(n: int, most: int) -> np.ndarray:
+    """The indices (sorted) of the scan points the exact finish is measured on: all ``n``, or ``most``
+    of them drawn at random without replacement (seed :data:`FINISH_SEED`; ``most`` 0: all)."""
+    if most <= 0 or n <= most:
+        return np.arange(n)
+    return np.sort(np.random.default_rng(FINISH_SEED).choice(n, size=most, replace=False))
+
+
+def finish_figures(left: np.ndarray, scallop_mm: float, tolerance_mm: float, below_mm: float | None = None) -> FinishFigures:
+    """Figures of the exact material left ``left`` (mm per point, :func:`planning.simulate.finish.finish_left_mm`;
+    ``+inf`` where no finishing move reaches the point): finished within ``scallop_mm + tolerance_mm``
+    above and ``below_mm`` below (default ``tolerance_mm``; the verification allows what it allows an
+    exact gouge depth: the tolerance, the reader's chords and the programs' last decimal)."""
+    left = np.asarray(left, dtype=np.float64)
+    limit = float(scallop_mm) + float(tolerance_mm)
+    below = float(tolerance_mm if below_mm is None else below_mm)
+    n = int(left.size)
+    reached = left[np.isfinite(left)]
+    if n == 0 or reached.size == 0:
+        return FinishFigures(n_points=n, limit_mm=round(limit, 6), finished_share=0.0, reached_share=0.0,
+                             left_p50_mm=0.0, left_p95_mm=0.0, left_max_mm=0.0, scallop_p95_mm=0.0,
+                             below_max_mm=0.0, n_below_tolerance=0)
+    up = np.maximum(reached, 0.0)
+    done = (reached <= limit) & (reached >= -below)
+    return FinishFigures(
+        n_points=n, limit_mm=round(limit, 6), finished_share=round(float(done.sum()) / n, 6),
+        reached_share=round(reached.size / n, 6),
+        left_p50_mm=round(float(np.percentile(up, 50)), 4), left_p95_mm=round(float(np.percentile(up, 95)), 4),
+        left_max_mm=round(float(up.max()), 4),
+        scallop_p95_mm=round(float(np.percentile(up[done], 95)), 4) if done.any() else 0.0,
+        below_max_mm=round(float(max(0.0, -reached.min())), 4),
+        n_below_tolerance=int((reached < -below).sum()))
+
+
 def reported_deviation(dev: np.ndarray, dev_high: np.ndarray, exact: np.ndarray) -> np.ndarray:
     """(N,) the deviation the plan reports and shows (mm, + material left, - cut below the scan), one
     reading per point for the figures, the PLY, the PNG and the viewer alike: material left as read
@@ -268,6 +307,9 @@ def _message(v: Verification) -> str:
                      f"{v.deviation.gouge_max_mm:.3f} mm)")
     if not lines:
         share = f"; {v.deviation.finished_share:.1%} of the scan finished within tolerance" if v.deviation else ""
+        if v.finish is not None:
+            share += (f" ({v.finish.finished_share:.1%} within {v.finish.limit_mm:g} mm of the finishing ball's "
+                      f"surface, measured exactly)")
         lines.append(f"the programs ran clean on the simulated machine and stock{share}")
     if v.plunges_into_material:
         lines.append(f"(also {v.plunges_into_material} straight plunges of the roughing end mill into material)")
@@ -404,6 +446,15 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
     for av in v.areas:
         mine = input_labels == av.area
         av.deviation = deviation_figures(dev[mine], limit, gouge, dev_high[mine], exact[mine], exact_limit)
+    if sim.exact_finish:
+        from planning.simulate.finish import finish_left_mm
+
+        idx = finish_sample(points.shape[0], sim.exact_finish_points)
+        say(len(names), 1.0, f"the finish, measured exactly from the finishing moves on {idx.size:,} scan points")
+        left = finish_left_mm(points[idx], motions, tools[config.post.finishing_tool_number])
+        v.finish = finish_figures(left, fp.scallop_mm, fp.tolerance_mm, exact_limit)
+        for av in v.areas:
+            av.finish = finish_figures(left[input_labels[idx] == av.area], fp.scallop_mm, fp.tolerance_mm, exact_limit)
     for field in ("rapids_into_material", "holder_collisions", "fixture_collisions", "travel_excursions",
                   "plunges_into_material"):
         setattr(v, field, sum(getattr(a, field) for a in v.areas))

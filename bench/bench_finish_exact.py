@@ -17,6 +17,7 @@ a 100 mm riser), ``half_sphere`` (the reference sample, defaults with input norm
 
     .venv/bin/python bench/bench_finish_exact.py --all-points
     .venv/bin/python bench/bench_finish_exact.py --cases range_femur half_sphere --threads 1 2
+    .venv/bin/python bench/bench_finish_exact.py --cases femur_like range_femur --noise-mm 0 --threads 2 --repeat 1
 """
 
 from __future__ import annotations
@@ -34,21 +35,23 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 
 
-def _case(name: str):
-    """(cloud, PlanConfig) of a case."""
+def _case(name: str, noise_mm: float | None = None):
+    """(cloud, PlanConfig) of a case; ``noise_mm``: the scan noise of the femur-like and range samples
+    (None: their defaults, 0.03 and 0.02 mm)."""
     from planning.inputs import Cloud
     from planning.inputs.samples import make_sample
     from schemas.params import apply_overrides, parse_config
 
     off = ["simulate.exact_finish=false"]
+    kw = {} if noise_mm is None else {"noise_mm": float(noise_mm)}
     if name == "femur_like":
         from bench_scaling import _config
 
-        s = make_sample("femur_like", n_points=1_000_000)
+        s = make_sample("femur_like", n_points=1_000_000, **kw)
         return Cloud(points=s.points, normals=None, source_format="generated"), \
             parse_config(apply_overrides(_config(), off))
     if name == "range_femur":
-        s = make_sample("range_femur")
+        s = make_sample("range_femur", **kw)
         return Cloud(points=s.points, normals=None, source_format="generated"), \
             parse_config(apply_overrides({}, ["fixtures.fixture_height_mm=100", *off]))
     if name == "half_sphere":
@@ -58,7 +61,7 @@ def _case(name: str):
     raise SystemExit(f"unknown case {name!r}")
 
 
-def run_case(name: str, threads: list[int], repeat: int, all_points: bool) -> dict:
+def run_case(name: str, threads: list[int], repeat: int, all_points: bool, noise_mm: float | None = None) -> dict:
     import numba
 
     from planning.orientations.kinematics import load_profile
@@ -67,7 +70,7 @@ def run_case(name: str, threads: list[int], repeat: int, all_points: bool) -> di
     from planning.simulate.program import read_program
     from planning.simulate.verify import READER_CHORD_TOL_MM, finish_figures, finish_sample, tool_shapes
 
-    cloud, cfg = _case(name)
+    cloud, cfg = _case(name, noise_mm)
     t = time.perf_counter()
     out = run_plan(cloud, cfg, name=name)
     plan_s = time.perf_counter() - t
@@ -117,12 +120,14 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--all-points", action="store_true",
                     help="also measure every point of a scan larger than simulate.exact_finish_points (last threads)")
+    ap.add_argument("--noise-mm", type=float, default=None,
+                    help="scan noise of the femur-like and range femur samples (default: theirs, 0.03 / 0.02 mm)")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     print(f"load average {os.getloadavg()[0]:.2f}", flush=True)
     rows = []
     for name in a.cases:
-        row = run_case(name, a.threads, a.repeat, a.all_points)
+        row = run_case(name, a.threads, a.repeat, a.all_points, a.noise_mm)
         rows.append(row)
         e = row["exact"]
         print(f"{name}: {row['n_points']:,} points, {row['finishing_feed_moves']:,} finishing feed moves; plan "

@@ -90,6 +90,12 @@ def test_the_artifacts_are_the_scan_by_deviation_and_the_stock_mesh(slot_plan):
     assert "deviation_mm" in vx.data.dtype.names
     dev = np.asarray(vx["deviation_mm"])
     assert np.nanmax(dev) > 0                                # material left somewhere (the slot's floor)
+    # the exact finish of every point (a small scan: all of them measured), as the plan's figures count it
+    left = np.asarray(vx["finish_left_mm"], dtype=np.float64)
+    assert not np.isnan(left).any()
+    f, fp = outcome.result.verification.finish, outcome.result.parameters.paths.finishing
+    done = np.isfinite(left) & (left <= f.limit_mm) & (left >= -(fp.tolerance_mm + 0.0051))
+    assert abs(done.mean() - f.finished_share) < 1e-4       # float32 in the file
     mesh = PlyData.read(str(paths["stock_ply"]))
     assert mesh["face"].count > 100 and mesh["vertex"].count > 100
     assert paths["deviation_png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -42,15 +42,24 @@ def deviation_colors(dev: np.ndarray, limit_mm: float) -> np.ndarray:
     return np.rint(col).astype(np.uint8)
 
 
-def write_deviation_ply(path, points: np.ndarray, dev: np.ndarray, limit_mm: float) -> None:
+def write_deviation_ply(path, points: np.ndarray, dev: np.ndarray, limit_mm: float,
+                        finish_left: np.ndarray | None = None) -> None:
     """Every scan point (mm, float: 24 bits, under 0.00005 mm within +-400 mm) with its colour
-    (:func:`deviation_colors`) and ``deviation_mm``."""
+    (:func:`deviation_colors`) and ``deviation_mm``; with ``finish_left`` (N,) also ``finish_left_mm``:
+    the material the finishing ball leaves over the point, measured exactly
+    (:func:`planning.simulate.finish.finish_left_mm`; NaN where not measured, +inf where no finishing
+    move reaches it)."""
     col = deviation_colors(dev, limit_mm)
-    v = np.empty(points.shape[0], dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
-                                         ("blue", "u1"), ("deviation_mm", "f4")])
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+              ("deviation_mm", "f4")]
+    if finish_left is not None:
+        fields.append(("finish_left_mm", "f4"))
+    v = np.empty(points.shape[0], dtype=fields)
     v["x"], v["y"], v["z"] = points[:, 0], points[:, 1], points[:, 2]
     v["red"], v["green"], v["blue"] = col[:, 0], col[:, 1], col[:, 2]
     v["deviation_mm"] = dev.astype(np.float32)
+    if finish_left is not None:
+        v["finish_left_mm"] = np.asarray(finish_left, dtype=np.float32)
     with atomic_path(path) as tmp:
         PlyData([PlyElement.describe(v, "vertex")], byte_order="<").write(str(tmp))
 

@@ -132,7 +132,8 @@ def _write_simulation(outcome: PlanOutcome, out: Path, say=lambda fraction, mess
     limit = finishing_limit_mm(outcome.result.parameters, v)     # the limit the figures count by
     say(0.5, names.deviation_ply)
     paths["deviation_ply"] = out / names.deviation_ply
-    write_deviation_ply(paths["deviation_ply"], outcome.points, sim.deviation_mm, limit)
+    write_deviation_ply(paths["deviation_ply"], outcome.points, sim.deviation_mm, limit,
+                        getattr(sim, "finish_left_mm", None))
     say(0.6, names.deviation_png)
     paths["deviation_png"] = out / names.deviation_png
     f = outcome.result.figures

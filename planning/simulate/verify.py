@@ -60,12 +60,15 @@ DEVIATION_CHUNK = 500_000
 class SimulationOutcome:
     """``verification``: the plan.json block; ``deviation_mm`` (N,) per input point (NaN where not
     measured); ``stock``: the final stock model (for the mesh artifact); ``again``: ``again(mode)``
-    runs the verification once more in another ``simulate.mode`` (set by the pipeline)."""
+    runs the verification once more in another ``simulate.mode`` (set by the pipeline);
+    ``finish_left_mm`` (N,): the exact material left (:mod:`planning.simulate.finish`; NaN where not
+    measured, +inf where no finishing move reaches), None when it was not measured."""
 
     verification: Verification
     deviation_mm: np.ndarray | None = None
     stock: object = None
     again: object = None
+    finish_left_mm: np.ndarray | None = None
 
 
 def skipped(message: str) -> SimulationOutcome:
@@ -446,12 +449,15 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
     for av in v.areas:
         mine = input_labels == av.area
         av.deviation = deviation_figures(dev[mine], limit, gouge, dev_high[mine], exact[mine], exact_limit)
+    finish_left = None
     if sim.exact_finish:
         from planning.simulate.finish import finish_left_mm
 
         idx = finish_sample(points.shape[0], sim.exact_finish_points)
         say(len(names), 1.0, f"the finish, measured exactly from the finishing moves on {idx.size:,} scan points")
         left = finish_left_mm(points[idx], motions, tools[config.post.finishing_tool_number])
+        finish_left = np.full(points.shape[0], np.nan)
+        finish_left[idx] = left
         v.finish = finish_figures(left, fp.scallop_mm, fp.tolerance_mm, exact_limit)
         for av in v.areas:
             av.finish = finish_figures(left[input_labels[idx] == av.area], fp.scallop_mm, fp.tolerance_mm, exact_limit)
@@ -463,7 +469,8 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
     v.status = verification_status(v)
     v.message = _message(v)
     v.seconds = round(time.perf_counter() - t0, 3)
-    return SimulationOutcome(verification=v, deviation_mm=dev, stock=stock)
+    return SimulationOutcome(verification=v, deviation_mm=dev, stock=stock,
+                             finish_left_mm=finish_left)
 
 
 def _single_pass(read, simulated, stock_after, models, tools, config, say):

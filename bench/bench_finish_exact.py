@@ -18,6 +18,7 @@ a 100 mm riser), ``half_sphere`` (the reference sample, defaults with input norm
     .venv/bin/python bench/bench_finish_exact.py --all-points
     .venv/bin/python bench/bench_finish_exact.py --cases range_femur half_sphere --threads 1 2
     .venv/bin/python bench/bench_finish_exact.py --cases femur_like range_femur --noise-mm 0 --threads 2 --repeat 1
+    .venv/bin/python bench/bench_finish_exact.py --cases femur_like --noise-mm 0 --threads 2 --repeat 1 --where
 """
 
 from __future__ import annotations
@@ -61,7 +62,42 @@ def _case(name: str, noise_mm: float | None = None):
     raise SystemExit(f"unknown case {name!r}")
 
 
-def run_case(name: str, threads: list[int], repeat: int, all_points: bool, noise_mm: float | None = None) -> dict:
+def _where(out, motions, fin, limit: float, below: float, n: int = 20_000) -> list[dict]:
+    """Per area (its own points, all programs), the exact finish of ``n`` points drawn at random, by
+    the angle between the point's normal (PCA of its 20 nearest scan points) and the area's tool axis,
+    and by the distance to the nearest point of another area (the seams)."""
+    from scipy.spatial import cKDTree
+
+    from planning.simulate.finish import finish_left_mm
+
+    pts, lab = out.points, out.input_labels
+    idx = np.random.default_rng(0).choice(pts.shape[0], min(n, pts.shape[0]), replace=False)
+    P, L = pts[idx], lab[idx]
+    left = finish_left_mm(P, motions, fin)
+    _, nb = cKDTree(pts).query(P, k=20)
+    Q = pts[nb] - pts[nb].mean(axis=1, keepdims=True)
+    normal = np.linalg.eigh(np.einsum("nki,nkj->nij", Q, Q))[1][:, :, 0]
+    rows = []
+    for st in out.result.setups:
+        m = L == st.id
+        if not m.any():
+            continue
+        slope = np.degrees(np.arccos(np.clip(np.abs(normal[m] @ np.asarray(st.tool_axis, float)), 0.0, 1.0)))
+        seam = cKDTree(pts[lab != st.id]).query(P[m], k=1)[0] if (lab != st.id).any() else np.full(m.sum(), np.inf)
+        lm = left[m]
+        done = (lm <= limit) & (lm >= -below)
+        for kind, val, edges in (("slope deg", slope, (0, 30, 45, 60, 90.1)), ("seam mm", seam, (0, 1, 3, np.inf))):
+            for lo, hi in zip(edges[:-1], edges[1:]):
+                k = (val >= lo) & (val < hi)
+                if k.sum():
+                    rows.append({"area": st.id, "by": kind, "range": (lo, hi), "n": int(k.sum()),
+                                 "finished": float(done[k].mean()),
+                                 "left_p50_mm": float(np.percentile(np.maximum(lm[k], 0.0), 50))})
+    return rows
+
+
+def run_case(name: str, threads: list[int], repeat: int, all_points: bool, noise_mm: float | None = None,
+             where: bool = False) -> dict:
     import numba
 
     from planning.orientations.kinematics import load_profile
@@ -110,7 +146,8 @@ def run_case(name: str, threads: list[int], repeat: int, all_points: bool, noise
             "finish_s": secs, "stock_model_finished_share": v.deviation.finished_share,
             "stock_model_left_p50_mm": v.deviation.left_p50_mm, "stock_model_left_p95_mm": v.deviation.left_p95_mm,
             "plan_figures_finished_share": r.figures.finished_share if r.figures is not None else None,
-            "n_measured": int(idx.size), "exact": f.model_dump(), "every_point": every}
+            "n_measured": int(idx.size), "exact": f.model_dump(), "every_point": every,
+            "where": _where(out, motions, fin, f.limit_mm, below) if where else None}
 
 
 def main(argv=None) -> int:
@@ -122,12 +159,14 @@ def main(argv=None) -> int:
                     help="also measure every point of a scan larger than simulate.exact_finish_points (last threads)")
     ap.add_argument("--noise-mm", type=float, default=None,
                     help="scan noise of the femur-like and range femur samples (default: theirs, 0.03 / 0.02 mm)")
+    ap.add_argument("--where", action="store_true",
+                    help="per area, the exact finish by the slope to the tool axis and by the distance to a seam")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     print(f"load average {os.getloadavg()[0]:.2f}", flush=True)
     rows = []
     for name in a.cases:
-        row = run_case(name, a.threads, a.repeat, a.all_points, a.noise_mm)
+        row = run_case(name, a.threads, a.repeat, a.all_points, a.noise_mm, a.where)
         rows.append(row)
         e = row["exact"]
         print(f"{name}: {row['n_points']:,} points, {row['finishing_feed_moves']:,} finishing feed moves; plan "
@@ -144,6 +183,9 @@ def main(argv=None) -> int:
               f"{e['left_p50_mm']:.4f}, p95 {e['left_p95_mm']:.3f}, max {e['left_max_mm']:.2f} mm, scallop p95 "
               f"{e['scallop_p95_mm']:.4f} mm, deepest below {e['below_max_mm']:.4f} mm "
               f"({e['n_below_tolerance']} points beyond the tolerance)", flush=True)
+        for w in row["where"] or []:
+            print(f"    area {w['area']} {w['by']} {w['range'][0]:g}-{w['range'][1]:g}: {w['n']:6,} points, finished "
+                  f"{w['finished']:.1%}, left p50 {w['left_p50_mm']:.4f} mm")
     print(f"load average after {os.getloadavg()[0]:.2f}")
     if a.json:
         with open(a.json, "w") as fh:

@@ -58,5 +58,6 @@ def finish_left_mm(points: np.ndarray, motions: list[ProgramMotion], finishing: 
         raise ValueError(f"the finishing tool must be a ball-end cutter, got {finishing.kind!r}")
     # the ball alone: with the flutes no longer than the ball there is no side layer
     ball = dataclasses.replace(finishing, flute_length_mm=float(finishing.radius_mm), pieces=())
-    depth = penetration_mm(points, motions, {int(finishing.number): ball}, progress, beyond_mm=BEYOND_MM)
+    said = None if progress is None else (lambda f, m: progress(f, m.replace("exact gouge depth", "material left")))
+    depth = penetration_mm(points, motions, {int(finishing.number): ball}, said, beyond_mm=BEYOND_MM)
     return -depth

@@ -429,7 +429,7 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
     dev, dev_high = np.empty(points.shape[0]), np.empty(points.shape[0])
     for a in range(0, max(points.shape[0], 1), DEVIATION_CHUNK):
         b = min(points.shape[0], a + DEVIATION_CHUNK)
-        say(len(names), 0.8 * a / max(points.shape[0], 1), f"deviation of the scan from the simulated stock: "
+        say(len(names), 0.7 * a / max(points.shape[0], 1), f"deviation of the scan from the simulated stock: "
                                                              f"points {a + 1}-{b} of {points.shape[0]}")
         dev[a:b], dev_high[a:b] = deviation_pair(stock, points[a:b], normals[a:b], max_mm=10.0)
     fp = config.paths.finishing
@@ -441,8 +441,8 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
     if suspect.size:
         from planning.simulate.gouge import penetration_mm
 
-        say(len(names), 0.8, f"{suspect.size} points read below the scan: measured exactly")
-        exact[suspect] = penetration_mm(points[suspect], motions, tools, lambda f, m: say(len(names), 0.8 + 0.2 * f, m))
+        say(len(names), 0.7, f"{suspect.size} points read below the scan: measured exactly")
+        exact[suspect] = penetration_mm(points[suspect], motions, tools, lambda f, m: say(len(names), 0.7 + 0.15 * f, m))
     exact_limit = fp.tolerance_mm + READER_CHORD_TOL_MM + 10.0 ** -config.post.decimals
     dev = reported_deviation(dev, dev_high, exact)
     v.deviation = deviation_figures(dev, limit, gouge, dev_high, exact, exact_limit)
@@ -454,8 +454,9 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
         from planning.simulate.finish import finish_left_mm
 
         idx = finish_sample(points.shape[0], sim.exact_finish_points)
-        say(len(names), 1.0, f"the finish, measured exactly from the finishing moves on {idx.size:,} scan points")
-        left = finish_left_mm(points[idx], motions, tools[config.post.finishing_tool_number])
+        say(len(names), 0.85, f"the finish, measured exactly from the finishing moves on {idx.size:,} scan points")
+        left = finish_left_mm(points[idx], motions, tools[config.post.finishing_tool_number],
+                              lambda f, m: say(len(names), 0.85 + 0.15 * f, f"the finish, exactly: {m}"))
         finish_left = np.full(points.shape[0], np.nan)
         finish_left[idx] = left
         v.finish = finish_figures(left, fp.scallop_mm, fp.tolerance_mm, exact_limit)

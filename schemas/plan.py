@@ -358,8 +358,8 @@ class FinishFigures(_Out):
     finished_share: float = Field(
         ..., description="Share of the points the ball came within limit_mm above and no deeper than tolerance_mm "
                          "(plus the reader's 0.005 mm chords and the programs' last decimal) below.")
-    reached_share: float = Field(..., description="Share of the points some finishing move came near (the ball's "
-                                                  "centre within 2 R + 2 mm); the others are not finished.")
+    reached_share: float = Field(..., description="Share of the points some finishing move came near (a 4 mm piece "
+                                                  "of it centred within 2 R + 3 mm); the others are not finished.")
     left_p50_mm: float = Field(..., description="Median material left over the reached points (0 where cut below), mm.")
     left_p95_mm: float = Field(..., description="95th percentile of the material left over the reached points, mm.")
     left_max_mm: float = Field(..., description="Most material left over a reached point, mm.")

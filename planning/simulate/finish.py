@@ -14,8 +14,9 @@ leaves over every scan point is measured from the moves themselves:
   between passes, or stock the finishing never came down to); negative, the ball went that deep
   below p (a cut below the scan by the finishing tool). Lines exactly; arcs as the program reader's
   chords (within :data:`planning.simulate.verify.READER_CHORD_TOL_MM`);
-* a point that no finishing move comes within reach of (the ball's centre within ``2 R +``
-  :data:`planning.simulate.gouge.PIECE_MM` / 2 of it, nothing nearer) is *not reached*: ``+inf``.
+* a point that no finishing move comes near is *not reached*: ``+inf`` (a move counts for a point when
+  the middle of one of its :data:`planning.simulate.gouge.PIECE_MM` pieces lies within
+  ``PIECE_MM / 2 + 2 R +`` :data:`BEYOND_MM` of it: 9 mm for R 3 mm).
 
 This is the ball layer of the exact gouge depth (:func:`planning.simulate.gouge.penetration_mm`,
 the same numba kernels: binned pieces, the points in parallel) with the finishing tool alone and

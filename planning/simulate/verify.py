@@ -14,7 +14,9 @@
    (:func:`planning.simulate.program.check_travel`);
 4. the signed deviation of every scan point from the final surface (positive: material left); a
    point read as cut below the surface is measured again exactly against the tools of the moves
-   that ran (:mod:`planning.simulate.gouge`), and only a confirmed cut counts as a gouge;
+   that ran (:mod:`planning.simulate.gouge`), and only a confirmed cut counts as a gouge; and the
+   finish measured exactly from the finishing moves (:mod:`planning.simulate.finish`,
+   ``simulate.exact_finish``): each point's distance to the surface the ball swept;
 5. the verdict: ``passed`` only when there are no collisions, no rapids into material, no travel
    excursions and no gouge beyond the tolerance.
 

@@ -63,9 +63,11 @@ def _case(name: str, noise_mm: float | None = None):
 
 
 def _where(out, motions, fin, limit: float, below: float, n: int = 20_000) -> list[dict]:
-    """Per area (its own points, all programs), the exact finish of ``n`` points drawn at random, by
-    the angle between the point's normal (PCA of its 20 nearest scan points) and the area's tool axis,
-    and by the distance to the nearest point of another area (the seams)."""
+    """The exact finish of ``n`` points drawn at random (each against every program): over the points
+    the chosen set-ups see (covered) and per class the plan gives a point on the rays
+    (:mod:`planning.report.figures`); then per area (its own points) by the angle between the point's
+    normal (PCA of its 20 nearest scan points) and the area's tool axis, and by the distance to the
+    nearest point of another area (the seams)."""
     from scipy.spatial import cKDTree
 
     from planning.simulate.finish import finish_left_mm
@@ -78,6 +80,17 @@ def _where(out, motions, fin, limit: float, below: float, n: int = 20_000) -> li
     Q = pts[nb] - pts[nb].mean(axis=1, keepdims=True)
     normal = np.linalg.eigh(np.einsum("nki,nkj->nij", Q, Q))[1][:, :, 0]
     rows = []
+    from planning.report.figures import FINISHED, LEFT, NOT_COVERED, UNREACHED
+
+    cls = np.asarray(out.extra["point_classes"])[idx]
+    done_all = (left <= limit) & (left >= -below)
+    for name, m in (("covered (seen by a chosen set-up)", cls != NOT_COVERED), ("rays: finished", cls == FINISHED),
+                    ("rays: left", cls == LEFT), ("rays: unreached", cls == UNREACHED),
+                    ("rays: not covered", cls == NOT_COVERED)):
+        if m.any():
+            rows.append({"area": "all", "by": name, "range": (0, 0), "n": int(m.sum()),
+                         "finished": float(done_all[m].mean()),
+                         "left_p50_mm": float(np.percentile(np.maximum(left[m], 0.0), 50))})
     for st in out.result.setups:
         m = L == st.id
         if not m.any():
@@ -184,7 +197,8 @@ def main(argv=None) -> int:
               f"{e['scallop_p95_mm']:.4f} mm, deepest below {e['below_max_mm']:.4f} mm "
               f"({e['n_below_tolerance']} points beyond the tolerance)", flush=True)
         for w in row["where"] or []:
-            print(f"    area {w['area']} {w['by']} {w['range'][0]:g}-{w['range'][1]:g}: {w['n']:6,} points, finished "
+            rng = "" if w["area"] == "all" else f" {w['range'][0]:g}-{w['range'][1]:g}"
+            print(f"    area {w['area']} {w['by']}{rng}: {w['n']:6,} points, finished "
                   f"{w['finished']:.1%}, left p50 {w['left_p50_mm']:.4f} mm")
     print(f"load average after {os.getloadavg()[0]:.2f}")
     if a.json:

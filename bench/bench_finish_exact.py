@@ -117,7 +117,7 @@ def run_case(name: str, threads: list[int], repeat: int, all_points: bool, noise
     from planning.pipeline import run_plan
     from planning.simulate.finish import finish_left_mm
     from planning.simulate.program import read_program
-    from planning.simulate.verify import READER_CHORD_TOL_MM, finish_figures, finish_sample, tool_shapes
+    from planning.simulate.verify import finish_figures, finish_sample, gouge_allowance_mm, tool_shapes
 
     cloud, cfg = _case(name, noise_mm)
     t = time.perf_counter()
@@ -145,7 +145,7 @@ def run_case(name: str, threads: list[int], repeat: int, all_points: bool, noise
             best = min(best, time.perf_counter() - t)
         secs[th] = best
     fp = cfg.paths.finishing
-    below = fp.tolerance_mm + READER_CHORD_TOL_MM + 10.0 ** -cfg.post.decimals
+    below = gouge_allowance_mm(cfg)
     f = finish_figures(left, fp.scallop_mm, fp.tolerance_mm, below)
     every = None
     if all_points and idx.size < out.points.shape[0]:   # the sample against every point, on all threads

@@ -157,6 +157,12 @@ def _machining_time_s(motion: ProgramMotion, config) -> float:
 #: than the finishing tolerance plus this and the programs' last decimal.
 READER_CHORD_TOL_MM = 0.005
 
+def gouge_allowance_mm(config) -> float:
+    """How deep (mm) the exact measures may find a tool below a scan point before it counts: the
+    finishing tolerance, the reader's chords (:data:`READER_CHORD_TOL_MM`) and the programs' last decimal."""
+    return config.paths.finishing.tolerance_mm + READER_CHORD_TOL_MM + 10.0 ** -config.post.decimals
+
+
 #: A feed move within this angle of straight down the tool axis is a plunge (degrees).
 PLUNGE_DEG = 10.0
 
@@ -445,7 +451,7 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
 
         say(len(names), 0.7, f"{suspect.size} points read below the scan: measured exactly")
         exact[suspect] = penetration_mm(points[suspect], motions, tools, lambda f, m: say(len(names), 0.7 + 0.15 * f, m))
-    exact_limit = fp.tolerance_mm + READER_CHORD_TOL_MM + 10.0 ** -config.post.decimals
+    exact_limit = gouge_allowance_mm(config)
     dev = reported_deviation(dev, dev_high, exact)
     v.deviation = deviation_figures(dev, limit, gouge, dev_high, exact, exact_limit)
     for av in v.areas:

@@ -28,10 +28,10 @@ far below the ceiling every subset is counted to its end and the Gram matrices a
 
 A node's children are shared out to ``numba.get_num_threads()`` Python threads (:func:`_quads_block`
 releases the GIL; the children interleaved, the rows sorted afterwards, so the answer does not
-depend on the thread count).  On the same range half sphere, 2 cores, 1.0 / 5: the kernel's 109
-calls 0.57 s on one thread, 0.35 s per thread on two; the proof 0.97-0.98 -> 0.91-0.94 s (the rest
-is the children's Gram products and Python).  Counting the words a pair leaves only over the words
-the node's first two axes leave (a compacted index) was slower: 0.57 -> 0.80-1.04 s.
+depend on the thread count).  On the same range half sphere, 2 cores, 1.0 / 5: the proof 0.94 s with
+``NUMBA_NUM_THREADS=1`` against 0.80 s with 2 (``bench/bench_proofs_range.py``, BENCHMARKS.md); the
+rest is the children's Gram products and Python.  Counting the words a pair leaves only over the words
+the node's first two axes leave (a compacted index) made the kernel slower (a scratch timing, not kept).
 
 The kernels are ``@njit(cache=True)`` with explicit signatures: compiled (or loaded from numba's
 cache, :mod:`planning.kernel_cache`) when this module is imported, never in the middle of a search.

@@ -74,9 +74,10 @@ def test_plane_area_passes():
     assert np.all(on[:, 2] <= -10.0 + R + 1e-12)
     assert np.all(on[:, 2] >= -10.0 + R - (0.2 / np.sqrt(2)) ** 2 / (2 * R) - 1e-12)
     ys = np.unique(np.round(on[:, 1], 9))
-    # adaptive side steps on a plane: the step-over, less what the 0.2 mm sampling's height noise takes
-    assert np.all(np.diff(ys)[:-1] <= path.step_over_mm + 1e-12)
-    assert np.all(np.diff(ys)[:-1] >= path.step_over_mm - 1e-3)
+    # adaptive side steps on a plane: the plane's step-over, within what the 0.2 mm sampling's height
+    # jitter reads as curvature across the passes (planning/toolpath/scallop.py: a few per cent)
+    assert np.all(np.diff(ys)[:-1] <= 1.03 * path.step_over_mm)
+    assert np.all(np.diff(ys)[:-1] >= 0.95 * path.step_over_mm)
     assert ys.min() <= -5 + path.step_over_mm and ys.max() >= 5 - path.step_over_mm
     # the passes cover the area plus the margin, not the rest of the plane
     assert on[:, 0].min() <= -10 and on[:, 0].max() >= 10

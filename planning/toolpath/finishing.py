@@ -38,6 +38,7 @@ from scipy import ndimage
 
 from planning.errors import ParameterError
 from planning.progress import Throttled
+from planning.toolpath import scallop
 from planning.toolpath.balldrop import DropSurface
 from planning.toolpath.moves import (
     FEED,
@@ -54,6 +55,11 @@ _ADAPT_ROUNDS = 8   # fixed-point rounds of an adaptive side step
 
 #: :func:`finishing_passes` calls its ``progress`` at most this often (seconds), the last call aside.
 PROGRESS_EVERY_S = 0.1
+#: A straight move along a pass is bisected (with a fresh ball drop) while its midpoint lies more than
+#: this share of ``tol_mm`` above the ball-drop height there (:func:`planning.toolpath.scallop.refine_chords`):
+#: CL reduction may add up to ``tol_mm`` more, so a finishing move runs at most 1.5 ``tol_mm`` above
+#: the ball-drop surface
+CHORD_SHARE = 0.5
 #: The share of ``progress``'s fraction that the passes take; making them safe and joining them the rest.
 PASSES_SHARE = 0.7
 
@@ -82,12 +88,6 @@ class _Progress:
     def done(self, n: int) -> None:
         if self.fn is not None:
             self._call(1.0, f"pass {n}/{n}: done", force=True)
-
-
-def _max_dz(z_prev: np.ndarray, z_next: np.ndarray) -> float:
-    """Largest height difference of two passes' ball centres at the same x (0 where none overlap)."""
-    both = np.isfinite(z_prev) & np.isfinite(z_next)
-    return float(np.abs(z_next[both] - z_prev[both]).max()) if both.any() else 0.0
 
 
 @dataclass(frozen=True)
@@ -207,9 +207,14 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
         raise ParameterError(f"max_slope_deg = {max_slope_deg}: must be in [0, 90)")
     dy_min = s * math.cos(math.radians(max_slope_deg))
     tell = _Progress(progress, y0, y1, s)
-    passes = _adaptive_passes(drop_pass, y0, y1, s, dy_min, tell) if adaptive else \
+    passes = _adaptive_passes(drop_pass, y0, y1, s, dy_min, R, float(scallop_mm), tell) if adaptive else \
         _even_passes(drop_pass, y0, y1, s, tell)
     stretches, n_done = _stretches(passes, xs, zigzag)
+    # the forward step: a move over a concave stretch is bisected until its chord keeps within
+    # CHORD_SHARE of the tolerance of the ball-drop height between its ends
+    refined = scallop.refine_chords(lambda q: surface.drop(q).z_mm, [ln for _, ln in stretches],
+                                    CHORD_SHARE * float(tol_mm))
+    stretches = [(p, ln) for (p, _), ln in zip(stretches, refined)]
     tell.joining(len(passes))
     if not stretches:
         raise ParameterError("no finishing pass lies on the area")
@@ -281,32 +286,67 @@ def _band(pts: np.ndarray, mask: np.ndarray, area: np.ndarray, s: float, margin_
     return on_band, near_band, lo, hi
 
 
-def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float, tell=None) -> list:
-    """Passes ``(y, inside, z)`` from ``y0`` to ``y1``, each side step the largest (<= ``s``, >=
-    ``dy_min``) that keeps neighbouring ball centres at most ``s`` apart in the cross-section
-    (``tell``: a :class:`_Progress`, told of each pass)."""
+def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float, R: float, h: float,
+                     tell=None) -> list:
+    """Passes ``(y, inside, z)`` from ``y0`` to ``y1``, each side step the largest found (within
+    [``dy_min``, SIDE_STEP_MAX ``s``]) whose scallop across the passes, at every x, stays within the
+    target ``h``: :func:`planning.toolpath.scallop.scallop_across_mm` on the ball centres of this pass and
+    the next, with the curvature across the passes from the previous pass, this one and the next (where
+    the previous pass has no height, from this one and the next two); Sood ch. 5 sets the side step per line from the scallop measured between
+    the passes. The step is found by a few rounds of ``dy <- dy sqrt(h / scallop)`` (the scallop grows as
+    dy^2), started from the last pass's step, and the widest step tried whose scallop is within the target
+    is taken; where the two passes share no x on the band, the step is at most ``s`` (``tell``: a
+    :class:`_Progress`, told of each pass)."""
     passes = []                                 # (y, inside, z)
     y, cur = y0, drop_pass(y0)
+    prev = None                                 # (y, z) of the pass before
+    cap = scallop.SIDE_STEP_MAX * s
+    dy_last = s
     while True:
         passes.append((y, *cur))
         if tell is not None:
             tell.passed(len(passes), y)
         if y >= y1 - 1e-9:
             break
-        # the largest side step (<= s) whose neighbouring ball centres, at every x, are at most s
-        # apart in the cross-section: the scallop between them is then <= h (Sood ch. 5 adapts the side step per line)
-        dy = min(s, y1 - y)
+        dy = max(min(dy_last * 1.25, cap, y1 - y), min(dy_min, y1 - y))
+        best = None                             # (dy, pass) the widest within the target
+        last = None
         for _ in range(_ADAPT_ROUNDS):
             nxt = drop_pass(y + dy)
-            dz = _max_dz(cur[1], nxt[1])
-            if dy * dy + dz * dz <= s * s * (1 + 1e-9) or dy <= dy_min:
+            if not (np.isfinite(cur[1]) & np.isfinite(nxt[1])).any():
+                # no x where both passes rest on the band (before it, past it): the plane's step-over,
+                # so that no edge of the band is stepped over
+                if dy > s:
+                    dy = max(min(s, y1 - y), min(dy_min, y1 - y))
+                    nxt = drop_pass(y + dy)
+                best = (dy, nxt)
                 break
-            # fixed point of dy = sqrt(s^2 - dz(dy)^2): dz ~ dy tan(slope) converges in a few rounds
-            dy = max(min(math.sqrt(max(s * s - dz * dz, 0.0)), 0.999 * dy), dy_min)
-        else:
-            # the rounds ran out with a shorter step than the last one dropped: drop the pass that
-            # is taken (its heights, not those of the step before, go with its y)
-            nxt = drop_pass(y + dy)
+            c = np.full(nxt[1].shape, np.nan) if prev is None else \
+                scallop.curvature_across(prev[0], prev[1], y, cur[1], y + dy, nxt[1])
+            if (np.isnan(c) & np.isfinite(cur[1]) & np.isfinite(nxt[1])).any():
+                # the first pass, or x the pass before did not reach: the curvature from the next two
+                far = drop_pass(y + 2.0 * dy)
+                c = np.where(np.isnan(c), scallop.curvature_across(y, cur[1], y + dy, nxt[1], y + 2.0 * dy, far[1]), c)
+            hw = scallop.worst(scallop.scallop_across_mm(R, y, cur[1], y + dy, nxt[1], c))
+            last = (dy, nxt)
+            if hw <= h * (1 + 1e-9):
+                if best is None or dy > best[0]:
+                    best = (dy, nxt)
+                if hw >= scallop.ACCEPT_LOW * h or dy >= min(cap, y1 - y) - 1e-12:
+                    break
+                grow = min(cap, y1 - y, dy * math.sqrt(h / hw) * 0.99) if hw > 0 else min(cap, y1 - y)
+                if grow <= dy * 1.01:
+                    break
+                dy = grow
+            else:
+                if dy <= dy_min * (1 + 1e-9):
+                    break
+                dy = max(dy_min, min(dy * math.sqrt(h / hw) * 0.99 if np.isfinite(hw) else 0.5 * dy, 0.95 * dy))
+                if best is not None and dy <= best[0]:
+                    break
+        dy, nxt = best if best is not None else last
+        prev = (y, cur[1])
+        dy_last = dy
         y, cur = y + dy, nxt
     return passes
 

@@ -1,0 +1,200 @@
+"""The scallop held on every curvature (issue 31 item 2; planning/toolpath/scallop.py): the formula
+against the exact geometry of two balls on a circle, the running median against numpy's, the forward
+step on a concave stretch, and finishing on analytic surfaces measured after the fact from the moves
+(planning/simulate/finish.py, the exact distance to the swept ball) against the target."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from planning.simulate.finish import finish_left_mm
+from planning.simulate.motion import FEED, ProgramMotion, ToolShape
+from planning.toolpath import finishing, scallop
+from planning.toolpath.balldrop import DropSurface
+from planning.toolpath.finishing import finishing_passes
+
+R = 3.0
+BALL = ToolShape(number=1, kind="ball", radius_mm=R, corner_radius_mm=R, flute_length_mm=20.0,
+                 pieces=((20.0, 60.0, 4.0),))
+
+
+def _exact_scallop_on_circle(rho: float, phi1: float, phi2: float, concave: bool) -> float:
+    """The cusp of two balls resting on a circle of radius rho (centres at rho -/+ R from its centre
+    O, at angles phi1, phi2 from the downward / upward vertical), its distance to the circle: brute
+    force on the cusp found as the intersection of the two balls' circles."""
+    D = rho - R if concave else rho + R
+    sgn = -1.0 if concave else 1.0                 # concave: O above the surface; convex: below
+    c1 = np.array([D * math.sin(phi1), sgn * D * math.cos(phi1)])
+    c2 = np.array([D * math.sin(phi2), sgn * D * math.cos(phi2)])
+    m, d = 0.5 * (c1 + c2), float(np.linalg.norm(c2 - c1))
+    u = (c2 - c1) / d
+    n = np.array([-u[1], u[0]])
+    cands = [m + t * math.sqrt(R * R - d * d / 4) * n for t in (1.0, -1.0)]
+    # the cusp on the surface's side: nearer the surface circle
+    return min(abs(float(np.linalg.norm(q)) - rho) for q in cands)
+
+
+@pytest.mark.parametrize("concave", [True, False])
+@pytest.mark.parametrize("rho", [6.0, 10.0, 30.0])
+def test_the_scallop_formula_equals_two_balls_on_a_circle(concave, rho):
+    """Ball centres on the offset of a circle (a cylinder's section), three passes dy apart: the
+    scallop from the curvature the three give equals the cusp's distance to the circle found by
+    intersecting the balls, within 5 % for steps up to 0.2 times the offset's radius (the parabola
+    through three points stands in for the circle: 10 % low at 0.3 times, 40 degrees up the side; a
+    scallop of 0.01 mm with R 3 mm takes steps of 0.5 mm at most, so an offset radius of 2.5 mm)."""
+    D = rho - R if concave else rho + R
+    sgn = -1.0 if concave else 1.0
+    for dy in [d for d in (0.3, 0.5, 0.9) if d <= 0.2 * D]:
+        ys = np.array([0.2, 0.2 + dy, 0.2 + 2 * dy])
+        zs = sgn * np.sqrt(D * D - ys * ys)        # the offset circle about O = (0, 0)
+        c = scallop.curvature_across(ys[0], zs[:1], ys[1], zs[1:2], ys[2], zs[2:], window=1)
+        got = float(scallop.scallop_across_mm(R, ys[1], zs[1:2], ys[2], zs[2:], c)[0])
+        want = _exact_scallop_on_circle(rho, math.asin(ys[1] / D), math.asin(ys[2] / D), concave)
+        assert got == pytest.approx(want, rel=0.05)
+        plane = R - math.sqrt(R * R - (dy * dy + (zs[2] - zs[1]) ** 2) / 4)
+        # concave leaves more than the plane formula at the same centre distance, convex less
+        assert (got > plane) if concave else (got < plane)
+    # at rho = 2 R concave, about rho / (rho - R) = 2x the plane's (issue 31)
+    if concave and rho == 2 * R:
+        ys = np.array([-0.5, 0.0, 0.5])
+        zs = -np.sqrt(D * D - ys * ys)
+        c = scallop.curvature_across(ys[0], zs[:1], ys[1], zs[1:2], ys[2], zs[2:], window=1)
+        got = float(scallop.scallop_across_mm(R, ys[1], zs[1:2], ys[2], zs[2:], c)[0])
+        d = math.hypot(0.5, zs[2] - zs[1])
+        assert got / (R - math.sqrt(R * R - d * d / 4)) == pytest.approx(rho / (rho - R), rel=0.05)
+
+
+def test_balls_that_do_not_meet_and_missing_heights():
+    z = np.array([0.0, 0.0, np.nan])
+    h = scallop.scallop_across_mm(R, 0.0, z, 6.5, np.array([0.0, np.nan, 0.0]))
+    assert h[0] == np.inf and np.isnan(h[1]) and np.isnan(h[2])
+    assert scallop.worst(np.array([np.nan, np.nan])) == 0.0
+    assert scallop.worst(np.array([np.nan, 0.2, 0.1])) == 0.2
+
+
+def test_running_median_is_numpys_nanmedian_over_the_window():
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=200)
+    v[rng.random(200) < 0.3] = np.nan
+    v[50:70] = np.nan
+    for w in (1, 3, 9):
+        got = scallop.running_median(v, w)
+        k = w // 2
+        for i in range(v.size):
+            win = v[max(0, i - k):i + k + 1]
+            if np.isfinite(win).any():
+                assert got[i] == pytest.approx(float(np.nanmedian(win)), abs=1e-15)
+            else:
+                assert np.isnan(got[i])
+
+
+def test_chords_over_a_valley_are_bisected_until_they_keep_the_tolerance():
+    """Ball drops every 0.75 mm along a valley (a concave cylinder across the pass, rho = 6): the chord
+    between two leaves up to L^2 / (8 (rho - R)) (0.023 mm) above the drop; after refine_chords every
+    move's midpoint lies within chord_mm of the drop there, and the points added are drops."""
+    rho = 6.0
+    g = np.arange(-5.0, 5.0001, 0.05)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    x, y = X.ravel(), Y.ravel()
+    pts = np.column_stack([x, y, rho - np.sqrt(rho * rho - x * x) - 2.0])
+    surf = DropSurface(pts, R)
+    xs = np.arange(-1.5, 1.5001, 0.75)
+    line = np.column_stack([xs, np.zeros_like(xs), surf.drop(np.column_stack([xs, np.zeros_like(xs)])).z_mm])
+    mid = 0.5 * (line[1:] + line[:-1])
+    before = mid[:, 2] - surf.drop(mid[:, :2]).z_mm
+    assert before.max() > 0.015                      # what the fixed forward step leaves
+    chord = 0.001
+    out = scallop.refine_chords(lambda q: surf.drop(q).z_mm, [line, line[::-1].copy()], chord)
+    for ln in out:
+        mid = 0.5 * (ln[1:] + ln[:-1])
+        seg = np.diff(ln, axis=0)
+        above = (mid[:, 2] - surf.drop(mid[:, :2]).z_mm) * np.hypot(seg[:, 0], seg[:, 1]) / np.linalg.norm(seg, axis=1)
+        assert above.max() <= chord
+        np.testing.assert_allclose(ln[:, 2], surf.drop(ln[:, :2]).z_mm, atol=1e-12)
+        assert ln.shape[0] > line.shape[0]
+    # a plane needs nothing: the lines come back as they were
+    flat = np.column_stack([xs, np.zeros_like(xs), np.zeros_like(xs)])
+    same = scallop.refine_chords(lambda q: np.zeros(q.shape[0]), [flat], chord)
+    np.testing.assert_array_equal(same[0], flat)
+
+
+# ------------------------------------------------------------------------------------------------
+# finishing on analytic surfaces, measured from the moves
+# ------------------------------------------------------------------------------------------------
+
+def _surface(kind: str, x, y):
+    if kind == "plane":
+        return 0.0 * x
+    if kind == "slope_40":
+        return math.tan(math.radians(40.0)) * y
+    if kind == "convex_cylinder":
+        return np.sqrt(100.0 - y * y) - 10.0
+    if kind == "concave_cylinder_across":          # rho = 2 R, its axis along the passes
+        return 6.0 - np.sqrt(36.0 - y * y)
+    if kind == "concave_cylinder_along":           # rho = 2 R, across the passes: the forward step
+        return 6.0 - np.sqrt(36.0 - x * x)
+    if kind == "sphere":
+        return np.sqrt(225.0 - x * x - y * y) - 15.0
+    if kind == "bowl":
+        return 10.0 - np.sqrt(100.0 - x * x - y * y)
+    if kind == "saddle":
+        return (x * x - y * y) / 24.0
+    raise ValueError(kind)
+
+
+def _left_after(kind: str, h: float, tol: float):
+    """Finish the middle of an analytic surface (0.05 mm grid of its points) and measure from the
+    finishing moves the material left over its points away from the area's edges:
+    (largest, the path)."""
+    half = 3.0 if kind.startswith("concave") or kind == "bowl" else 5.0
+    g = np.arange(-half - 2.0, half + 2.0 + 1e-9, 0.05)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    x, y = X.ravel(), Y.ravel()
+    pts = np.column_stack([x, y, _surface(kind, x, y)])
+    pts[:, 2] -= pts[:, 2].max()
+    area = (np.abs(x) <= half) & (np.abs(y) <= half)
+    fin = finishing_passes(pts, area, radius_mm=R, scallop_mm=h, tol_mm=tol, margin_mm=1.0)
+    cl, kind_ = fin.toolpath.xyz_mm, fin.toolpath.kind
+    f = kind_[1:] == FEED
+    n = int(f.sum())
+    tip = np.array([0.0, 0.0, R])
+    m = ProgramMotion(program="t", area=0, line=np.arange(1, n + 1), kind=np.full(n, FEED, np.int8),
+                      tool=np.ones(n, np.int64), start_mm=cl[:-1][f] - tip, end_mm=cl[1:][f] - tip,
+                      axis=np.tile([0.0, 0.0, 1.0], (n, 1)), machine_mm=np.zeros((n, 3)),
+                      rotary_deg=np.zeros((n, 2)))
+    inner = np.flatnonzero((np.abs(x) <= half - 1.0) & (np.abs(y) <= half - 1.0))[::2]
+    left = finish_left_mm(pts[inner], [m], BALL)
+    assert np.isfinite(left).all()                  # every inner point is reached
+    return float(left.max()), fin
+
+
+@pytest.mark.parametrize("kind", ["plane", "slope_40", "convex_cylinder", "concave_cylinder_across",
+                                  "concave_cylinder_along", "sphere", "bowl", "saddle"])
+def test_the_scallop_after_finishing_is_the_target_on_every_curvature(kind):
+    """Issue 31's acceptance: the scallop measured after the fact never exceeds the target by more
+    than 10 % (concave included), and it is not far below it (the passes are not wastefully dense).
+    The centre-distance rule of before left 1.9x on the concave cylinder across the passes, 3.5x along
+    them, 2.4x in the bowl and 1.6x on the saddle (BENCHMARKS.md, issue 31 item 2)."""
+    h, tol = 0.01, 0.001
+    worst, fin = _left_after(kind, h, tol)
+    assert worst <= 1.1 * h + tol / 2
+    assert worst >= 0.8 * h
+
+
+def test_without_the_forward_step_a_valley_along_the_passes_keeps_too_much(monkeypatch):
+    """The same valley along the passes with refine_chords switched off: the fixed R / 4 forward step
+    leaves well over the target, which is what the forward step is for."""
+    monkeypatch.setattr(scallop, "refine_chords", lambda drop, lines, chord_mm, max_rounds=6: lines)
+    worst, _ = _left_after("concave_cylinder_along", 0.01, 0.001)
+    assert worst > 1.5 * 0.01
+
+
+def test_without_the_curvature_the_concave_cylinder_keeps_too_much(monkeypatch):
+    """The concave cylinder across the passes with the curvature read as 0 (the plane's formula on the
+    centre distance): about rho / (rho - R) = 2x the target."""
+    monkeypatch.setattr(scallop, "curvature_across", lambda *a, **k: np.zeros_like(np.asarray(a[1], float)))
+    worst, _ = _left_after("concave_cylinder_across", 0.01, 0.001)
+    assert worst > 1.5 * 0.01

@@ -472,10 +472,15 @@ class FinishingParams(_Strict):
 
     enabled: bool = Field(True, description="Compute finishing paths for every area.")
     scallop_mm: float = Field(
-        0.01, gt=0, le=5, description="Target scallop height between passes on a plane, mm; the step-over is "
-                                      "2 sqrt(2 R h - h^2) (0.49 mm for R 3 mm, h 0.01 mm).")
+        0.01, gt=0, le=5, description="Target scallop height between passes, mm, held on every curvature: each "
+                                      "side step is the widest whose scallop, from the ball centres of the passes "
+                                      "and the curvature across them, stays within it (on a plane "
+                                      "2 sqrt(2 R h - h^2): 0.49 mm for R 3 mm, h 0.01 mm; narrower on concave, "
+                                      "wider on convex sections; docs/design.md, 'the scallop on every curvature').")
     step_mm: float | None = Field(
-        None, gt=0, le=50, description="Forward step between CL points along a pass, mm; null = R / 4.")
+        None, gt=0, le=50, description="Forward step between CL points along a pass, mm; null = R / 4. A move whose "
+                                       "chord runs more than half tolerance_mm above the ball-drop height at its "
+                                       "midpoint (concave along the pass) is bisected, at most six times.")
     margin_mm: float = Field(
         1.0, ge=0, le=100, description="How far the passes reach past the area into its neighbours (the overlap band), mm.")
     pattern: Literal["zigzag", "oneway"] = Field(

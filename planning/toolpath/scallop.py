@@ -28,7 +28,8 @@ next two, and wherever the previous pass has no height within the window) at eac
 ball drop rests on discrete points (and on the scan's noise), so the heights jitter by a few microns;
 ``c`` is taken as the running median of CURVATURE_WINDOW samples along the pass before it is used
 (on a uniform sample of a plane at 0.3 mm spacing the largest scallop per pass reads 1.1 x the target
-with it and 1.4 x without). Where neither triple has heights within the window (an edge of the
+with it and 1.4 x without), and then taken closer to 0 by NOISE_SEMS standard errors of what the
+median leaves of the jitter (estimated from the spread about the median). Where neither triple has heights within the window (an edge of the
 band) ``c = 0``: the plane's formula on the 3-D centre distance.
 
 **Along a pass** (:func:`refine_chords`). CL points every ``step_mm``; a straight move between two
@@ -52,6 +53,10 @@ CURVATURE_WINDOW = 9
 #: The side step is at most this many plane step-overs (``2 sqrt(2 R h - h^2)``): on a convex section
 #: the formula allows wider steps (sqrt 2 at rho = R), on a sharp ridge unboundedly wide
 SIDE_STEP_MAX = 2.0
+#: The curvature across the passes is trusted only beyond this many standard errors of what its running
+#: median leaves of the ball drop's jitter (robust: from the median absolute deviation about it); on a
+#: scan the noise otherwise reads as curvature and crowds the passes
+NOISE_SEMS = 2.0
 #: A side step is taken when its scallop lies within [ACCEPT_LOW, 1] of the target (fewer drops than
 #: hitting the target exactly; at most that much narrower than it could be)
 ACCEPT_LOW = 0.85
@@ -85,7 +90,21 @@ def curvature_across(ya: float, za: np.ndarray, yb: float, zb: np.ndarray, yc: f
     if not (ya < yb < yc):
         raise ValueError("the three passes must be in increasing y")
     c = ((zc - zb) / (yc - yb) - (zb - za) / (yb - ya)) / (yc - ya)
-    return running_median(c, window)
+    cf = running_median(c, window)
+    # what the median leaves of the jitter (a point cloud's drop heights, the scan's noise): its standard
+    # error from the spread of c about the median; the curvature is taken that much closer to 0, twice over
+    sem = 1.2533 * robust_sigma(c - cf) / math.sqrt(max(int(window), 1))
+    return np.sign(cf) * np.maximum(np.abs(cf) - NOISE_SEMS * sem, 0.0)
+
+
+def robust_sigma(v: np.ndarray) -> float:
+    """The standard deviation of normal noise that would give the finite values of ``v`` their median
+    absolute deviation (1.4826 MAD); 0 with fewer than 5 values."""
+    v = np.asarray(v, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size < 5:
+        return 0.0
+    return 1.4826 * float(np.median(np.abs(v - np.median(v))))
 
 
 def scallop_across_mm(R: float, y1: float, z1: np.ndarray, y2: float, z2: np.ndarray,
@@ -117,7 +136,10 @@ def refine_chords(drop, lines: list[np.ndarray], chord_mm: float, max_rounds: in
     midpoint (``drop(xy (k,2)) -> (k,) z``, -inf where nothing is under the ball) wherever the move's
     midpoint lies more than ``chord_mm`` above it, measured normal to the move; repeated on the new
     moves at most ``max_rounds`` times (the step then is at least ``step / 2^max_rounds``). Returns the
-    refined lines, in order."""
+    refined lines, in order. No allowance is made for the drop heights' jitter on a scan (the points the
+    ball rests on, the noise): a split there puts the ball where it rests, and CL reduction
+    (:func:`planning.toolpath.reduce.reduce_cl`) merges what the tolerance allows afterwards.
+    """
     if not lines:
         return []
     sizes = np.array([ln.shape[0] for ln in lines])

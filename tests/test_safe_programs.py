@@ -302,7 +302,17 @@ def test_default_plans_of_the_reference_cases_verify_clean(name):
     cloud = Cloud(points=s.points, normals=s.normals, source_format="generated", faces=getattr(s, "faces", None))
     outcome = run_plan(cloud, parse_config(apply_overrides({}, sets)), name=name)
     _assert_clean(outcome, name)
+    _assert_roughing_air_under(outcome, 0.15)
     json.dumps(outcome.result.model_dump(mode="json"))
+
+
+def _assert_roughing_air_under(outcome, share: float) -> None:
+    """Issue 30: on every set-up the roughing end mill's feed that removed nothing on the simulated
+    stock is under ``share`` of its feed length (bench/bench_stock_first.py prints the same figure)."""
+    for a in outcome.result.verification.areas:
+        for op in a.operations:
+            if op.operation == "roughing" and op.feed_mm > 0:
+                assert op.air_share < share, (a.area, op.air_share)
 
 
 @pytest.mark.slow
@@ -320,6 +330,7 @@ def test_the_femur_like_make_run_plan_verifies_clean():
     outcome = run_plan(cloud, parse_config(json.loads(json.dumps(CONFIGS["femur_like"]))), name="femur_like")
     assert outcome.result.status == "planned"
     _assert_clean(outcome, "femur_like")
+    _assert_roughing_air_under(outcome, 0.15)
 
 
 def test_writing_the_plan_reports_each_artifact(light_plan, tmp_path):

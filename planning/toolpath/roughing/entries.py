@@ -686,8 +686,10 @@ class _Entries:
         if self.clear is not None and self.clear(q[0], q[1], z, safe):
             # the maps bound the material (grown by a ray spacing); the stock itself says the tool comes
             # down at q through air (the whole column up to the safe height: wherever the lift's rapid
-            # stops and its feed starts): no helix or ramp needed
-            _lift(w, lv, cur, q, z, safe, top_q)
+            # stops and its feed starts): no helix or ramp needed, and the rapid comes down to the gap
+            # above the level (no material above it there; the lift keeps the rapid clearance on the
+            # stock itself), not above the maps' bound
+            _lift(w, lv, cur, q, z, safe, z)
             self.n_in_air += 1
             return []
         if self.cfg.kind != "plunge":
@@ -708,7 +710,9 @@ class _Entries:
                     if d > 0:
                         best_d, q2 = d, q - d * v
                 if q2 is not None:
-                    _lift(w, lv, cur, q2, z, safe, self.material(lv, q2, self.Rt))
+                    # on the stock the column at q2 is air down to the level (``clear``): the rapid comes
+                    # down to the gap above it there; on the maps alone, above their material
+                    _lift(w, lv, cur, q2, z, safe, z if self.clear is not None else self.material(lv, q2, self.Rt))
                     w.add([q[0], q[1], z], USE_CUT)
                     self.n_side += 1
                     return [np.array([q2, q])]

@@ -187,7 +187,7 @@ def test_the_scallop_after_finishing_is_the_target_on_every_curvature(kind):
 def test_without_the_forward_step_a_valley_along_the_passes_keeps_too_much(monkeypatch):
     """The same valley along the passes with refine_chords switched off: the fixed R / 4 forward step
     leaves well over the target, which is what the forward step is for."""
-    monkeypatch.setattr(scallop, "refine_chords", lambda drop, lines, chord_mm, max_rounds=6: lines)
+    monkeypatch.setattr(scallop, "refine_chords", lambda drop, lines, chord_mm, **kw: lines)
     worst, _ = _left_after("concave_cylinder_along", 0.01, 0.001)
     assert worst > 1.5 * 0.01
 
@@ -233,3 +233,30 @@ def test_robust_sigma_reads_normal_noise():
     v[:200] = 5.0                                   # outliers do not move it
     assert scallop.robust_sigma(v) == pytest.approx(0.02, rel=0.1)
     assert scallop.robust_sigma(np.array([1.0, np.nan, 2.0])) == 0.0
+
+
+def test_the_jitter_seen_across_the_passes_is_the_heights_noise():
+    """Three passes of heights with normal noise sigma (a plane): curvature_across reports a jitter
+    of about sigma, and the curvature it returns is 0 (the shrink takes the noise away)."""
+    rng = np.random.default_rng(11)
+    sigma = 0.004
+    za, zb, zc = (rng.normal(0.0, sigma, 400) for _ in range(3))
+    said = []
+    c = scallop.curvature_across(0.0, za, 0.45, zb, 0.95, zc, noise=said)
+    assert len(said) == 1 and said[0] == pytest.approx(sigma, rel=0.2)
+    assert np.mean(c == 0.0) > 0.9
+
+
+def test_chords_over_noise_are_not_bisected_when_the_noise_is_known():
+    """A noisy flat line of drops: with the jitter given, hardly a move is split; without, many are (a
+    chord over the noise is no chord over a valley)."""
+    rng = np.random.default_rng(4)
+    xs = np.arange(0.0, 60.0, 0.75)
+    line = np.column_stack([xs, np.zeros_like(xs), rng.normal(0.0, 0.004, xs.size)])
+
+    def drop(q):
+        return np.random.default_rng(int(1e6 * q[0, 0]) % 2**31).normal(0.0, 0.004, q.shape[0])
+
+    plain = scallop.refine_chords(drop, [line], 0.005)[0]
+    aware = scallop.refine_chords(drop, [line], 0.005, noise_mm=0.004)[0]
+    assert plain.shape[0] - line.shape[0] > 3 * (aware.shape[0] - line.shape[0])

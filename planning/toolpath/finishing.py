@@ -207,13 +207,15 @@ def finishing_passes(cloud_frame: np.ndarray, area_mask: np.ndarray, *, radius_m
         raise ParameterError(f"max_slope_deg = {max_slope_deg}: must be in [0, 90)")
     dy_min = s * math.cos(math.radians(max_slope_deg))
     tell = _Progress(progress, y0, y1, s)
-    passes = _adaptive_passes(drop_pass, y0, y1, s, dy_min, R, float(scallop_mm), tell) if adaptive else \
+    noise = []                  # the drop heights' jitter, per step taken (scallop.curvature_across)
+    passes = _adaptive_passes(drop_pass, y0, y1, s, dy_min, R, float(scallop_mm), tell, noise) if adaptive else \
         _even_passes(drop_pass, y0, y1, s, tell)
     stretches, n_done = _stretches(passes, xs, zigzag)
     # the forward step: a move over a concave stretch is bisected until its chord keeps within
-    # CHORD_SHARE of the tolerance of the ball-drop height between its ends
+    # CHORD_SHARE of the tolerance of the ball-drop height between its ends (plus what the drop heights'
+    # jitter, seen across the passes, explains)
     refined = scallop.refine_chords(lambda q: surface.drop(q).z_mm, [ln for _, ln in stretches],
-                                    CHORD_SHARE * float(tol_mm))
+                                    CHORD_SHARE * float(tol_mm), noise_mm=float(np.median(noise)) if noise else 0.0)
     stretches = [(p, ln) for (p, _), ln in zip(stretches, refined)]
     tell.joining(len(passes))
     if not stretches:
@@ -287,7 +289,7 @@ def _band(pts: np.ndarray, mask: np.ndarray, area: np.ndarray, s: float, margin_
 
 
 def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float, R: float, h: float,
-                     tell=None) -> list:
+                     tell=None, noise: list | None = None) -> list:
     """Passes ``(y, inside, z)`` from ``y0`` to ``y1``, each side step the largest found (within
     [``dy_min``, SIDE_STEP_MAX ``s``]) whose scallop across the passes, at every x, stays within the
     target ``h``: :func:`planning.toolpath.scallop.scallop_across_mm` on the ball centres of this pass and
@@ -296,7 +298,8 @@ def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float, R
     the passes. The step is found by a few rounds of ``dy <- dy sqrt(h / scallop)`` (the scallop grows as
     dy^2), started from the last pass's step, and the widest step tried whose scallop is within the target
     is taken; where the two passes share no x on the band, the step is at most ``s`` (``tell``: a
-    :class:`_Progress`, told of each pass)."""
+    :class:`_Progress`, told of each pass; ``noise``: a list the drop heights' jitter estimates of the
+    steps taken are appended to, :func:`planning.toolpath.scallop.curvature_across`)."""
     passes = []                                 # (y, inside, z)
     y, cur = y0, drop_pass(y0)
     prev = None                                 # (y, z) of the pass before
@@ -319,19 +322,21 @@ def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float, R
                 if dy > s:
                     dy = max(min(s, y1 - y), min(dy_min, y1 - y))
                     nxt = drop_pass(y + dy)
-                best = (dy, nxt)
+                best = (dy, nxt, [])
                 break
+            said = []
             c = np.full(nxt[1].shape, np.nan) if prev is None else \
-                scallop.curvature_across(prev[0], prev[1], y, cur[1], y + dy, nxt[1])
+                scallop.curvature_across(prev[0], prev[1], y, cur[1], y + dy, nxt[1], noise=said)
             if (np.isnan(c) & np.isfinite(cur[1]) & np.isfinite(nxt[1])).any():
                 # the first pass, or x the pass before did not reach: the curvature from the next two
                 far = drop_pass(y + 2.0 * dy)
-                c = np.where(np.isnan(c), scallop.curvature_across(y, cur[1], y + dy, nxt[1], y + 2.0 * dy, far[1]), c)
+                c = np.where(np.isnan(c), scallop.curvature_across(y, cur[1], y + dy, nxt[1], y + 2.0 * dy, far[1],
+                                                                   noise=said), c)
             hw = scallop.worst(scallop.scallop_across_mm(R, y, cur[1], y + dy, nxt[1], c))
-            last = (dy, nxt)
+            last = (dy, nxt, said)
             if hw <= h * (1 + 1e-9):
                 if best is None or dy > best[0]:
-                    best = (dy, nxt)
+                    best = (dy, nxt, said)
                 if hw >= scallop.ACCEPT_LOW * h or dy >= min(cap, y1 - y) - 1e-12:
                     break
                 grow = min(cap, y1 - y, dy * math.sqrt(h / hw) * 0.99) if hw > 0 else min(cap, y1 - y)
@@ -344,7 +349,9 @@ def _adaptive_passes(drop_pass, y0: float, y1: float, s: float, dy_min: float, R
                 dy = max(dy_min, min(dy * math.sqrt(h / hw) * 0.99 if np.isfinite(hw) else 0.5 * dy, 0.95 * dy))
                 if best is not None and dy <= best[0]:
                     break
-        dy, nxt = best if best is not None else last
+        dy, nxt, said = best if best is not None else last
+        if noise is not None:
+            noise.extend(said)
         prev = (y, cur[1])
         dy_last = dy
         y, cur = y + dy, nxt

@@ -36,7 +36,8 @@ band) ``c = 0``: the plane's formula on the 3-D centre distance.
 ball-drop positions runs above the ball-drop height between them where the offset curve is concave
 along the pass (a chord over a valley leaves up to L^2 / (8 (rho - R))). Each move is bisected with a
 fresh ball drop at its midpoint while the chord's midpoint lies more than ``chord_mm`` above the drop
-there (measured normal to the move), at most ``max_rounds`` times. Where the chord runs below the drop
+there (measured normal to the move), beyond what the drop heights' jitter explains, at most
+``max_rounds`` times. Where the chord runs below the drop
 (convex), :func:`planning.toolpath.finishing._make_safe_many` splits it for gouge safety as before.
 """
 
@@ -82,18 +83,26 @@ def running_median(v: np.ndarray, window: int) -> np.ndarray:
 
 
 def curvature_across(ya: float, za: np.ndarray, yb: float, zb: np.ndarray, yc: float, zc: np.ndarray,
-                     window: int = CURVATURE_WINDOW) -> np.ndarray:
+                     window: int = CURVATURE_WINDOW, noise: list | None = None) -> np.ndarray:
     """Per x, ``c`` of ``z(y) ~ a + b y + c y^2`` through the ball-centre heights of three passes at
     ``ya < yb < yc`` (their second divided difference, 1/mm), the running median of ``window`` samples
-    along the pass; NaN where one of the three heights is missing and the window holds no value."""
+    along the pass; NaN where one of the three heights is missing and the window holds no value.
+    ``noise``: a list to which the ball-drop heights' jitter (mm) this triple shows is appended (the
+    spread of c about its running median, divided by the factor the divided difference multiplies a
+    height's error by), when there are enough values to tell."""
     za, zb, zc = (np.asarray(z, dtype=np.float64) for z in (za, zb, zc))
     if not (ya < yb < yc):
         raise ValueError("the three passes must be in increasing y")
     c = ((zc - zb) / (yc - yb) - (zb - za) / (yb - ya)) / (yc - ya)
     cf = running_median(c, window)
+    sig = robust_sigma(c - cf)
+    if noise is not None and np.isfinite(c).sum() >= 5:
+        h1, h2 = yb - ya, yc - yb
+        gain = math.sqrt((1 / (h1 * (h1 + h2))) ** 2 + (1 / (h1 * h2)) ** 2 + (1 / (h2 * (h1 + h2))) ** 2)
+        noise.append(sig / gain)
     # what the median leaves of the jitter (a point cloud's drop heights, the scan's noise): its standard
     # error from the spread of c about the median; the curvature is taken that much closer to 0, twice over
-    sem = 1.2533 * robust_sigma(c - cf) / math.sqrt(max(int(window), 1))
+    sem = 1.2533 * sig / math.sqrt(max(int(window), 1))
     return np.sign(cf) * np.maximum(np.abs(cf) - NOISE_SEMS * sem, 0.0)
 
 
@@ -130,15 +139,17 @@ def worst(h: np.ndarray) -> float:
     return float(h[ok].max()) if ok.any() else 0.0
 
 
-def refine_chords(drop, lines: list[np.ndarray], chord_mm: float, max_rounds: int = 6) -> list[np.ndarray]:
+def refine_chords(drop, lines: list[np.ndarray], chord_mm: float, max_rounds: int = 6,
+                  noise_mm: float = 0.0) -> list[np.ndarray]:
     """The forward step held on concave stretches: each CL line ``lines[k]`` (L,3) of ball-drop
     positions along a pass gets, between two of its points, the ball-drop position at the move's
     midpoint (``drop(xy (k,2)) -> (k,) z``, -inf where nothing is under the ball) wherever the move's
     midpoint lies more than ``chord_mm`` above it, measured normal to the move; repeated on the new
     moves at most ``max_rounds`` times (the step then is at least ``step / 2^max_rounds``). Returns the
-    refined lines, in order. No allowance is made for the drop heights' jitter on a scan (the points the
-    ball rests on, the noise): a split there puts the ball where it rests, and CL reduction
-    (:func:`planning.toolpath.reduce.reduce_cl`) merges what the tolerance allows afterwards.
+    refined lines, in order. ``noise_mm``: the ball-drop heights' jitter on a scan (the points the ball
+    rests on, the noise; :func:`curvature_across` estimates it): a move is split only where its midpoint
+    lies above the drop by more than ``chord_mm`` plus NOISE_SEMS times the jitter that comparison carries
+    (sqrt(1.5) ``noise_mm``); a chord over the noise is no chord over a valley.
     """
     if not lines:
         return []
@@ -160,7 +171,7 @@ def refine_chords(drop, lines: list[np.ndarray], chord_mm: float, max_rounds: in
         horiz = np.hypot(seg[:, 0], seg[:, 1])
         # the chord's midpoint above the drop there, normal to the move: (dz) * cos(the move's slope)
         above = (mid[:, 2] - z) * np.divide(horiz, L, out=np.ones_like(L), where=L > 0)
-        split = np.isfinite(z) & (above > chord_mm)
+        split = np.isfinite(z) & (above > chord_mm + NOISE_SEMS * math.sqrt(1.5) * float(noise_mm))
         if not split.any():
             break
         bad = at[split]

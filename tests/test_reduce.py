@@ -312,3 +312,19 @@ def test_runs_split_by_use_and_pass_index_and_bad_parameters():
     same = reduce_cl(short, pts, R, tol_mm=0.01)
     np.testing.assert_array_equal(same.xyz_mm, short.xyz_mm)
     assert RAPID == same.kind[0]
+
+
+def test_an_arc_never_bulges_more_than_the_tolerance_between_two_cl_points():
+    """Points exactly on a circle (radius 2 mm, in the ZX plane) but 60 degrees apart: an arc through
+    them passes every point, yet swings 0.27 mm off the straight move between two neighbours (its
+    sagitta), which the ball's clearance check alone does not see and the flutes above the ball would
+    (the range half sphere's plan cut a wall 0.77 mm so); it is not fitted at tol 0.01. At 10 degrees
+    apart (sagitta 0.008 mm) it is."""
+    from planning.toolpath.reduce import _arc_fit
+
+    ia, ib, inn = PLANE_AXES[PLANE_ZX]
+    for step_deg, fits in ((60.0, False), (10.0, True)):
+        t = np.radians(np.arange(0.0, 180.0 + 1e-9, step_deg))
+        xyz = np.column_stack([2.0 * np.cos(t), np.zeros_like(t), 2.0 * np.sin(t)])
+        ok, *_ = _arc_fit(np.ascontiguousarray(xyz), 0, t.size - 1, 0.01, ia, ib, inn, 1e-6, 0.5, 500.0)
+        assert ok is fits, step_deg

@@ -30,7 +30,10 @@ const, the plane of a pass along X) are joined by circular arcs through the run'
 (start and end exactly on the circle, the centre on their perpendicular bisector: an algebraic
 least-squares fit, refined by a few Gauss-Newton steps on the geometric residuals of the
 interior points) when every CL point in between lies within tol of the arc and in order along
-it, the arc turns at most 180 degrees (minor arcs only), its radius is within
+it, the arc between two neighbouring CL points bulges at most tol off the straight move between them
+(its sagitta r (1 - cos(dtheta / 2)): without it an arc through the points of a steep pass could swing
+a millimetre out between two of them, which the ball's clearance check passes while the flutes above
+the ball cut the wall; the range half sphere's plan did, 0.77 mm), the arc turns at most 180 degrees (minor arcs only), its radius is within
 [``min_radius_mm``, ``max_radius_mm``] (default 0.5 mm .. 500 mm, ``post.max_arc_radius_mm``:
 tighter arcs are lines; no flatter arc is fitted, so such a stretch stays straight moves, reduced
 and gouge-checked as any other) and it keeps R - tol from the cloud. Arcs are preferred to straight moves
@@ -157,7 +160,11 @@ def _arc_fit(xyz, i, j, tol, ia, ib, inn, plane_tol, rmin, rmax):
             rel -= 2.0 * math.pi                # just before the start
         if rel < prev - slack:
             return False, 0.0, 0.0, False       # not in order along the arc
+        if rel > prev and r0 * (1.0 - math.cos(0.5 * (rel - prev))) > tol:
+            return False, 0.0, 0.0, False       # the arc bulges off the move between two CL points
         prev = max(prev, rel)
+    if abs(sw) > prev and r0 * (1.0 - math.cos(0.5 * (abs(sw) - prev))) > tol:
+        return False, 0.0, 0.0, False
     return True, cu, cv, ccw
 
 

@@ -42,6 +42,7 @@ from planning.toolpath import scallop
 from planning.toolpath.balldrop import DropSurface
 from planning.toolpath.moves import (
     FEED,
+    BisectedLines,
     USE_CUT,
     USE_PLUNGE,
     USE_RAPID,
@@ -549,26 +550,19 @@ def _make_safe_many(surface, tree, stretch_lines, R, tol, max_splits):
     ``[(line, clearance of the move reaching each point (NaN for its first))]`` in order."""
     if not stretch_lines:
         return []
-    sizes = np.array([ln.shape[0] for ln in stretch_lines])
-    line = np.concatenate(stretch_lines)
-    lid = np.repeat(np.arange(sizes.size), sizes)
-    first = np.zeros(line.shape[0], dtype=bool)
-    first[np.concatenate([[0], np.cumsum(sizes)[:-1]])] = True
-    clear = _clr(line, ~first, tree, R)
+    pl = BisectedLines(stretch_lines)
+    clear = _clr(pl.xyz, pl.inner(), tree, R)          # NaN at each line's first point
     for _ in range(max_splits):
         bad = np.flatnonzero(clear < R - tol)           # never a first point (NaN there)
         if bad.size == 0:
             break
-        mids = 0.5 * (line[bad - 1] + line[bad])
+        mids = 0.5 * (pl.xyz[bad - 1] + pl.xyz[bad])
         mids[:, 2] = np.maximum(surface.drop(mids[:, :2]).z_mm, mids[:, 2])
-        line = np.insert(line, bad, mids, axis=0)
-        lid = np.insert(lid, bad, lid[bad])
-        first = np.insert(first, bad, False)
+        new = pl.insert(bad, mids)
         clear = np.insert(clear, bad, np.nan)
-        at = bad + np.arange(bad.size)
-        redo = np.zeros(line.shape[0], dtype=bool)
-        redo[at] = True
-        redo[at + 1] = True
-        clear[redo] = _clr(line, redo, tree, R)[redo]
-    cut = np.flatnonzero(np.diff(lid)) + 1
-    return list(zip(np.split(line, cut), np.split(clear, cut)))
+        redo = np.zeros(pl.lid.size, dtype=bool)
+        redo[new] = True
+        redo[new + 1] = True
+        clear[redo] = _clr(pl.xyz, redo, tree, R)[redo]
+    cut = np.flatnonzero(np.diff(pl.lid)) + 1
+    return list(zip(pl.split(), np.split(clear, cut)))

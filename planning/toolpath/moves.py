@@ -212,3 +212,35 @@ def machining_time_s(tp: Toolpath, *, feed_mm_min: float, plunge_mm_min: float,
     rate = np.where(tp.use == USE_RAPID, rapid_mm_min,
                     np.where(tp.use == USE_CUT, feed_mm_min, plunge_mm_min)).astype(np.float64)
     return float((move_lengths_mm(tp) / rate).sum() * 60.0)
+
+
+class BisectedLines:
+    """Several polylines (CL lines, (L_k,3) each) held as one array so that their moves can be bisected
+    together, vectorised: ``xyz`` (P,3) the points, ``lid`` (P,) the line of each point. Move ``i`` (for
+    ``i`` with :meth:`inner` True) runs from ``xyz[i-1]`` to ``xyz[i]`` within one line. Used where moves
+    are split at their midpoints with a fresh ball drop until a test holds (finishing's gouge safety,
+    :func:`planning.toolpath.finishing._make_safe_many`; the forward step,
+    :func:`planning.toolpath.scallop.refine_chords`)."""
+
+    def __init__(self, lines: list[np.ndarray]):
+        sizes = np.array([ln.shape[0] for ln in lines], dtype=np.int64)
+        self.xyz = np.concatenate(lines) if lines else np.zeros((0, 3))
+        self.lid = np.repeat(np.arange(sizes.size), sizes)
+
+    def inner(self) -> np.ndarray:
+        """(P,) bool: the points a move of their own line reaches (every point but each line's first)."""
+        out = np.zeros(self.lid.size, dtype=bool)
+        out[1:] = self.lid[1:] == self.lid[:-1]
+        return out
+
+    def insert(self, at: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Put ``points`` (k,3) before the points ``at`` (k,) (ascending indices of inner points: each new
+        point splits the move reaching ``xyz[at]``); returns the new points' indices (k,)."""
+        at = np.asarray(at, dtype=np.int64)
+        self.xyz = np.insert(self.xyz, at, points, axis=0)
+        self.lid = np.insert(self.lid, at, self.lid[at])
+        return at + np.arange(at.size)
+
+    def split(self) -> list[np.ndarray]:
+        """The polylines again, in order."""
+        return np.split(self.xyz, np.flatnonzero(np.diff(self.lid)) + 1)

@@ -47,6 +47,8 @@ import math
 
 import numpy as np
 
+from planning.toolpath.moves import BisectedLines
+
 #: Ball-centre heights' curvature across the passes is the running median of this many samples along a
 #: pass (odd; at the forward step R / 4, 9 samples span 2 R): the ball drop's jitter on a point cloud
 #: averages out, a concavity wider than about R is kept
@@ -153,17 +155,14 @@ def refine_chords(drop, lines: list[np.ndarray], chord_mm: float, max_rounds: in
     """
     if not lines:
         return []
-    sizes = np.array([ln.shape[0] for ln in lines])
-    line = np.concatenate(lines)
-    lid = np.repeat(np.arange(sizes.size), sizes)
-    # moves to look at: those between two points of one line
-    look = np.zeros(line.shape[0], dtype=bool)
-    look[1:] = lid[1:] == lid[:-1]
+    pl = BisectedLines(lines)
+    look = pl.inner()                              # the moves to look at: at first every one
+    limit = chord_mm + NOISE_SEMS * math.sqrt(1.5) * float(noise_mm)
     for _ in range(int(max_rounds)):
         at = np.flatnonzero(look)
         if at.size == 0:
             break
-        a, b = line[at - 1], line[at]
+        a, b = pl.xyz[at - 1], pl.xyz[at]
         mid = 0.5 * (a + b)
         z = np.asarray(drop(mid[:, :2]), dtype=np.float64)
         seg = b - a
@@ -171,17 +170,13 @@ def refine_chords(drop, lines: list[np.ndarray], chord_mm: float, max_rounds: in
         horiz = np.hypot(seg[:, 0], seg[:, 1])
         # the chord's midpoint above the drop there, normal to the move: (dz) * cos(the move's slope)
         above = (mid[:, 2] - z) * np.divide(horiz, L, out=np.ones_like(L), where=L > 0)
-        split = np.isfinite(z) & (above > chord_mm + NOISE_SEMS * math.sqrt(1.5) * float(noise_mm))
+        split = np.isfinite(z) & (above > limit)
         if not split.any():
             break
-        bad = at[split]
         mids = mid[split].copy()
         mids[:, 2] = z[split]
-        line = np.insert(line, bad, mids, axis=0)
-        lid = np.insert(lid, bad, lid[bad])
-        look = np.zeros(line.shape[0], dtype=bool)
-        new = bad + np.arange(bad.size)            # the inserted points' indices
-        look[new] = True                           # the move into the new point
+        new = pl.insert(at[split], mids)
+        look = np.zeros(pl.lid.size, dtype=bool)
+        look[new] = True                           # the move into each new point
         look[new + 1] = True                       # and out of it
-    cut = np.flatnonzero(np.diff(lid)) + 1
-    return np.split(line, cut)
+    return pl.split()

@@ -32,12 +32,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(1, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from planning.simulate.finish import finish_left_mm  # noqa: E402
-from planning.simulate.motion import FEED, ProgramMotion, ToolShape  # noqa: E402
-from planning.toolpath.finishing import finishing_passes  # noqa: E402
-from planning.toolpath.reduce import reduce_cl  # noqa: E402
-from planning.toolpath.verify import BinnedCloud  # noqa: E402
+import scallop_cases
+
+from planning.simulate.finish import finish_left_mm
+from planning.toolpath.finishing import finishing_passes
+from planning.toolpath.reduce import reduce_cl
+from planning.toolpath.verify import BinnedCloud
 
 R = 3.0
 
@@ -75,18 +77,6 @@ def bezier_points(table, spacing_mm: float) -> np.ndarray:
     return S.reshape(-1, 3)
 
 
-def _motion(tp) -> ProgramMotion:
-    """The feed moves of a finishing toolpath (ball centres, straight moves) as the simulation's motion."""
-    cl, kind = tp.xyz_mm, tp.kind
-    f = kind[1:] == FEED
-    n = int(f.sum())
-    tip = np.array([0.0, 0.0, R])
-    return ProgramMotion(program="sood", area=0, line=np.arange(1, n + 1), kind=np.full(n, FEED, np.int8),
-                         tool=np.ones(n, np.int64), start_mm=cl[:-1][f] - tip, end_mm=cl[1:][f] - tip,
-                         axis=np.tile([0.0, 0.0, 1.0], (n, 1)), machine_mm=np.zeros((n, 3)),
-                         rotary_deg=np.zeros((n, 2)))
-
-
 def plan_and_measure(pts: np.ndarray, eps: float, tol: float) -> dict:
     """Finish the patch (passes along its longer side) and measure the scallop from the moves."""
     frame = pts.copy()
@@ -103,11 +93,10 @@ def plan_and_measure(pts: np.ndarray, eps: float, tol: float) -> dict:
     rng = np.random.default_rng(0)
     if inner.size > 60_000:
         inner = np.sort(rng.choice(inner, 60_000, replace=False))
-    ball = ToolShape(number=1, kind="ball", radius_mm=R, corner_radius_mm=R, flute_length_mm=30.0,
-                     pieces=((30.0, 60.0, 4.0),))
-    left = finish_left_mm(frame[inner], [_motion(fin.toolpath)], ball)
+    ball = scallop_cases.ball(R)
+    left = finish_left_mm(frame[inner], [scallop_cases.ball_motion(fin.toolpath, R)], ball)
     fin_left = left[np.isfinite(left)]
-    left_r = finish_left_mm(frame[inner], [_motion(reduced)], ball)
+    left_r = finish_left_mm(frame[inner], [scallop_cases.ball_motion(reduced, R)], ball)
     left_r = left_r[np.isfinite(left_r)]
     return {"passes": int(fin.n_passes), "cl": int((fin.pass_index >= 0).sum()),
             "cl_reduced": int(reduced.xyz_mm.shape[0] - (fin.toolpath.xyz_mm.shape[0] - (fin.pass_index >= 0).sum())), "seconds": round(sec, 2),

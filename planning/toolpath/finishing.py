@@ -42,11 +42,11 @@ from planning.toolpath import scallop
 from planning.toolpath.balldrop import DropSurface
 from planning.toolpath.moves import (
     FEED,
-    BisectedLines,
     USE_CUT,
     USE_PLUNGE,
     USE_RAPID,
     USE_RETRACT,
+    BisectedLines,
     Toolpath,
     lines,
 )

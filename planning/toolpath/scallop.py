@@ -28,7 +28,7 @@ next two, and wherever the previous pass has no height within the window) at eac
 ball drop rests on discrete points (and on the scan's noise), so the heights jitter by a few microns;
 ``c`` is taken as the running median of CURVATURE_WINDOW samples along the pass before it is used
 (on a uniform sample of a plane at 0.3 mm spacing the largest scallop per pass reads 1.1 x the target
-with it and 1.4 x without), and then taken closer to 0 by NOISE_SEMS standard errors of what the
+with it and 1.4 x without, in a scratch measurement), and then taken closer to 0 by NOISE_SEMS standard errors of what the
 median leaves of the jitter (estimated from the spread about the median). Where neither triple has heights within the window (an edge of the
 band) ``c = 0``: the plane's formula on the 3-D centre distance.
 

@@ -775,8 +775,10 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
             air = _LevelAir(has, x0, y0, h, Rt, Rt - rc)
             if live is not None and air_mod.EXACT_ENDS:
                 air.meets = live.meets(w)
+        reach = None
         if travel is not None:
-            limit = limit & travel(x0, y0, h, nx, ny, float(z))
+            reach = travel(x0, y0, h, nx, ny, float(z))
+            limit = limit & reach
         if obstacle_near is not None:  # no cutter within Rt + the gap of a fixture, the riser or the table
             limit = limit & ~(obstacle_near > z - HOLDER_GAP_MM)
         if hold is not None:         # the map at the start of the level: an upper bound of the material during it
@@ -788,7 +790,7 @@ def _cut_levels(levels, grid: _Raster, forb: _ForbiddenMap, mat: _MaterialMap, y
             top_dil = mat.dilated()
         if runs[1].size:
             lv = _Level(region, x0, y0, h, nx, ny, float(z), top_dil, mat.H, Rt, scratch,
-                        hold=None if hold is None else hold.HT)
+                        hold=None if hold is None else hold.HT, reach=reach)
             # on the stock view, with the contour pass, the lines keep LINE_BACK_RT x the flat radius off the
             # part's walls: the contour then cuts that band all along (not the thin scallops between the
             # lines' ends); on the box or the points alone the lines run up to the walls as before

@@ -307,9 +307,11 @@ class _Level:
     """Per-level raster state used while ordering and linking. ``hold`` (the material map's shape)
     or None: the height the tool tip must stay above for the holder to clear the material
     (:class:`planning.toolpath.roughing.maps._HolderMap`: ``HT``, already grown by the holder's
-    reach), read along the rapids of lifts."""
+    reach), read along the rapids of lifts. ``reach`` (nx, ny) bool or None (everywhere): the cells
+    whose centre, as a tool tip at the level, is within the machine's travel (the region's travel
+    limit without its other limits), where a step off a wall may go outside the region."""
 
-    def __init__(self, region, x0, y0, h, nx, ny, z, top_dil, H, Rt, scratch, hold=None):
+    def __init__(self, region, x0, y0, h, nx, ny, z, top_dil, H, Rt, scratch, hold=None, reach=None):
         self.Rt = Rt
         self.scratch = scratch
         self.region = region
@@ -320,6 +322,7 @@ class _Level:
         self.ncx, self.ncy = top_dil.shape
         self.top_flat = np.ascontiguousarray(top_dil).ravel()
         self.hold_flat = None if hold is None else np.ascontiguousarray(hold).ravel()
+        self.reach_flat = None if reach is None else np.ascontiguousarray(reach).ravel()
 
     def top_at(self, xy) -> float:
         """Highest remaining material under the tool disc about xy (from the dilated map)."""
@@ -338,6 +341,14 @@ class _Level:
         """The straight move a -> b at the level stays in the region: every sample (h / 4 apart) lies
         in a region cell, so every point of the move is within 0.96 h of an allowed centre."""
         return bool(_seg_in(self.flat, self.x0, self.y0, self.h, self.nx, self.ny,
+                            float(a[0]), float(a[1]), float(b[0]), float(b[1])))
+
+    def reachable(self, a, b) -> bool:
+        """The straight move a -> b at the level stays within the machine's travel (every sample in a
+        ``reach`` cell, as :meth:`visible` reads the region); True without a travel limit."""
+        if self.reach_flat is None:
+            return True
+        return bool(_seg_in(self.reach_flat, self.x0, self.y0, self.h, self.nx, self.ny,
                             float(a[0]), float(a[1]), float(b[0]), float(b[1])))
 
     def corridor_top(self, a, b) -> float:
@@ -415,21 +426,32 @@ STEP_OFF_GAIN_MM = 1.0
 def _step_off(w: _Writer, lv: _Level | None, xyz, zl):
     """Where a feed straight up from the tip ``xyz`` beside a wall would run up the wall (the tool grown
     by the rapid clearance touches the allowance the level left on it): the point p ``w.gap`` away at
-    the level (8 directions, the move to it in ``lv``'s region, at the level or below ``xyz``: allowed
-    there, so allowed at ``xyz``'s height) from which the rapid up is clear lowest, and that height
+    the level (8 directions) from which the rapid up is clear lowest, and that height
     (:attr:`_Writer.column_clear_many` from ``w.gap`` above the tip, at most ``zl``); None when there is
-    none or nothing to ask."""
+    none or nothing to ask. A direction qualifies when the move to p stays in ``lv``'s region (at the
+    level or below ``xyz``: allowed there, so allowed at ``xyz``'s height), or, outside the region (in
+    the air beside the stock, where a level at the block's edge leaves the tool), when it stays within
+    the machine's travel (:meth:`_Level.reachable`) and the tool grown by the rapid clearance is clear
+    of the material and the obstacles all the way up from ``w.gap`` above the tip at p: the stock
+    holds the part and its allowance, so a tool clear of the stock there is clear of the part, and
+    the move up and out to p sweeps nothing the tool at its two ends does not (on a retract from a
+    level cut along the block's lower edge with a tilted axis, the feed up the wall ran with the tip
+    under the block)."""
     if lv is None or w.column_clear_many is None or lv.z > float(xyz[2]) + 1e-9:
         return None
     a = np.asarray(xyz[:2], dtype=np.float64)
     t = np.arange(8) * (math.pi / 4.0)
     cand = a + w.gap * np.column_stack([np.cos(t), np.sin(t)])
-    ok = [k for k in range(8) if lv.visible(a, cand[k])]
+    inside = np.array([lv.visible(a, cand[k]) for k in range(8)])
+    ok = [k for k in range(8) if inside[k] or lv.reachable(a, cand[k])]
     if not ok:
         return None
     z1 = float(xyz[2]) + w.gap
     zc = np.asarray(w.column_clear_many(np.column_stack([cand[ok], np.full(len(ok), z1)]), zl), dtype=np.float64)
+    zc = np.where(inside[ok] | (zc <= z1 + 1e-9), zc, np.inf)
     k = int(np.argmin(zc))
+    if not np.isfinite(zc[k]):
+        return None
     return cand[ok[k]], float(zc[k])
 
 

@@ -48,7 +48,7 @@ serve: setup-run
 	$(BIN)/scanmill serve
 
 test: setup-test
-	$(BIN)/python -m pytest -q --durations=15
+	$(BIN)/python -m pytest -q --durations=40
 
 test-slow: setup-test
 	$(BIN)/python -m pytest -q -m slow

@@ -130,6 +130,7 @@ def test_the_reaper_requeues_a_job_whose_worker_died_before_the_broker_would(clu
         assert f"'requeued': ['{jid}']" in api.log_text()
 
 
+@pytest.mark.slow           # 2 min on 2 cores: eight plans; the default run keeps one job through both servers
 def test_two_workers_drain_a_queue_and_no_job_completes_twice(cluster):
     n = 8
     with _api(cluster) as api, _worker(cluster, "w1") as w1, _worker(cluster, "w2") as w2, api.client() as c:
@@ -273,6 +274,7 @@ def restartable_redis():
         yield server
 
 
+@pytest.mark.slow           # two ~6 s outages and two jobs; the killed worker and the reaper stay in the default run
 def test_two_redis_restarts_during_a_job_neither_fail_it_nor_cost_an_attempt(cluster, restartable_redis):
     """Issue 13, finding 2: Redis restarts twice, ~6 s down each time, while a job runs (the worker reconnects in
     between). The running task is not terminated, the worker does not stop, the copy of the message the broker

@@ -99,6 +99,7 @@ def half_sphere_ply(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.mark.slow           # compiles every kernel into an empty cache: 2 min on 2 cores
 def test_a_second_process_loads_every_kernel_from_the_cache(src, tmp_path, half_sphere_ply):
     cache = tmp_path / "kernels"
     first = _child(src, cache, "plan", str(half_sphere_ply), json.dumps(SMALL_PLAN))

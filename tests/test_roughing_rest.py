@@ -276,8 +276,15 @@ def test_a_retract_beside_a_wall_steps_off_it_instead_of_feeding_up_it():
     assert pts[0, 2] == pytest.approx(0.65) and np.hypot(*pts[0, :2]) == pytest.approx(0.65)
     assert pts[0, 0] < -0.5 + 1e-9                    # off the wall, where the column clears at once
     assert np.allclose(end, pts[0, :2]) and pts[-1, 2] == 20.0
-    # no level to ask, or nowhere in the region off the wall: straight up the wall at feed, as before
-    for lv2 in (None, SimpleNamespace(z=0.0, visible=lambda a, b: False)):
+    # outside the region (none of it off the wall) the step is taken where the grown tool clears at once
+    w = writer(0.0)
+    end = _retract(w, (0.0, 0.0, 0.0), 20.0, SimpleNamespace(z=0.0, visible=lambda a, b: False,
+                                                             reachable=lambda a, b: True))
+    pts = np.concatenate(w.pts)
+    assert pts[0, 2] == pytest.approx(0.65) and pts[0, 0] < -0.5 + 1e-9 and np.allclose(end, pts[0, :2])
+    # no level to ask, or nowhere off the wall in the region nor within the machine's travel: straight up
+    # the wall at feed, as before
+    for lv2 in (None, SimpleNamespace(z=0.0, visible=lambda a, b: False, reachable=lambda a, b: False)):
         w = writer(0.0)
         end = _retract(w, (0.0, 0.0, 0.0), 20.0, lv2)
         pts, codes = np.concatenate(w.pts), np.repeat(w.codes, w.counts)

@@ -105,3 +105,31 @@ def test_the_retract_steps_off_instead_of_feeding_up_the_wall():
     _retract(w2, TIP, 30.0, None)
     xyz2 = np.concatenate(w2.pts)
     assert np.asarray(w2.use())[0] == USE_RETRACT and xyz2[0, 2] == TOP_Z
+
+
+def test_a_helix_start_beside_the_wall_is_come_down_to_off_the_wall_and_fed_in():
+    """The approach to a helix or ramp starting at p beside the wall: the rapid down p's own column
+    would stop at the wall's top (the grown tool meets it), and the rest, 20 mm, would be fed straight
+    down. Instead the rapid comes down 0.65 mm off the wall, clear of it, and feeds in at 45 degrees."""
+    from planning.toolpath.moves import USE_PLUNGE
+    from planning.toolpath.roughing.entries import _stepped_down
+
+    w = _writer()
+    w.rapid_clear = lambda a, b, z, top: z
+    w.add([TIP[0], TIP[1], 30.0], USE_RAPID)                # above p at the link height
+    zs = TIP[2]
+    assert _stepped_down(w, _level(_rim_region()), TIP[:2], zs, 30.0, 30.0)
+    xyz = np.concatenate(w.pts)[1:]
+    use = np.asarray(w.use())[1:]
+    assert np.allclose(xyz[-1], TIP) and use[-1] == USE_PLUNGE      # ends at the helix start, fed
+    assert np.all(use[:-1] == USE_RAPID)                             # everything before it a rapid
+    assert abs(xyz[-2, 2] - (zs + w.gap)) < 1e-9                   # down to the gap above it, off the wall
+    assert float(_column_clear_many(xyz[-2:-1], 30.0)[0]) == xyz[-2, 2]   # where the grown tool is clear
+    assert np.linalg.norm(xyz[-1] - xyz[-2]) < 1.0
+    # where no direction clears (the wall all round) nothing is written and the caller feeds down
+    w2 = _writer()
+    w2.column_clear_many = lambda pts, top: np.full(np.asarray(pts).reshape(-1, 3).shape[0], TOP_Z)
+    w2.column_clear = lambda x, y, z, top: TOP_Z
+    w2.add([TIP[0], TIP[1], 30.0], USE_RAPID)
+    assert not _stepped_down(w2, _level(_rim_region()), TIP[:2], zs, 30.0, 30.0)
+    assert len(w2.pts) == 1

@@ -232,6 +232,33 @@ def test_entries_feed_down_through_air_the_stock_shows_and_never_into_it(tilted_
     assert run.removed_mm3.sum() == pytest.approx(run_slow.removed_mm3.sum(), rel=0.01)
 
 
+def test_a_helix_or_ramp_begins_where_the_column_above_its_way_is_air(tilted_dome, monkeypatch):
+    """A helix or ramp whose start the material put high (a sliver at the top of its way) begins at the
+    last vertex of its way over which the grown tool is clear of the stock up to the safe height: the
+    entries feed less through the air than with every descent begun at its first vertex, they remove
+    the same material, and no straight feed down removes anything."""
+    import planning.toolpath.roughing.entries as E
+    from planning.toolpath.moves import USE_PLUNGE
+
+    frame, stock, lo, points, viewed = tilted_dome
+
+    def entry_air(rr):
+        pm, run, L, feed, down = _run(rr.toolpath, frame, stock, 0.5)
+        entry = feed & (rr.toolpath.use[pm.source] == USE_PLUNGE)
+        return L[entry & (run.removed_mm3 < 1e-6)].sum(), run, down
+
+    air, run, down = entry_air(viewed)
+    assert viewed.n_started_late > 0
+    assert np.all(run.removed_mm3[down] < 1e-6)
+    monkeypatch.setattr(E._Entries, "_late_start", lambda self, w, xyz, zs, safe: (xyz, zs))
+    cloud_f, _, _, _, kw = _dome_case()
+    first = roughing_paths(cloud_f, stock_view=StockView(stock, frame, SHAPE), rapid_clearance_mm=0.5, **kw)
+    assert first.n_started_late == 0
+    air_first, run_first, _ = entry_air(first)
+    assert air < air_first - 1.0
+    assert run.removed_mm3.sum() == pytest.approx(run_first.removed_mm3.sum(), rel=0.01)
+
+
 def test_travel_cells_are_the_machines_own_travel_test():
     """The affine extension of the set-up's kinematics over the raster agrees with
     SetupMachine.travel_ok at the cells' centres (and the lift above them)."""

@@ -661,6 +661,8 @@ class _Entries:
         #: helices and ramps begun higher because the stock stood in the column above their start
         #: (:meth:`_raised`)
         self.n_raised = 0
+        #: helices and ramps begun at a later vertex of their way (:meth:`_late_start`)
+        self.n_started_late = 0
 
     def _margs(self, lv: _Level, start: bool = False):
         """The material arguments of the kernels: the map and the tops; ``start``: the tops a helix or
@@ -780,6 +782,8 @@ class _Entries:
                     else:
                         xyz = np.vstack([[low[0, 0], low[0, 1], plan.zs], low])
                     self.n_fed_down += 1
+        if w.column_clear_many is not None and xyz.shape[0] > 2 and abs(float(xyz[0, 2]) - zs) < 1e-9:
+            xyz, zs = self._late_start(w, xyz, zs, safe)
         if self.clear is not None and not self.clear(xyz[0, 0], xyz[0, 1], zs, safe):
             xyz, zs = self._raised(w, xyz, zs, safe)
         _approach(w, lv, cur, xyz[0, :2], zs, z, safe)
@@ -792,6 +796,28 @@ class _Entries:
             return []
         w.add(np.column_stack([plan.link[1:], np.full(plan.link.shape[0] - 1, z)]), USE_CUT)
         return [plan.link]
+
+    def _late_start(self, w, xyz, zs, safe):
+        """The descent ``xyz`` (k,3, its first point at ``zs``) begun at its last vertex s (0 < s < k - 1)
+        over which the tool grown by the rapid clearance is clear of the stock and the obstacles all the
+        way up to ``safe`` from the descent's own height there (:attr:`_Writer.column_clear_many`, one
+        batch; the exact swept test ``clear`` confirms it): the rapid comes down to that vertex and the
+        descent goes on at the entry angle from there. The rest of the descent is unchanged (its heights
+        are the entry angle's from the level back), so it cuts what it cut; what is dropped ran
+        through the air. A descent whose start the material chose high (a sliver of stock at the top of
+        its way, the maps' bound beside a wall) otherwise ran back and forth through the air at the
+        entry angle: one ramp on the half sphere's tilted set-up fed 86 mm through air under the block
+        to cut 43 mm^3. Returns (xyz', zs'); unchanged when no inner vertex qualifies."""
+        inner = np.ascontiguousarray(xyz[1:-1], dtype=np.float64)
+        zc = np.asarray(w.column_clear_many(inner, safe), dtype=np.float64)
+        ok = np.flatnonzero(zc <= inner[:, 2] + 1e-9)
+        if ok.size == 0:
+            return xyz, zs
+        s = int(ok[-1]) + 1
+        if self.clear is not None and not self.clear(xyz[s, 0], xyz[s, 1], float(xyz[s, 2]), safe):
+            return xyz, zs
+        self.n_started_late += 1
+        return xyz[s:], float(xyz[s, 2])
 
     def _raised(self, w, xyz, zs, safe):
         """The descent ``xyz`` (k,3, its first point at ``zs``) begun higher where the stock itself (a

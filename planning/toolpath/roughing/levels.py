@@ -155,7 +155,9 @@ class RoughingPath:
     their length, mm. With a ``stock_view``: ``n_entered_in_air``: pieces whose start the maps
     put under material but the stock itself shows in air (entered by a feed straight down, no
     helix or ramp); ``n_fed_down``: helices and ramps begun by a straight feed down through the air
-    to just above the material (ENTRY_FEED_GAP_MM) instead of descending from the rapid clearance.
+    to just above the material (ENTRY_FEED_GAP_MM) instead of descending from the rapid clearance;
+    ``n_started_late``: helices and ramps begun at a later vertex of their way, where the column
+    above it is air (:meth:`~planning.toolpath.roughing.entries._Entries._late_start`).
 
     Holder (``holder_pieces``): ``holder``: pieces were given; ``holder_blocked_cells``
     (n_levels,): per level, the raster cells the tool centre could have cut (in the window's reach,
@@ -191,6 +193,7 @@ class RoughingPath:
     left_length_mm: float = 0.0
     n_entered_in_air: int = 0
     n_fed_down: int = 0
+    n_started_late: int = 0
     holder: bool = False
     holder_blocked_cells: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     n_holder_blocked_cells: int = 0
@@ -889,7 +892,7 @@ def _result(pts, w: _Writer, cur, levels, level_retracts, removed, stock: _Stock
         entry=ent.cfg.kind, n_helix=int(ent.n_helix), n_ramps=int(ent.n_ramps), n_side_entries=int(ent.n_side),
         n_plunges_into_material=int(ent.n_plunges), n_pieces_left=int(ent.n_left),
         left_length_mm=round(float(ent.left_mm), 1), n_entered_in_air=int(ent.n_in_air),
-        n_fed_down=int(ent.n_fed_down), holder=bool(holder),
+        n_fed_down=int(ent.n_fed_down), n_started_late=int(ent.n_started_late), holder=bool(holder),
         holder_blocked_cells=np.zeros(levels.size, np.int64) if blocked is None else blocked,
         n_holder_blocked_cells=0 if blocked is None else int(blocked.sum()), deepest_cut_mm=float(deepest))
 

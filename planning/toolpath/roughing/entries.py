@@ -150,6 +150,11 @@ SWEEP_SAMPLE_MM = 0.25
 #: a straight feed down would shave a wall beside it, the descent through the air runs at this angle
 #: from the horizontal along the entry's own way (degrees)
 STEEP_DEG = 45.0
+
+#: a helix or ramp that starts more than this above the lowest start its level can expect (mm) is begun
+#: at the last vertex of its way whose column is air (:meth:`_Entries._late_start`)
+LATE_START_MM = 1.0
+
 _DIRS_DEG = (0.0, 30.0, -30.0, 60.0, -60.0, 90.0, -90.0, 120.0, -120.0, 150.0, -150.0, 180.0)
 _DIR_COS = np.array([math.cos(math.radians(a)) for a in _DIRS_DEG])   #: cos / sin of _DIRS_DEG, the
 _DIR_SIN = np.array([math.sin(math.radians(a)) for a in _DIRS_DEG])   #: directions of the near centres
@@ -782,7 +787,8 @@ class _Entries:
                     else:
                         xyz = np.vstack([[low[0, 0], low[0, 1], plan.zs], low])
                     self.n_fed_down += 1
-        if w.column_clear_many is not None and xyz.shape[0] > 2 and abs(float(xyz[0, 2]) - zs) < 1e-9:
+        if (w.column_clear_many is not None and xyz.shape[0] > 2 and abs(float(xyz[0, 2]) - zs) < 1e-9
+                and zs > self._good(z) + LATE_START_MM):
             xyz, zs = self._late_start(w, xyz, zs, safe)
         if self.clear is not None and not self.clear(xyz[0, 0], xyz[0, 1], zs, safe):
             xyz, zs = self._raised(w, xyz, zs, safe)
@@ -802,7 +808,9 @@ class _Entries:
         over which the tool grown by the rapid clearance is clear of the stock and the obstacles all the
         way up to ``safe`` from the descent's own height there (:attr:`_Writer.column_clear_many`, one
         batch; the exact swept test ``clear`` confirms it): the rapid comes down to that vertex and the
-        descent goes on at the entry angle from there. The rest of the descent is unchanged (its heights
+        descent goes on at the entry angle from there. Asked only of descents that start more than
+        LATE_START_MM above the lowest start the level can expect (:meth:`_good`): the others have little
+        air to drop, and the batch costs about 20 ms a descent. The rest of the descent is unchanged (its heights
         are the entry angle's from the level back), so it cuts what it cut; what is dropped ran
         through the air. A descent whose start the material chose high (a sliver of stock at the top of
         its way, the maps' bound beside a wall) otherwise ran back and forth through the air at the

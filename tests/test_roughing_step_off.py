@@ -16,7 +16,13 @@ from __future__ import annotations
 import numpy as np
 
 from planning.toolpath.moves import USE_RAPID, USE_RETRACT
-from planning.toolpath.roughing.links import _Level, _retract, _Scratch, _step_off, _Writer
+from planning.toolpath.roughing.links import (
+    _Level,
+    _retract,
+    _Scratch,
+    _step_off,
+    _Writer,
+)
 
 RT = 3.0           # tool radius, mm
 CLEAR = 0.5        # rapid clearance, mm
@@ -110,19 +116,21 @@ def test_the_retract_steps_off_instead_of_feeding_up_the_wall():
 def test_a_helix_start_beside_the_wall_is_come_down_to_off_the_wall_and_fed_in():
     """The approach to a helix or ramp starting at p beside the wall: the rapid down p's own column
     would stop at the wall's top (the grown tool meets it), and the rest, 20 mm, would be fed straight
-    down. Instead the rapid comes down 0.65 mm off the wall, clear of it, and feeds in at 45 degrees."""
+    down. Instead the rapid comes down 0.65 mm off the wall, clear of it, and feeds in at 45 degrees
+    (``entries._approach`` through ``links._down_off_wall``, the lift's own descent off a wall)."""
     from planning.toolpath.moves import USE_PLUNGE
-    from planning.toolpath.roughing.entries import _stepped_down
+    from planning.toolpath.roughing.entries import _approach
+    from planning.toolpath.roughing.links import _down_off_wall
 
     w = _writer()
     w.rapid_clear = lambda a, b, z, top: z
-    w.add([TIP[0], TIP[1], 30.0], USE_RAPID)                # above p at the link height
     zs = TIP[2]
-    assert _stepped_down(w, _level(_rim_region()), TIP[:2], zs, 30.0, 30.0)
-    xyz = np.concatenate(w.pts)[1:]
-    use = np.asarray(w.use())[1:]
+    cur = np.array([RT + 5.0, 0.0, 25.0])                     # in the air beyond the wall, above p
+    _approach(w, _level(_rim_region()), cur, TIP[:2], zs, zs, 30.0)
+    xyz = np.concatenate(w.pts)
+    use = np.asarray(w.use())
     assert np.allclose(xyz[-1], TIP) and use[-1] == USE_PLUNGE      # ends at the helix start, fed
-    assert np.all(use[:-1] == USE_RAPID)                             # everything before it a rapid
+    assert np.all(use[1:-1] == USE_RAPID)                            # after the retract, rapids only
     assert abs(xyz[-2, 2] - (zs + w.gap)) < 1e-9                   # down to the gap above it, off the wall
     assert float(_column_clear_many(xyz[-2:-1], 30.0)[0]) == xyz[-2, 2]   # where the grown tool is clear
     assert np.linalg.norm(xyz[-1] - xyz[-2]) < 1.0
@@ -131,5 +139,14 @@ def test_a_helix_start_beside_the_wall_is_come_down_to_off_the_wall_and_fed_in()
     w2.column_clear_many = lambda pts, top: np.full(np.asarray(pts).reshape(-1, 3).shape[0], TOP_Z)
     w2.column_clear = lambda x, y, z, top: TOP_Z
     w2.add([TIP[0], TIP[1], 30.0], USE_RAPID)
-    assert not _stepped_down(w2, _level(_rim_region()), TIP[:2], zs, 30.0, 30.0)
+    assert not _down_off_wall(w2, _level(_rim_region()), TIP[:2], zs, TOP_Z, 30.0, 30.0)
     assert len(w2.pts) == 1
+    # and the approach itself then feeds the 20 mm straight down p's column, as before
+    w3 = _writer()
+    w3.column_clear_many = w2.column_clear_many
+    w3.column_clear = w2.column_clear
+    w3.rapid_clear = lambda a, b, z, top: z
+    _approach(w3, _level(_rim_region()), cur, TIP[:2], zs, zs, 30.0)
+    xyz3 = np.concatenate(w3.pts)
+    assert np.allclose(xyz3[-1], TIP) and np.allclose(xyz3[-2], [TIP[0], TIP[1], TOP_Z])
+    assert np.asarray(w3.use())[-1] == USE_PLUNGE

@@ -114,14 +114,13 @@ from planning.toolpath.moves import USE_CUT, USE_PLUNGE, USE_RAPID
 from planning.toolpath.roughing.common import _finite
 from planning.toolpath.roughing.links import (
     GAP_MM,
-    STEP_OFF_GAIN_MM,
+    _down_off_wall,
     _Level,
     _lift,
     _link_height,
     _rapid_from,
     _retract,
     _seg_in,
-    _step_off,
     _Writer,
 )
 from planning.toolpath.roughing.maps import (
@@ -985,36 +984,6 @@ def _first_dir(xy):
     return None, None
 
 
-def _stepped_down(w: _Writer, lv: _Level, p, zs, zl, safe) -> bool:
-    """Where the rapid down to the start p of a helix or ramp would stop STEP_OFF_GAIN_MM or more
-    above ``zs`` (the tool grown by the rapid clearance meets the stock beside: a straight feed down
-    the rest of the way, in air under a tilted block's lower edge): come down instead at a point
-    ``w.gap`` off (:func:`~planning.toolpath.roughing.links._step_off`) whose column the grown tool
-    clears down to ``w.gap`` above zs, and feed in to (p, zs) at 45 degrees, as a lift's descent does
-    (:func:`~planning.toolpath.roughing.links._lift`). The tool is above p's column at ``zl`` (the
-    rapid across not yet written). Writes the moves and returns True, or writes nothing and returns
-    False."""
-    if w.column_clear is None or not zl > zs:
-        return False
-    zr = min(zl, w.column_clear(p[0], p[1], zs, zl))
-    z1 = zs + w.gap
-    if not zr > z1 + STEP_OFF_GAIN_MM:
-        return False
-    off = _step_off(w, lv, (p[0], p[1], zs), zl)
-    if off is None or off[1] > z1 + 1e-9 or not off[1] + STEP_OFF_GAIN_MM < zr:
-        return False
-    q, _ = off
-    up = w.pts[-1][-1]
-    zl2 = _rapid_from(w, up[:2], up[:2], q, zl, safe, at=False)
-    if zl2 > zl:
-        w.add([up[0], up[1], zl2], USE_RAPID)
-    w.add([q[0], q[1], zl2], USE_RAPID)
-    if z1 < zl2:
-        w.add([q[0], q[1], z1], USE_RAPID)
-    w.add([p[0], p[1], zs], USE_PLUNGE)
-    return True
-
-
 def _approach(w: _Writer, lv: _Level, cur, p, zs, z, safe):
     """Lift from ``cur`` (None: the first approach, from the safe height), rapid over to p and down
     to zs, the start of a helix or ramp: GAP_MM above the map's material under the whole helix or
@@ -1030,11 +999,14 @@ def _approach(w: _Writer, lv: _Level, cur, p, zs, z, safe):
             zl = w.rapid_clear(np.array(cur[:2]), p, zl, safe)
         a2 = _retract(w, cur, zl, lv)
         zl = _rapid_from(w, np.array(cur[:2]), a2, p, zl, safe)
-        if _stepped_down(w, lv, p, zs, zl, safe):
+    # where the rapid down stops: the grown tool meets the stock beside (the rest is fed)
+    zr = zs if (w.column_clear is None or not zl > zs) else min(zl, w.column_clear(p[0], p[1], zs, zl))
+    if cur is not None:
+        # beside a wall (or under a tilted block's edge) come down off it and feed in at 45 degrees
+        if w.column_clear is not None and _down_off_wall(w, lv, p, zs, zr, zl, safe):
             return
         w.add([p[0], p[1], zl], USE_RAPID)
     if zl > zs:
-        zr = zs if w.column_clear is None else min(zl, w.column_clear(p[0], p[1], zs, zl))
         if zr > zs:                   # the rapid stops where the grown tool would meet material; fed on
             if zl > zr:
                 w.add([p[0], p[1], zr], USE_RAPID)

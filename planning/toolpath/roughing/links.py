@@ -506,29 +506,42 @@ def _lift(w: _Writer, lv: _Level, cur, q, z, safe, top_q=None):
     zd = min(zl, max(lv.top_at(q) if top_q is None else top_q, z) + w.gap)
     if w.column_clear is not None:             # the grown tool keeps clear of the material beside
         zd = min(zl, w.column_clear(q[0], q[1], zd, zl))
-    if cur is not None and zd > z + w.gap + STEP_OFF_GAIN_MM:
-        # beside a wall the rapid down stops high: come down off it and feed in to q at 45 degrees
-        off = _step_off(w, lv, (q[0], q[1], z), zl)
-        z1 = z + w.gap
-        # only where the rapid comes down at p all the way to z1: a feed straight down there could meet
-        # material (nothing says that p's column is air below where the grown tool clears it)
-        if off is not None and off[1] <= z1 + 1e-9 and off[1] + STEP_OFF_GAIN_MM < zd:
-            p, zc = off
-            p_up = w.pts[-1][-1]
-            zl2 = _rapid_from(w, p_up[:2], p_up[:2], p, zl, safe, at=False)
-            if zl2 > zl:
-                w.add([p_up[0], p_up[1], zl2], USE_RAPID)
-            w.add([p[0], p[1], zl2], USE_RAPID)
-            if z1 < zl2:
-                w.add([p[0], p[1], z1], USE_RAPID)
-            w.add([q[0], q[1], z], USE_PLUNGE)
+    if cur is not None:
+        if _down_off_wall(w, lv, q, z, zd, zl, safe):
             return
-        w.add([q[0], q[1], zl], USE_RAPID)
-    elif cur is not None:
         w.add([q[0], q[1], zl], USE_RAPID)
     if zd < zl:
         w.add([q[0], q[1], zd], USE_RAPID)
     w.add([q[0], q[1], z], USE_PLUNGE)
+
+
+def _down_off_wall(w: _Writer, lv: _Level, q, z, zd, zl, safe) -> bool:
+    """Where the rapid down to (q, z) would stop at ``zd``, STEP_OFF_GAIN_MM or more above ``w.gap`` over
+    z (the tool grown by the rapid clearance meets the stock beside: the rest would be fed straight
+    down, by a wall or in the air under a tilted block's lower edge): come down instead at a point
+    ``w.gap`` off (:func:`_step_off`) whose column the grown tool clears all the way down to ``w.gap``
+    above z, and feed in to (q, z) at 45 degrees. The tool is at the last point written, at ``zl`` (the
+    rapid across to q not yet written). Used by a lift's descent (:func:`_lift`) and by the approach to
+    a helix or ramp (:func:`planning.toolpath.roughing.entries._approach`). Writes the moves and returns
+    True, or writes nothing and returns False."""
+    z1 = z + w.gap
+    if not zd > z1 + STEP_OFF_GAIN_MM:
+        return False
+    off = _step_off(w, lv, (q[0], q[1], z), zl)
+    # only where the rapid comes down at p all the way to z1: a feed straight down there could meet
+    # material (nothing says that p's column is air below where the grown tool clears it)
+    if off is None or off[1] > z1 + 1e-9 or not off[1] + STEP_OFF_GAIN_MM < zd:
+        return False
+    p = off[0]
+    up = w.pts[-1][-1]
+    zl2 = _rapid_from(w, up[:2], up[:2], p, zl, safe, at=False)
+    if zl2 > zl:
+        w.add([up[0], up[1], zl2], USE_RAPID)
+    w.add([p[0], p[1], zl2], USE_RAPID)
+    if z1 < zl2:
+        w.add([p[0], p[1], z1], USE_RAPID)
+    w.add([q[0], q[1], z], USE_PLUNGE)
+    return True
 
 
 def _rapid_from(w: _Writer, a, a2, q, zl, safe, at: bool = True) -> float:

@@ -15,7 +15,8 @@ order) the air feed length is broken down:
   set-up's roughing: ``this roughing`` when they remove material there (a level above or an earlier
   pass of the same roughing took it), ``before`` when they do not (an earlier set-up took it, or there
   never was stock: outside the box);
-* by the writing function (``_cut_level`` pieces and links, ``enter``/``_lift`` entries, ``_retract``).
+* by the writing function (``_cut_level`` pieces and links, ``enter``/``_lift`` entries, ``_retract``);
+* by where x why and where x writer (e.g. what feeds below the stock's bottom, and which function wrote it).
 
     .venv/bin/python bench/bench_roughing_air_where.py --cases slot post_wall filleted_box
 """
@@ -77,6 +78,7 @@ def breakdown(call, box_lo, box_hi):
            "levels": (float(r.levels_mm[0]), float(r.levels_mm[-1])) if r.n_levels else None}
     for name, key in (("use", use), ("where", where), ("why", why), ("writer", tag),
                       ("where x why", np.char.add(np.char.add(where, " / "), why)),
+                      ("where x writer", np.char.add(np.char.add(where, " / "), tag)),
                       ("writer x why", np.char.add(np.char.add(tag, " / "), why))):
         agg = collections.defaultdict(lambda: [0.0, 0.0])
         for i in np.flatnonzero(feed):
@@ -122,7 +124,7 @@ def main() -> int:
             print(f"\n{case}, set-up {k} (machining order): feed {b['feed']:.0f} mm, in air {b['air']:.0f} mm "
                   f"({b['air'] / max(b['feed'], 1e-9):.1%}); removed {b['removed_cm3']:.2f} cm^3; pieces left {b['left']}; "
                   f"{b['n_levels']} levels {b['levels']}")
-            for name in ("use", "where", "why", "where x why", "writer", "writer x why"):
+            for name in ("use", "where", "why", "where x why", "where x writer", "writer", "writer x why"):
                 print(f"  by {name}:")
                 for key, (tot, ai) in b[name].items():
                     if ai > 0.5 or tot > 0.5:

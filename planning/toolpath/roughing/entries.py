@@ -809,12 +809,11 @@ class _Entries:
         batch; the exact swept test ``clear`` confirms it): the rapid comes down to that vertex and the
         descent goes on at the entry angle from there. Asked only of descents that start more than
         LATE_START_MM above the lowest start the level can expect (:meth:`_good`): the others have little
-        air to drop, and the batch costs about 20 ms a descent. The rest of the descent is unchanged (its heights
-        are the entry angle's from the level back), so it cuts what it cut; what is dropped ran
-        through the air. A descent whose start the material chose high (a sliver of stock at the top of
+        air to drop, and the batch over the whole way is not cheap. The rest of the descent is unchanged
+        (its heights are the entry angle's from the level back), so it cuts what it cut; what is
+        dropped ran through the air. A descent whose start the material chose high (a sliver of stock at the top of
         its way, the maps' bound beside a wall) otherwise ran back and forth through the air at the
-        entry angle: one ramp on the half sphere's tilted set-up fed 86 mm through air under the block
-        to cut 43 mm^3. Returns (xyz', zs'); unchanged when no inner vertex qualifies."""
+        entry angle (on the half sphere's tilted set-up, under the block's lower edge). Returns (xyz', zs'); unchanged when no inner vertex qualifies."""
         inner = np.ascontiguousarray(xyz[1:-1], dtype=np.float64)
         zc = np.asarray(w.column_clear_many(inner, safe), dtype=np.float64)
         ok = np.flatnonzero(zc <= inner[:, 2] + 1e-9)

@@ -340,15 +340,16 @@ class _Level:
     def visible(self, a, b) -> bool:
         """The straight move a -> b at the level stays in the region: every sample (h / 4 apart) lies
         in a region cell, so every point of the move is within 0.96 h of an allowed centre."""
-        return bool(_seg_in(self.flat, self.x0, self.y0, self.h, self.nx, self.ny,
-                            float(a[0]), float(a[1]), float(b[0]), float(b[1])))
+        return self._along(self.flat, a, b)
 
     def reachable(self, a, b) -> bool:
         """The straight move a -> b at the level stays within the machine's travel (every sample in a
         ``reach`` cell, as :meth:`visible` reads the region); True without a travel limit."""
-        if self.reach_flat is None:
-            return True
-        return bool(_seg_in(self.reach_flat, self.x0, self.y0, self.h, self.nx, self.ny,
+        return self.reach_flat is None or self._along(self.reach_flat, a, b)
+
+    def _along(self, flat, a, b) -> bool:
+        """Every sample of a -> b (h / 4 apart) in a cell where the raster ``flat`` is True."""
+        return bool(_seg_in(flat, self.x0, self.y0, self.h, self.nx, self.ny,
                             float(a[0]), float(a[1]), float(b[0]), float(b[1])))
 
     def corridor_top(self, a, b) -> float:

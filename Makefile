@@ -1,6 +1,7 @@
 # make run   - set up what the planner needs, start the planning service and plan the femur-like
 #              reference scan through it over HTTP
-# make test  - set up what the tests need too, then run the test suite (slow tests: make test-slow)
+# make test  - set up what the tests need too, then run the test suite in two processes (TEST_WORKERS;
+#              slow tests: make test-slow)
 VENV ?= .venv
 BIN := $(VENV)/bin
 OUT ?= scanmill-out
@@ -47,8 +48,14 @@ run: setup-run
 serve: setup-run
 	$(BIN)/scanmill serve
 
+# The test files are shared among TEST_WORKERS pytest processes (pytest-xdist), a file's tests kept in one
+# process so that its module fixtures (a plan, a simulated program) are made once. Many tests wait on a
+# server, a worker or a subprocess, so two processes finish the suite sooner even on two cores.
+# TEST_WORKERS=0: one process, in file order.
+TEST_WORKERS ?= 2
+
 test: setup-test
-	$(BIN)/python -m pytest -q --durations=40
+	$(BIN)/python -m pytest -q --durations=40 $(if $(filter-out 0,$(TEST_WORKERS)),-n $(TEST_WORKERS) --dist loadfile)
 
 test-slow: setup-test
 	$(BIN)/python -m pytest -q -m slow

@@ -114,7 +114,7 @@ fi
 echo "setup: installing scanmill and its dependencies into $VENV (-e '$PIP_REQ')"
 "$VENV/bin/python" -m pip install -q -e "$PIP_REQ" 2>&1 | grep -v "^WARNING: Location" || true
 # pip's exit status is lost in the filter above: check that what each level needs imports.
-CHECK="import open3d, ortools, numpy, scanmill"; [ "$LEVEL" = test ] && CHECK="$CHECK, pytest, selenium"
+CHECK="import open3d, ortools, numpy, scanmill"; [ "$LEVEL" = test ] && CHECK="$CHECK, pytest, selenium, xdist"
 "$VENV/bin/python" -c "$CHECK" \
   || { echo "setup: the installation is incomplete (see the pip output above)" >&2; exit 1; }
 # Compile the numba kernels into their cache (SCANMILL_CACHE_DIR, default ~/.cache/scanmill/numba) with a

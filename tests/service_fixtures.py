@@ -37,6 +37,11 @@ HALF_SPHERE_PARAMS = {
     "paths": {"finishing": {"scallop_mm": 0.2}, "roughing": {"step_down_mm": 5}},
 }
 
+#: The half sphere planned without paths and verification: for the tests of the jobs API itself (listing,
+#: idempotency), where what the plan holds does not matter and a job should not take a full plan's time.
+NO_PATHS_PARAMS = dict(HALF_SPHERE_PARAMS, paths={"roughing": {"enabled": False}, "finishing": {"enabled": False}},
+                       simulate={"enabled": False})
+
 
 def write_half_sphere(path: Path) -> Path:
     """Write the 2537-point half sphere with exact normals as binary PLY; return the path."""

@@ -15,7 +15,7 @@ import pytest
 from planning.inputs.cloud import read_cloud
 from planning.inputs.samples import half_sphere
 from schemas.plan import plan_json_schema
-from service_fixtures import (HALF_SPHERE_PARAMS, KEY_A, KEY_B, ServerProcess, submit, wait_status,
+from service_fixtures import (HALF_SPHERE_PARAMS, KEY_A, KEY_B, NO_PATHS_PARAMS, ServerProcess, submit, wait_status,
                               write_half_sphere)
 
 PROBLEM = "application/problem+json"
@@ -54,7 +54,7 @@ def done_job(a, cloud):
 
 
 def test_submit_answers_202_with_location_and_the_job(a, cloud):
-    r = submit(a, cloud, name="my part")
+    r = submit(a, cloud, NO_PATHS_PARAMS, name="my part")
     assert r.status_code == 202, r.text
     job = r.json()
     assert r.headers["location"] == f"/jobs/{job['id']}"
@@ -173,12 +173,12 @@ def test_inline_json_submission(a):
 
 def test_idempotency_key(a, cloud):
     key = {"Idempotency-Key": "retry-me-7f9c"}
-    first = submit(a, cloud, headers=key)
-    second = submit(a, cloud, headers=key)
+    first = submit(a, cloud, NO_PATHS_PARAMS, headers=key)
+    second = submit(a, cloud, NO_PATHS_PARAMS, headers=key)
     assert first.status_code == second.status_code == 202
     assert first.json()["id"] == second.json()["id"]
     assert second.headers.get("idempotent-replayed") == "true" and "idempotent-replayed" not in first.headers
-    other = dict(HALF_SPHERE_PARAMS, setups={"coverage": 0.9, "max_setups": 2})
+    other = dict(NO_PATHS_PARAMS, setups={"coverage": 0.9, "max_setups": 2})
     conflict = submit(a, cloud, other, headers=key)
     assert conflict.status_code == 422 and conflict.headers["content-type"] == PROBLEM
     assert conflict.json()["code"] == "idempotency_key_reused"
@@ -189,8 +189,8 @@ def test_idempotency_key(a, cloud):
 
 def test_idempotency_keys_are_per_caller(a, b, cloud):
     key = {"Idempotency-Key": "shared-key-123"}
-    ja = submit(a, cloud, headers=key).json()["id"]
-    jb = submit(b, cloud, headers=key).json()["id"]
+    ja = submit(a, cloud, NO_PATHS_PARAMS, headers=key).json()["id"]
+    jb = submit(b, cloud, NO_PATHS_PARAMS, headers=key).json()["id"]
     assert ja != jb
     wait_status(a, ja)
     wait_status(b, jb)
@@ -199,7 +199,7 @@ def test_idempotency_keys_are_per_caller(a, b, cloud):
 def test_list_newest_first_paginated_and_filtered(a, cloud):
     ids = []
     for _ in range(3):
-        r = submit(a, cloud)
+        r = submit(a, cloud, NO_PATHS_PARAMS)
         assert r.status_code == 202
         ids.append(r.json()["id"])
     for i in ids:
@@ -218,7 +218,7 @@ def test_list_newest_first_paginated_and_filtered(a, cloud):
 
 
 def test_delete_finished_job_removes_it_and_its_files(server, a, cloud):
-    job = wait_status(a, submit(a, cloud).json()["id"])
+    job = wait_status(a, submit(a, cloud, NO_PATHS_PARAMS).json()["id"])
     folder = server.data_dir / "jobs" / job["id"]
     assert (folder / "result" / "plan.json").is_file()
     r = a.delete(f"/jobs/{job['id']}")

@@ -226,7 +226,9 @@ def test_cell_size_changes_speed_only():
     axes = _axes(rng, 24)
     tool = STACKS[0]
     ref = cloud_collision_free(pts, sample, nrm[sample], axes, tool)
-    for cf in (0.1, 0.2, 1.0, 2.0):
+    # a smaller cell than the default 0.35 and larger ones up to the largest allowed (0.1 costs 40 s here
+    # and tests nothing 0.2 does not)
+    for cf in (0.2, 1.0, 2.0):
         assert np.array_equal(cloud_collision_free(pts, sample, nrm[sample], axes, tool, cell_fraction=cf), ref)
 
 

@@ -44,7 +44,9 @@ from schemas.params import parse_config
 
 CHORD = 0.005                     # the reader's chord tolerance (default), mm
 TOL = 1e-3 + CHORD                # dialects / readers agree within this, mm
-BASE = {"paths": {"finishing": {"scallop_mm": 0.2}}, "simulate": {"enabled": False}, "normals": {"method": "input"}}
+# coarse roughing (5 mm steps down, as the service tests'): the same kinds of program, fewer blocks to plan and read
+BASE = {"paths": {"finishing": {"scallop_mm": 0.2}, "roughing": {"step_down_mm": 5}}, "simulate": {"enabled": False},
+        "normals": {"method": "input"}}
 PLANS = {
     "slot": (lambda: samples.slot(density_per_mm2=0.5, seed=1), BASE),
     "half_sphere": (samples.half_sphere, {**BASE, "setups": {"max_setups": 2}, "tool": {"diameter_mm": 10}}),

@@ -16,7 +16,11 @@ order) the air feed length is broken down:
   pass of the same roughing took it), ``before`` when they do not (an earlier set-up took it, or there
   never was stock: outside the box);
 * by the writing function (``_cut_level`` pieces and links, ``enter``/``_lift`` entries, ``_retract``);
-* by where x why and where x writer (e.g. what feeds below the stock's bottom, and which function wrote it).
+* by where x why and where x writer (e.g. what feeds below the stock's bottom, and which function wrote it);
+* how much of it a rapid could run: the air moves run again as rapids among the others as they were (they
+  removed nothing, so every move meets the same stock), the whole tool grown by the rapid clearance clear
+  of the stock as it then is and of the obstacles (fixtures, riser, table): all of the air, and the part
+  below the stock's bottom.
 
     .venv/bin/python bench/bench_roughing_air_where.py --cases slot post_wall filleted_box
 """
@@ -36,6 +40,9 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE / "bench"))
 
 USE_NAMES = {0: "rapid", 1: "cut", 2: "plunge/entry", 3: "retract"}
+
+#: The rapid clearance the moves are run with (mm; ``bench_roughing_air.tagged_run``'s).
+RAPID_CLEARANCE_MM = 0.5
 
 
 def _writer(f, line: str) -> str:
@@ -73,7 +80,26 @@ def breakdown(call, box_lo, box_hi):
     why = np.where(before, "this roughing", "before")
     use = np.array([USE_NAMES.get(int(u), str(u)) for u in tp.use[pm.source]])
     tag = got.tag
+    # could a rapid run them? The air moves as rapids, every other move as it was (the air moves removed
+    # nothing, so the stock each move meets is the same): the whole tool grown by the rapid clearance clear of
+    # the stock as it then is, and of the obstacles
+    from planning.simulate.dexel import collide
+    from planning.simulate.motion import RAPID
+
+    as_rapid = np.zeros(len(L), bool)
+    if ia.size:
+        kind = pm.kind.copy()
+        kind[ia] = RAPID
+        rr = simulate_moves(stock.copy(), pm.start, pm.end, axis, shape, kind, rapid_clearance_mm=RAPID_CLEARANCE_MM)
+        as_rapid[ia] = rr.rapid_depth_mm[ia] <= 0.0
+        obstacles = call[2][3]
+        if obstacles is not None and as_rapid.any():
+            ir = np.flatnonzero(as_rapid)
+            as_rapid[ir] = collide(obstacles, pm.start[ir], pm.end[ir], axis[ir], shape, which="tool",
+                                   grow_mm=RAPID_CLEARANCE_MM) <= 0.0
     out = {"feed": float(L[feed].sum()), "air": float(L[air].sum()), "n_levels": int(r.n_levels),
+           "as_rapid": float(L[as_rapid].sum()), "as_rapid_below": float(L[as_rapid & (mid[:, 2] < box_lo[2])].sum()),
+           "air_below": float(L[air & (mid[:, 2] < box_lo[2])].sum()),
            "removed_cm3": float(run.removed_mm3.sum()) / 1000.0, "left": (int(r.n_pieces_left), float(r.left_length_mm)),
            "levels": (float(r.levels_mm[0]), float(r.levels_mm[-1])) if r.n_levels else None}
     for name, key in (("use", use), ("where", where), ("why", why), ("writer", tag),
@@ -124,6 +150,9 @@ def main() -> int:
             print(f"\n{case}, set-up {k} (machining order): feed {b['feed']:.0f} mm, in air {b['air']:.0f} mm "
                   f"({b['air'] / max(b['feed'], 1e-9):.1%}); removed {b['removed_cm3']:.2f} cm^3; pieces left {b['left']}; "
                   f"{b['n_levels']} levels {b['levels']}")
+            print(f"  a rapid could run (whole tool {RAPID_CLEARANCE_MM} mm clear of the stock as it then is and of "
+                  f"the obstacles): {b['as_rapid']:.0f} mm of the {b['air']:.0f} mm in air; below the stock's bottom "
+                  f"{b['as_rapid_below']:.0f} mm of {b['air_below']:.0f} mm")
             for name in ("use", "where", "why", "where x why", "where x writer", "writer", "writer x why"):
                 print(f"  by {name}:")
                 for key, (tot, ai) in b[name].items():

@@ -184,3 +184,22 @@ def test_a_plan_on_the_carried_stock_is_the_same_with_the_worker(monkeypatch):
     assert used and all(used)                           # every set-up's passes and cloud check came from it
     assert here.extra["programs"] == there.extra["programs"]
     assert here.result.verification.status == there.result.verification.status == "passed"
+
+
+def test_the_regions_travel_as_indices_and_read_back_as_the_same_masks():
+    """The worker is sent a set-up's region masks as point indices (:class:`IndexMasks`): each read back is
+    the mask it came from, in order (dense masks as packed bits, sparse ones as indices), and the pickled job
+    is a fraction of the masks' bytes."""
+    import pickle
+
+    rng = np.random.default_rng(3)
+    n = 200_000
+    masks = [rng.random(n) < p for p in (0.3, 0.001, 0.0)] + [np.zeros(n, bool)] * 40
+    im = W.IndexMasks.of(masks, n)
+    assert len(im) == len(masks)
+    for m, back in zip(masks, im):
+        assert back.dtype == bool and back.shape == (n,) and np.array_equal(back, m)
+    assert [np.count_nonzero(m) for m in im[1:3]] == [np.count_nonzero(m) for m in masks[1:3]]
+    with pytest.raises(IndexError):
+        im[len(masks)]
+    assert len(pickle.dumps(im)) < len(pickle.dumps(masks)) / 20

@@ -98,8 +98,8 @@ def breakdown(call, box_lo, box_hi):
             as_rapid[ir] = collide(obstacles, pm.start[ir], pm.end[ir], axis[ir], shape, which="tool",
                                    grow_mm=RAPID_CLEARANCE_MM) <= 0.0
     out = {"feed": float(L[feed].sum()), "air": float(L[air].sum()), "n_levels": int(r.n_levels),
-           "as_rapid": float(L[as_rapid].sum()), "as_rapid_below": float(L[as_rapid & (mid[:, 2] < box_lo[2])].sum()),
-           "air_below": float(L[air & (mid[:, 2] < box_lo[2])].sum()),
+           "as_rapid": float(L[as_rapid].sum()), "as_rapid_below": float(L[as_rapid & (where == "below bottom")].sum()),
+           "air_below": float(L[air & (where == "below bottom")].sum()),
            "removed_cm3": float(run.removed_mm3.sum()) / 1000.0, "left": (int(r.n_pieces_left), float(r.left_length_mm)),
            "levels": (float(r.levels_mm[0]), float(r.levels_mm[-1])) if r.n_levels else None}
     for name, key in (("use", use), ("where", where), ("why", why), ("writer", tag),

@@ -187,19 +187,32 @@ def test_a_plan_on_the_carried_stock_is_the_same_with_the_worker(monkeypatch):
 
 
 def test_the_regions_travel_as_indices_and_read_back_as_the_same_masks():
-    """The worker is sent a set-up's region masks as point indices (:class:`IndexMasks`): each read back is
-    the mask it came from, in order (dense masks as packed bits, sparse ones as indices), and the pickled job
-    is a fraction of the masks' bytes."""
+    """A set-up's regions are held and sent to the worker as point indices (:class:`IndexMasks`, made by
+    ``area_paths._region_masks``): each read back is the mask the region ids give, written out here point by
+    point, in order (by increasing id, then the points handed on), and the pickle holds 4 bytes per indexed
+    point, a fraction of the masks' bytes."""
     import pickle
 
+    from planning.toolpath.area_paths import _region_masks
+
     rng = np.random.default_rng(3)
-    n = 200_000
-    masks = [rng.random(n) < p for p in (0.3, 0.001, 0.0)] + [np.zeros(n, bool)] * 40
-    im = W.IndexMasks.of(masks, n)
+    n, pad = 200_000, 500
+    regions = rng.integers(0, 45, n) ** 2 % 50                 # 23 of 50 ids present, uneven sizes
+    mine = rng.random(n) < 0.7
+    extra = ~mine & (rng.random(n) < 0.01)
+    im = _region_masks(mine, regions, n + pad, extra=extra)
+    ids = sorted({int(regions[i]) for i in range(n) if mine[i]})
+    masks = [np.concatenate([mine & (regions == r), np.zeros(pad, bool)]) for r in ids]
+    masks.append(np.concatenate([extra, np.zeros(pad, bool)]))
     assert len(im) == len(masks)
     for m, back in zip(masks, im):
-        assert back.dtype == bool and back.shape == (n,) and np.array_equal(back, m)
-    assert [np.count_nonzero(m) for m in im[1:3]] == [np.count_nonzero(m) for m in masks[1:3]]
+        assert back.dtype == bool and back.shape == (n + pad,) and np.array_equal(back, m)
+    assert [np.count_nonzero(im[k]) for k in (1, 2)] == [np.count_nonzero(m) for m in masks[1:3]]
     with pytest.raises(IndexError):
         im[len(masks)]
-    assert len(pickle.dumps(im)) < len(pickle.dumps(masks)) / 20
+    # 4 bytes per point of the area (int32 indices) against one byte per point per region: 24 regions here
+    size = len(pickle.dumps(im))
+    assert size < 4 * (mine.sum() + extra.sum()) + 10_000
+    assert size < len(pickle.dumps(masks)) / 5
+    whole = _region_masks(mine, None, n + pad)
+    assert len(whole) == 1 and np.array_equal(whole[0], np.concatenate([mine, np.zeros(pad, bool)]))

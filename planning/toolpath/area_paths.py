@@ -50,7 +50,13 @@ from planning.geometry.triangles import TriangleDropSurface
 from planning.progress import Throttled
 from planning.toolpath.balldrop import DropSurface
 from planning.toolpath.finishing import FinishingPath, finishing_passes
-from planning.toolpath.finishing_worker import FinishingWorker, WorkerFailed, binned_cloud, region_passes
+from planning.toolpath.finishing_worker import (
+    FinishingWorker,
+    IndexMasks,
+    WorkerFailed,
+    binned_cloud,
+    region_passes,
+)
 from planning.toolpath.frames import AreaFrame, area_frame
 from planning.toolpath.guard import guard_toolpath
 from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath, concatenate
@@ -321,9 +327,8 @@ def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, ob
         masks, job = None, None
         five = fp.area_modes.get(i, fp.mode) == "5axis"
         if fp.enabled:
-            masks = _region_masks(mine, regions, cloud_f.shape[0])
-            if extra.any():                    # the points set-ups before left that this one sees
-                masks.append(np.concatenate([extra, np.zeros(cloud_f.shape[0] - extra.shape[0], dtype=bool)]))
+            # and the points set-ups before left that this one sees, as one more region
+            masks = _region_masks(mine, regions, cloud_f.shape[0], extra=extra)
             # computed there while this process roughs (with the cloud's part of their check)
             check = None if (carried is None or five) else (frame, axes[i], tool, obstacles)
             if worker is not None and worker.submit(cloud_f, masks, faces, fp, R, tol, safe, max_slope_deg, check):
@@ -422,14 +427,23 @@ def _check_regions(input_regions, input_labels) -> np.ndarray | None:
     return regions.astype(np.int64, copy=False)
 
 
-def _region_masks(mine: np.ndarray, regions: np.ndarray | None, n_obstacles: int) -> list[np.ndarray]:
+def _region_masks(mine: np.ndarray, regions: np.ndarray | None, n_obstacles: int,
+                  extra: np.ndarray | None = None) -> IndexMasks:
     """(n_obstacles,) bool masks over the obstacles (cloud first, then the forbidden points) of the
     area's points ``mine`` (N,), one per region id present, by increasing id (the area's largest
-    region first); one mask of the whole area when ``regions`` is None."""
-    pad = np.zeros(n_obstacles - mine.shape[0], dtype=bool)
+    region first); one mask of the whole area when ``regions`` is None; then, where ``extra`` (N,)
+    has any point, one mask of those. Kept as point indices (:class:`IndexMasks`)."""
+    idx = np.flatnonzero(mine)
     if regions is None:
-        return [np.concatenate([mine, pad])]
-    return [np.concatenate([mine & (regions == r), pad]) for r in np.unique(regions[mine])]
+        parts = [idx]
+    else:
+        lab = regions[idx]
+        order = np.argsort(lab, kind="stable")            # by region id, each region's points in cloud order
+        _, first = np.unique(lab[order], return_index=True)
+        parts = np.split(idx[order], first[1:])
+    if extra is not None and extra.any():
+        parts.append(np.flatnonzero(extra))
+    return IndexMasks(parts, n_obstacles)
 
 
 def _frame_and_top(points, mine, axis, obstacles, fixtures, fp, R: float, reach: float):

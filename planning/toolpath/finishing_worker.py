@@ -61,35 +61,22 @@ class WorkerFailed(RuntimeError):
 
 
 class IndexMasks(Sequence):
-    """Boolean masks over ``n`` points, each kept in the smaller of two forms (``parts``): the indices of
-    its True entries (int32, 4 bytes each) or its bits packed (``np.packbits``, n / 8 bytes); each mask is
-    made when it is read. What the worker is sent for a set-up's regions instead of the masks themselves
-    (one byte per point each)."""
+    """Boolean masks over ``n`` points kept as the indices of their True entries (``indices``: one int32
+    array per mask, int64 from 2**31 points on); each mask is made when it is read. The regions of a
+    set-up (:func:`planning.toolpath.area_paths._region_masks`) are held and sent to the worker so,
+    instead of one byte per cloud point per region."""
 
-    def __init__(self, parts: list, n: int):
-        self.parts = parts
+    def __init__(self, indices: list, n: int):
         self.n = int(n)
-
-    @classmethod
-    def of(cls, masks, n: int) -> IndexMasks:
-        parts = []
-        for m in masks:
-            m = np.asarray(m, dtype=bool).reshape(-1)
-            idx = np.flatnonzero(m)
-            parts.append(idx.astype(np.int32) if 4 * idx.size < (n + 7) // 8 and n < 2**31 else np.packbits(m))
-        return cls(parts, n)
+        dtype = np.int32 if self.n < 2**31 else np.int64
+        self.indices = [np.asarray(i, dtype=dtype) for i in indices]
 
     def __len__(self) -> int:
-        return len(self.parts)
+        return len(self.indices)
 
-    def __getitem__(self, k):
-        if isinstance(k, slice):
-            return [self[i] for i in range(*k.indices(len(self)))]
-        part = self.parts[k]
-        if part.dtype == np.uint8:
-            return np.unpackbits(part, count=self.n).astype(bool)
+    def __getitem__(self, k: int) -> np.ndarray:
         out = np.zeros(self.n, dtype=bool)
-        out[part] = True
+        out[self.indices[k]] = True
         return out
 
 
@@ -223,10 +210,9 @@ class FinishingWorker:
         False when the worker is not usable (compute the passes here)."""
         if not self.usable or self._writer is not None:
             return False
-        cloud_f = np.ascontiguousarray(cloud_f)
-        # the regions as point indices: a set-up's masks are one byte per cloud point each (the femur-like
-        # plan's first set-up: 103 regions of a 1 M-point cloud, 103 MB pickled), their indices a few MB
-        job = ((cloud_f, IndexMasks.of(region_masks, cloud_f.shape[0]), None if faces is None else np.asarray(faces),
+        # region_masks as given: the planner's are IndexMasks, a few MB where the masks themselves would
+        # be one byte per cloud point each (the femur-like plan's first set-up: 103 regions, 103 MB)
+        job = ((np.ascontiguousarray(cloud_f), region_masks, None if faces is None else np.asarray(faces),
                 fp, float(R), float(tol), float(safe), float(max_slope_deg)), check)
 
         def write():

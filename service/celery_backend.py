@@ -1,9 +1,13 @@
 """The Celery execution backend, API side: publish jobs to the broker, revoke cancelled ones, reap.
 
-Publishing follows the outbox pattern: a job is committed to the store first, then its message is
-published and ``dispatched_at`` recorded. A job whose publication failed (broker down) stays queued
-with ``dispatched_at`` unset, and the reaper thread publishes it when the broker is back, so an
-accepted job is never lost between the store and the broker.
+Publishing follows the outbox pattern: a job is committed to the store first; to publish it an API
+takes it (``dispatched_at``, so that one replica sends it), sends the message, and records the
+broker's acceptance (``published_at``). A job whose publication failed (broker down) is given back
+(``dispatched_at`` unset) and the reaper thread publishes it when the broker is back. A job taken
+but never confirmed for ``SCANMILL_PUBLISH_GRACE_S`` (the API died, or lost the store, between the
+two marks) is given back by the reaper and published again. So an accepted job is never lost between
+the store and the broker; in that one window it may be sent twice, and the second delivery finds the
+job taken (:mod:`service.celery_tasks`: running with a fresh heartbeat, or ended) and leaves it.
 
 The reaper (every ``SCANMILL_REAPER_INTERVAL_S``) also settles running jobs whose heartbeat is
 older than ``SCANMILL_LEASE_S``: past their time limit they fail ``time_limit_exceeded`` (the hard
@@ -131,7 +135,8 @@ class CeleryBackend:
 
     def publish(self, job_id: str, time_limit_s: float) -> bool:
         """Publish ``scanmill.plan_job(job_id)`` once per queued period of the job; True if published."""
-        if not self.store.mark_dispatched(job_id):
+        stamp = self.store.mark_dispatched(job_id)
+        if stamp is None:
             return False                         # not queued any more, or another replica published it
         soft = float(time_limit_s)
         try:
@@ -145,6 +150,11 @@ class CeleryBackend:
             log.warning("job %s: could not publish it to the broker (%s); it stays queued and is published "
                         "when the broker answers", job_id, exc)
             return False
+        try:
+            self.store.mark_published(job_id, stamp)
+        except Exception:  # noqa: BLE001 - sent; unconfirmed, the reaper sends it again after the grace
+            log.warning("job %s: published, but the store did not take the confirmation; the reaper may publish "
+                        "it again (a second delivery leaves a taken job alone)", job_id, exc_info=True)
         return True
 
     def cancel(self, job_id: str) -> bool:
@@ -166,9 +176,14 @@ class CeleryBackend:
 
     # -- reaper ----------------------------------------------------------------------------------
     def reap_once(self) -> dict[str, list[str]]:
-        """Publish unsent queued jobs and settle running jobs whose worker is gone; ids per action."""
-        out: dict[str, list[str]] = {"published": [], "requeued": [], "failed": []}
+        """Give back the jobs whose publication was never confirmed, publish unsent queued jobs and settle
+        running jobs whose worker is gone; ids per action."""
+        out: dict[str, list[str]] = {"published": [], "requeued": [], "failed": [], "unconfirmed": []}
         s = self.settings
+        # taken for publication by an API that died before the broker's answer was recorded: give them back
+        for job_id, stamp in self.store.unpublished(s.publish_grace_s):
+            if self.store.release_unpublished(job_id, stamp):
+                out["unconfirmed"].append(job_id)
         for job_id in self.store.undispatched():
             job = self.store.get(job_id)
             if job is not None and self.publish(job.id, job.time_limit_s):

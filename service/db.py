@@ -59,6 +59,8 @@ jobs = sa.Table(
     sa.Column("dispatched_at", sa.Text),      # when the job was handed to the broker (Celery backend)
     # revision 0003: quotas and retention
     sa.Column("stored_bytes", sa.BigInteger),  # bytes of the job's files (upload; + artifacts once succeeded)
+    # revision 0004: the outbox's second mark
+    sa.Column("published_at", sa.Text),       # when the broker accepted the job's message (Celery backend)
     sa.CheckConstraint("status IN ('queued','running','succeeded','failed','cancelled')", name="jobs_status"),
     sa.UniqueConstraint("owner", "idempotency_key"),
     sqlite_autoincrement=True,

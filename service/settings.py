@@ -81,6 +81,11 @@ class Settings(BaseModel):
         10.0, ge=0, le=3600,
         description="Celery: how often the API hands unsent jobs to the broker and re-queues jobs whose worker "
                     "is gone (s); 0 turns the reaper off (then only the broker's redelivery recovers them).")
+    publish_grace_s: float = Field(
+        60.0, gt=0, le=86400,
+        description="Celery: a queued job taken for publication whose sending the broker has not confirmed "
+                    "within this many seconds (its API died between the two) is published again by the reaper, s. "
+                    "Longer than a publication may take (a few broker retries).")
     hard_time_limit_grace_s: float = Field(
         60.0, ge=1, le=86400,
         description="Celery: a job's hard time limit (the child is killed) is its soft limit plus this, s.")

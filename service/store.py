@@ -116,7 +116,8 @@ class JobRecord:
     request_hash: str | None = None
     worker: str | None = None
     heartbeat_at: str | None = None
-    dispatched_at: str | None = None
+    dispatched_at: str | None = None       # taken for publication (Celery backend)
+    published_at: str | None = None        # the broker accepted its message (revision 0004)
     stored_bytes: int | None = None        # bytes of the job's files; None: not measured yet (before revision 0003)
 
     @classmethod
@@ -378,7 +379,7 @@ class JobStore:
         """running (that attempt) -> queued; ``count_attempt=False`` gives the attempt back (clean shutdown)."""
         return self._count(jobs.update().where(self._is(job_id, attempt)).values(
             status="queued", stage=None, progress=0.0, message=message, updated_at=now_iso(), worker=None,
-            heartbeat_at=None, dispatched_at=None,
+            heartbeat_at=None, dispatched_at=None, published_at=None,
             attempts=jobs.c.attempts - (0 if count_attempt else 1))) == 1
 
     def cancel(self, job_id: str, owner: str) -> JobRecord | None:
@@ -443,15 +444,43 @@ class JobStore:
         with self.engine.connect() as c:
             return [r[0] for r in c.execute(q)]
 
-    def mark_dispatched(self, job_id: str) -> bool:
-        """Take the right to publish a queued job's task message (once per queued period); False if taken."""
-        return self._count(jobs.update().where((jobs.c.id == job_id) & (jobs.c.status == "queued")
-                                               & jobs.c.dispatched_at.is_(None)).values(dispatched_at=now_iso())) == 1
+    def mark_dispatched(self, job_id: str) -> str | None:
+        """Take the right to publish a queued job's task message (once per queued period): the mark
+        (``dispatched_at``, to give to :meth:`mark_published`), or None if it is taken or the job is not
+        queued."""
+        stamp = now_iso()
+        taken = self._count(jobs.update().where((jobs.c.id == job_id) & (jobs.c.status == "queued")
+                                                & jobs.c.dispatched_at.is_(None))
+                            .values(dispatched_at=stamp, published_at=None)) == 1
+        return stamp if taken else None
+
+    def mark_published(self, job_id: str, stamp: str) -> bool:
+        """The broker accepted the message sent under the mark ``stamp`` (:meth:`mark_dispatched`)."""
+        return self._count(jobs.update().where((jobs.c.id == job_id) & (jobs.c.dispatched_at == stamp)
+                                               & jobs.c.published_at.is_(None)).values(published_at=now_iso())) == 1
 
     def undo_dispatched(self, job_id: str) -> None:
         """The publication failed: leave the job for the next publication round."""
         self._count(jobs.update().where((jobs.c.id == job_id) & (jobs.c.status == "queued"))
-                    .values(dispatched_at=None))
+                    .values(dispatched_at=None, published_at=None))
+
+    def unpublished(self, grace_s: float, limit: int = 100) -> list[tuple[str, str]]:
+        """(id, mark) of queued jobs taken for publication more than ``grace_s`` seconds ago whose
+        publication was never confirmed (the API that took them died, or lost the store, between the
+        mark and the broker's answer), oldest first (Celery backend)."""
+        q = (sa.select(jobs.c.id, jobs.c.dispatched_at)
+             .where((jobs.c.status == "queued") & jobs.c.dispatched_at.is_not(None) & jobs.c.published_at.is_(None)
+                    & (jobs.c.dispatched_at < iso_ago(grace_s)))
+             .order_by(jobs.c.seq).limit(int(limit)))
+        with self.engine.connect() as c:
+            return [(r[0], r[1]) for r in c.execute(q)]
+
+    def release_unpublished(self, job_id: str, stamp: str) -> bool:
+        """Clear the mark ``stamp`` of a job :meth:`unpublished` found, if nobody has confirmed or
+        replaced it since, so that the next publication round sends the job again."""
+        return self._count(jobs.update().where((jobs.c.id == job_id) & (jobs.c.status == "queued")
+                                               & (jobs.c.dispatched_at == stamp) & jobs.c.published_at.is_(None))
+                           .values(dispatched_at=None)) == 1
 
     def status_of(self, job_id: str) -> tuple[str, int] | None:
         """(status, attempts) of a job, or None if it is gone."""

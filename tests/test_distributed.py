@@ -176,6 +176,32 @@ def test_a_job_accepted_while_the_broker_is_down_is_published_later(cluster):
         assert job["status"] == "succeeded" and job["attempts"] == 1
 
 
+def test_a_job_taken_for_publication_by_an_api_that_died_is_published_again(cluster):
+    """The outbox's window: an API takes a queued job for publication (``dispatched_at``) and dies before it
+    sends the message, or before the broker's acceptance is recorded. The row is then queued, taken, and not
+    confirmed (``published_at`` NULL); the next API's reaper gives it back after ``publish_grace_s`` and
+    publishes it, and a worker runs it once. (Before the second mark such a job stayed queued for ever.)"""
+    dead = "redis://127.0.0.1:1/0"
+    with _api(cluster, broker_url=dead, reaper_interval_s=0) as api, api.client() as c:
+        r = submit(c, cluster["cloud"])
+        assert r.status_code == 202, r.text
+        jid = r.json()["id"]
+    # what the API leaves when it dies between the mark and the broker's answer
+    eng = sa.create_engine(cluster["database_url"])
+    try:
+        with eng.begin() as c:
+            c.execute(sa.text("UPDATE jobs SET dispatched_at = '2026-01-01T00:00:00.000+00:00', published_at = NULL "
+                              "WHERE id = :i"), {"i": jid})
+    finally:
+        eng.dispose()
+    with _api(cluster, publish_grace_s=2) as api, _worker(cluster, "w1"), api.client() as c:
+        job = wait_status(c, jid, max_polls=1200)
+        assert job["status"] == "succeeded" and job["attempts"] == 1
+        assert f"'unconfirmed': ['{jid}']" in api.log_text()
+    row = _row(cluster, jid)
+    assert row["published_at"] is not None and row["dispatched_at"] != "2026-01-01T00:00:00.000+00:00"
+
+
 def test_worker_refuses_to_start_without_a_broker_or_database(cluster):
     import subprocess
     import sys

@@ -40,10 +40,11 @@ def _age_heartbeat(store, job_id, seconds_ago: float):
 def test_fresh_database_is_migrated_to_head(db_url):
     store = JobStore(db_url)
     try:
-        assert current_revision(store.engine) == head_revision() == "0003"
+        assert current_revision(store.engine) == head_revision() == "0004"
         cols = {c["name"] for c in sa.inspect(store.engine).get_columns("jobs")}
-        assert {"worker", "heartbeat_at", "dispatched_at", "attempts", "request_hash", "stored_bytes"} <= cols
-        assert upgrade(store.engine) == "0003"            # running it again changes nothing
+        assert {"worker", "heartbeat_at", "dispatched_at", "attempts", "request_hash", "stored_bytes",
+                "published_at"} <= cols
+        assert upgrade(store.engine) == "0004"            # running it again changes nothing
     finally:
         store.close()
 
@@ -160,6 +161,51 @@ def test_outbox_marks_each_queued_period_once(db_url):
     assert store.requeue(jid, job.attempts, "worker gone")                       # the reaper: needs publishing again
     assert store.undispatched() == [jid] and store.get(jid).heartbeat_at is None
     store.close()
+
+
+def _age_mark(store, job_id, seconds_ago: float):
+    from service.db import jobs
+    from service.store import iso_ago
+    with store.engine.begin() as c:
+        c.execute(jobs.update().where(jobs.c.id == job_id).values(dispatched_at=iso_ago(seconds_ago)))
+    return store.get(job_id).dispatched_at
+
+
+def test_a_job_taken_for_publication_and_never_confirmed_is_given_back_after_the_grace(db_url):
+    """The outbox's window: an API takes a job (``dispatched_at``), then dies before the broker's answer is
+    recorded. Past the grace the job is found, given back once, and published by the next round; a job whose
+    sending was confirmed, one taken a moment ago, and one that has started are never touched."""
+    store = JobStore(db_url)
+    try:
+        lost, sent, fresh, started = "1" * 32, "2" * 32, "3" * 32, "4" * 32
+        for j in (lost, sent, fresh, started):
+            _new(store, j)
+            assert store.mark_dispatched(j)
+        assert store.mark_published(sent, store.get(sent).dispatched_at)
+        assert not store.mark_published(sent, store.get(sent).dispatched_at)      # once
+        stamp = _age_mark(store, lost, 120)
+        _age_mark(store, sent, 120)
+        _age_mark(store, started, 120)
+        fresh_stamp = _age_mark(store, fresh, 1)
+        assert store.claim(started, "w", lease_s=30, max_attempts=3)[0] == "claimed"
+        assert store.unpublished(60.0) == [(lost, stamp)]
+        assert store.unpublished(600.0) == []                                         # within its grace
+        # a confirmation under a mark that is no longer the job's changes nothing
+        assert not store.mark_published(lost, "1999-01-01T00:00:00.000+00:00")
+        assert store.release_unpublished(lost, stamp)
+        assert not store.release_unpublished(lost, stamp)                             # one reaper gives it back
+        assert store.undispatched() == [lost]
+        again = store.mark_dispatched(lost)
+        assert again and store.mark_published(lost, again)
+        assert store.unpublished(0.5) == [(fresh, fresh_stamp)]                      # its turn comes
+        assert store.get(lost).published_at is not None
+        # a requeued job (its worker lost) must be published again: both marks cleared
+        _, job = store.claim(lost, "w", lease_s=30, max_attempts=3)
+        assert store.requeue(lost, job.attempts, "worker gone")
+        j = store.get(lost)
+        assert j.dispatched_at is None and j.published_at is None and lost in store.undispatched()
+    finally:
+        store.close()
 
 
 def test_concurrent_claims_never_share_a_job(db_url):
@@ -279,9 +325,25 @@ def test_revision_0003_adds_stored_bytes_and_goes_back(db_url):
     assert store.get("a" * 32).stored_bytes == 123
     assert downgrade(store.engine, "0002") == "0002"
     assert "stored_bytes" not in {c["name"] for c in sa.inspect(store.engine).get_columns("jobs")}
-    assert upgrade(store.engine) == "0003"
+    assert upgrade(store.engine) == "0004"
     job = store.get("a" * 32)
     assert job.status == "queued" and job.stored_bytes is None      # not measured again yet
+    store.close()
+
+
+def test_revision_0004_counts_jobs_taken_before_it_as_published_and_goes_back(db_url):
+    store = JobStore(db_url)
+    _new(store, "a" * 32)
+    _new(store, "b" * 32)
+    assert store.mark_dispatched("a" * 32)
+    assert downgrade(store.engine, "0003") == "0003"
+    assert "published_at" not in {c["name"] for c in sa.inspect(store.engine).get_columns("jobs")}
+    assert upgrade(store.engine) == "0004"
+    a, b = store.get("a" * 32), store.get("b" * 32)
+    # taken before the revision: taken as sent (nothing recorded a crash), so never sent again
+    assert a.published_at == a.dispatched_at is not None
+    assert b.published_at is None and b.dispatched_at is None
+    assert store.unpublished(0.0) == []
     store.close()
 
 

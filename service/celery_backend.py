@@ -146,7 +146,7 @@ class CeleryBackend:
                                    retry=True, retry_policy={"max_retries": 2, "interval_start": 0.2,
                                                              "interval_step": 0.5, "interval_max": 1.0})
         except Exception as exc:  # noqa: BLE001 - the broker is down: the outbox keeps the job
-            self.store.undo_dispatched(job_id)
+            self.store.release_dispatched(job_id, stamp)
             log.warning("job %s: could not publish it to the broker (%s); it stays queued and is published "
                         "when the broker answers", job_id, exc)
             return False
@@ -182,7 +182,7 @@ class CeleryBackend:
         s = self.settings
         # taken for publication by an API that died before the broker's answer was recorded: give them back
         for job_id, stamp in self.store.unpublished(s.publish_grace_s):
-            if self.store.release_unpublished(job_id, stamp):
+            if self.store.release_dispatched(job_id, stamp):
                 out["unconfirmed"].append(job_id)
         for job_id in self.store.undispatched():
             job = self.store.get(job_id)

@@ -446,12 +446,11 @@ class JobStore:
 
     def mark_dispatched(self, job_id: str) -> str | None:
         """Take the right to publish a queued job's task message (once per queued period): the mark
-        (``dispatched_at``, to give to :meth:`mark_published`), or None if it is taken or the job is not
-        queued."""
+        (``dispatched_at``, to give to :meth:`mark_published` or :meth:`release_dispatched`), or None if
+        it is taken or the job is not queued."""
         stamp = now_iso()
         taken = self._count(jobs.update().where((jobs.c.id == job_id) & (jobs.c.status == "queued")
-                                                & jobs.c.dispatched_at.is_(None))
-                            .values(dispatched_at=stamp, published_at=None)) == 1
+                                                & jobs.c.dispatched_at.is_(None)).values(dispatched_at=stamp)) == 1
         return stamp if taken else None
 
     def mark_published(self, job_id: str, stamp: str) -> bool:
@@ -459,10 +458,14 @@ class JobStore:
         return self._count(jobs.update().where((jobs.c.id == job_id) & (jobs.c.dispatched_at == stamp)
                                                & jobs.c.published_at.is_(None)).values(published_at=now_iso())) == 1
 
-    def undo_dispatched(self, job_id: str) -> None:
-        """The publication failed: leave the job for the next publication round."""
-        self._count(jobs.update().where((jobs.c.id == job_id) & (jobs.c.status == "queued"))
-                    .values(dispatched_at=None, published_at=None))
+    def release_dispatched(self, job_id: str, stamp: str) -> bool:
+        """Give back the mark ``stamp`` of a queued job whose message was not (or not knowingly) sent, so
+        that the next publication round sends it: its publisher's send failed (broker down), or
+        :meth:`unpublished` found it unconfirmed. Only that mark, and only while unconfirmed: a mark
+        another replica has taken since, or a confirmed one, stays."""
+        return self._count(jobs.update().where((jobs.c.id == job_id) & (jobs.c.status == "queued")
+                                               & (jobs.c.dispatched_at == stamp) & jobs.c.published_at.is_(None))
+                           .values(dispatched_at=None)) == 1
 
     def unpublished(self, grace_s: float, limit: int = 100) -> list[tuple[str, str]]:
         """(id, mark) of queued jobs taken for publication more than ``grace_s`` seconds ago whose
@@ -474,13 +477,6 @@ class JobStore:
              .order_by(jobs.c.seq).limit(int(limit)))
         with self.engine.connect() as c:
             return [(r[0], r[1]) for r in c.execute(q)]
-
-    def release_unpublished(self, job_id: str, stamp: str) -> bool:
-        """Clear the mark ``stamp`` of a job :meth:`unpublished` found, if nobody has confirmed or
-        replaced it since, so that the next publication round sends the job again."""
-        return self._count(jobs.update().where((jobs.c.id == job_id) & (jobs.c.status == "queued")
-                                               & (jobs.c.dispatched_at == stamp) & jobs.c.published_at.is_(None))
-                           .values(dispatched_at=None)) == 1
 
     def status_of(self, job_id: str) -> tuple[str, int] | None:
         """(status, attempts) of a job, or None if it is gone."""

@@ -30,11 +30,18 @@ def _new(store, job_id, owner="o"):
     return store.create(job_id=job_id, owner=owner, parameters={}, input={"path": "input/cloud.ply"}, time_limit_s=60)
 
 
-def _age_heartbeat(store, job_id, seconds_ago: float):
+def _age(store, job_id, column: str, seconds_ago: float) -> str:
+    """Set the job's timestamp ``column`` to ``seconds_ago`` seconds ago; returns the value written."""
     from service.db import jobs
     from service.store import iso_ago
+    value = iso_ago(seconds_ago)
     with store.engine.begin() as c:
-        c.execute(jobs.update().where(jobs.c.id == job_id).values(heartbeat_at=iso_ago(seconds_ago)))
+        c.execute(jobs.update().where(jobs.c.id == job_id).values({column: value}))
+    return value
+
+
+def _age_heartbeat(store, job_id, seconds_ago: float):
+    _age(store, job_id, "heartbeat_at", seconds_ago)
 
 
 def test_fresh_database_is_migrated_to_head(db_url):
@@ -152,23 +159,16 @@ def test_outbox_marks_each_queued_period_once(db_url):
     jid = "1" * 32
     _new(store, jid)
     assert store.undispatched() == [jid]
-    assert store.mark_dispatched(jid) and not store.mark_dispatched(jid)        # one publisher wins
+    stamp = store.mark_dispatched(jid)
+    assert stamp and not store.mark_dispatched(jid)                               # one publisher wins
     assert store.undispatched() == []
-    store.undo_dispatched(jid)                                                    # the broker refused it
+    assert store.release_dispatched(jid, stamp)                                   # the broker refused it
     assert store.undispatched() == [jid]
     assert store.mark_dispatched(jid)
     _, job = store.claim(jid, "w", lease_s=30, max_attempts=3)
     assert store.requeue(jid, job.attempts, "worker gone")                       # the reaper: needs publishing again
     assert store.undispatched() == [jid] and store.get(jid).heartbeat_at is None
     store.close()
-
-
-def _age_mark(store, job_id, seconds_ago: float):
-    from service.db import jobs
-    from service.store import iso_ago
-    with store.engine.begin() as c:
-        c.execute(jobs.update().where(jobs.c.id == job_id).values(dispatched_at=iso_ago(seconds_ago)))
-    return store.get(job_id).dispatched_at
 
 
 def test_a_job_taken_for_publication_and_never_confirmed_is_given_back_after_the_grace(db_url):
@@ -183,17 +183,17 @@ def test_a_job_taken_for_publication_and_never_confirmed_is_given_back_after_the
             assert store.mark_dispatched(j)
         assert store.mark_published(sent, store.get(sent).dispatched_at)
         assert not store.mark_published(sent, store.get(sent).dispatched_at)      # once
-        stamp = _age_mark(store, lost, 120)
-        _age_mark(store, sent, 120)
-        _age_mark(store, started, 120)
-        fresh_stamp = _age_mark(store, fresh, 1)
+        stamp = _age(store, lost, "dispatched_at", 120)
+        _age(store, sent, "dispatched_at", 120)
+        _age(store, started, "dispatched_at", 120)
+        fresh_stamp = _age(store, fresh, "dispatched_at", 1)
         assert store.claim(started, "w", lease_s=30, max_attempts=3)[0] == "claimed"
         assert store.unpublished(60.0) == [(lost, stamp)]
         assert store.unpublished(600.0) == []                                         # within its grace
         # a confirmation under a mark that is no longer the job's changes nothing
         assert not store.mark_published(lost, "1999-01-01T00:00:00.000+00:00")
-        assert store.release_unpublished(lost, stamp)
-        assert not store.release_unpublished(lost, stamp)                             # one reaper gives it back
+        assert store.release_dispatched(lost, stamp)
+        assert not store.release_dispatched(lost, stamp)                              # one reaper gives it back
         assert store.undispatched() == [lost]
         again = store.mark_dispatched(lost)
         assert again and store.mark_published(lost, again)

@@ -415,6 +415,41 @@ def test_disc_maximum_is_the_same_in_any_number_of_blocks_of_rows():
             np.testing.assert_array_equal(_disc_max_blocks(v, h, reach, min(nb, nx)), one)
 
 
+def test_disc_of_a_mask_is_the_distance_transform_and_the_disc_maximum():
+    """``_disc_any(mask)`` (the slab's cells within reach of material) against the distance transform
+    and against ``_disc_max(where(mask, 1, -inf)) > 0`` which it replaces, on blobs and scattered cells,
+    in any number of blocks: equal, cell for cell."""
+    from planning.toolpath.roughing.maps import _disc_any, _disc_any_kernel
+
+    rng = np.random.default_rng(23)
+    for it in range(60):
+        nx, ny = (int(v) for v in rng.integers(1, 60, 2))
+        src = _blobs(rng, nx, ny, 0.1) if it % 2 else rng.random((nx, ny)) < float(rng.uniform(0.0, 0.3))
+        h, reach = float(rng.uniform(0.1, 1.0)), float(rng.uniform(0.05, 8.0))
+        got = _disc_any(src, h, reach)
+        ref = ndimage.distance_transform_edt(~src) * h < reach if src.any() else np.zeros_like(src)
+        np.testing.assert_array_equal(got, ref)
+        np.testing.assert_array_equal(got, _disc_max(np.where(src, 1.0, -np.inf), h, reach) > 0.0)
+        for nb in (1, 2, 5):
+            np.testing.assert_array_equal(_disc_any_kernel(src, h, reach, min(nb, ny)), got)
+
+
+def test_coarse_maximum_is_the_maximum_over_blocks():
+    """``_coarse_max`` (the material map's coarse cells from raster cells) against a padded reshape,
+    with -inf cells and the last blocks clipped."""
+    from planning.toolpath.roughing.maps import _coarse_max
+
+    rng = np.random.default_rng(29)
+    for _ in range(40):
+        nx, ny = (int(v) for v in rng.integers(1, 40, 2))
+        k = int(rng.integers(1, 5))
+        v = np.where(rng.random((nx, ny)) < 0.4, rng.normal(size=(nx, ny)), -np.inf)
+        ncx, ncy = -(-nx // k), -(-ny // k)
+        pad = np.full((ncx * k, ncy * k), -np.inf)
+        pad[:nx, :ny] = v
+        np.testing.assert_array_equal(_coarse_max(v, k), pad.reshape(ncx, k, ncy, k).max(axis=(1, 3)))
+
+
 def test_square_maximum_matches_the_maximum_filter():
     rng = np.random.default_rng(12)
     for _ in range(20):

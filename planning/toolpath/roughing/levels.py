@@ -93,6 +93,7 @@ from planning.toolpath.roughing.maps import (
     Z_TOL_MM,
     _air_length,
     _coarse_max,
+    _disc_any,
     _disc_max,
     _ForbiddenMap,
     _holder_pieces,
@@ -717,7 +718,7 @@ def _slab_reader(view, grid: _Raster, fine, Rt: float):
                          start, z)
         cm = grid.cmax[ci, cj]
         has[ci, cj] = np.isfinite(tops) | ((cm > z) & (cm < z_above))
-        near[ci, cj] = _disc_max(np.where(has[ci, cj], 1.0, -np.inf), h, Rt + h) > 0.0
+        near[ci, cj] = _disc_any(has[ci, cj], h, Rt + h)
         return near, has
     return slab
 

@@ -365,6 +365,63 @@ def _disc_max_blocks(v, h, reach, nb):
     return out
 
 
+def _disc_any(mask, h, reach):
+    """``out[c]``: whether a cell c' with ``mask[c']`` has its centre closer than ``reach`` to c's
+    (the disc of :func:`_disc_max`): ``_disc_max(where(mask, 1, -inf), h, reach) > 0``, exactly, in
+    two passes over the raster instead of one per row of the disc. Since the disc's half width
+    ``w(di)`` does not grow with ``|di|``, c is reached exactly when some column j' holds, at the
+    smallest row distance ``g`` from c's row, a masked cell with ``|j - j'| <= w(g)``: the first pass
+    finds ``g`` per cell (two sweeps along the rows), the second marks each row's intervals
+    (a difference array). One block of rows per thread, as :func:`_disc_max`."""
+    m = np.ascontiguousarray(mask, dtype=np.bool_)
+    return _disc_any_kernel(m, float(h), float(reach), max(1, min(m.shape[1], numba.get_num_threads())))
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _disc_any_kernel(mask, h, reach, nb):
+    """:func:`_disc_any`: the row distances in ``nb`` blocks of columns, the intervals in ``nb``
+    blocks of rows."""
+    nx, ny = mask.shape
+    wd, K = _disc_widths(h, reach)
+    out = np.zeros((nx, ny), dtype=np.bool_)
+    if wd[0] < 0 or nx == 0 or ny == 0:
+        return out
+    far = K + 1                                  # a row distance no disc row reaches
+    g = np.empty((nx, ny), dtype=np.int64)
+    for b in prange(nb):
+        j0 = b * ny // nb
+        j1 = (b + 1) * ny // nb
+        for j in range(j0, j1):
+            g[0, j] = 0 if mask[0, j] else far
+        for i in range(1, nx):
+            for j in range(j0, j1):
+                g[i, j] = 0 if mask[i, j] else min(g[i - 1, j] + 1, far)
+        for i in range(nx - 2, -1, -1):
+            for j in range(j0, j1):
+                if g[i + 1, j] + 1 < g[i, j]:
+                    g[i, j] = g[i + 1, j] + 1
+    for b in prange(nb):
+        i0 = b * nx // nb
+        i1 = (b + 1) * nx // nb
+        diff = np.empty(ny + 1, dtype=np.int64)
+        for i in range(i0, i1):
+            diff[:] = 0
+            for j in range(ny):
+                d = g[i, j]
+                if d > K:
+                    continue
+                w = wd[d]
+                if w < 0:
+                    continue
+                diff[max(0, j - w)] += 1
+                diff[min(ny, j + w + 1)] -= 1
+            run = 0
+            for j in range(ny):
+                run += diff[j]
+                out[i, j] = run > 0
+    return out
+
+
 # ----------------------------------------------------------------------------------------------
 # The remaining-material map
 # ----------------------------------------------------------------------------------------------
@@ -651,11 +708,25 @@ def _stock_tops(stock_pts, grid: _Raster, spacing, floor_map=None):
 def _coarse_max(fine, k=TOP_CELLS):
     """The maximum over blocks of k x k cells (the last blocks clipped): the material map's coarse
     cells from raster cells, (ceil(nx / k), ceil(ny / k))."""
+    return _coarse_max_kernel(np.ascontiguousarray(fine, dtype=np.float64), int(k))
+
+
+@njit(cache=True, nogil=True)
+def _coarse_max_kernel(fine, k):
+    """:func:`_coarse_max` in one pass over ``fine`` (NaN-free: the planners' heights are finite or
+    -inf)."""
     nx, ny = fine.shape
     ncx, ncy = -(-nx // k), -(-ny // k)
-    pad = np.full((ncx * k, ncy * k), -np.inf)
-    pad[:nx, :ny] = fine
-    return pad.reshape(ncx, k, ncy, k).max(axis=(1, 3))
+    out = np.full((ncx, ncy), -np.inf)
+    for i in range(nx):
+        ci = i // k
+        for cj in range(ncy):
+            m = out[ci, cj]
+            for j in range(cj * k, min(cj * k + k, ny)):
+                if fine[i, j] > m:
+                    m = fine[i, j]
+            out[ci, cj] = m
+    return out
 
 
 @njit(cache=True, nogil=True)

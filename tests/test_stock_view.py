@@ -800,6 +800,24 @@ def test_pieces_ends_and_links_that_meet_no_material_on_the_stock_are_not_fed():
     assert got is not None and 4.0 - k * part <= got[0][0, 0] <= 5.0 - (k - 1) * part
     assert got[0][1, 0] == pytest.approx(10.0)
     assert got[1][0] // 40 == int(math.floor(got[0][0, 0] / 0.5)) and got[1][1] == lc[1] and got[1][0] % 40 == 6
+    # a line or chain whose two end moves meet material stays whole, material or not between them, and
+    # only those two moves are asked of the stock; the same pieces with an end in air are still trimmed
+    asked = []
+
+    def meets_ends(a, b, z):                          # material beyond x = 8 and before x = 2
+        asked.append(a.shape[0])
+        return (np.maximum(a[:, 0], b[:, 0]) > 8.0) | (np.minimum(a[:, 0], b[:, 0]) < 2.0)
+
+    for piece, pc, is_line in ((chain, cells, False), (np.array([[0.0, 3.0], [10.0, 3.0]]), lc, True)):
+        asked.clear()
+        got = _exact_ends(air, piece, pc, 40, meets_ends, 0.0, False, is_line)
+        assert got[0] is piece and got[1] is pc and asked == [2]
+    asked.clear()                                      # from x = 3: its first move in air, every move asked
+    got = _exact_ends(air, chain[3:], cells[3:], 40, meets_ends, 0.0, False, False)
+    assert asked == [2, chain.shape[0] - 4] and np.allclose(got[0], chain[8 - k:])
+    asked.clear()
+    got = _exact_ends(air, np.array([[3.0, 3.0], [10.0, 3.0]]), lc, 40, meets_ends, 0.0, False, True)
+    assert len(asked) == 2 and asked[0] == 2 and 7.0 - k * part <= got[0][0, 0] <= 8.0 - (k - 1) * part
 
     cloud_f, stock, frame, lo, kw = _dome_case()
     kw["rapid_clearance_mm"] = 0.5

@@ -193,6 +193,16 @@ def _longest_cyclic_run(flag: np.ndarray) -> tuple[int, int]:
     return (int(starts[k]) + r) % m, int(ends[k] - starts[k])
 
 
+def _ends_meet(meets, pts: np.ndarray, z: float) -> bool:
+    """Whether the first and the last move of the polyline ``pts`` (k,2), k >= 2, both meet material
+    (``meets`` of :func:`_exact_ends`, both asked at once)."""
+    k = pts.shape[0] - 1
+    if k < 1:
+        return False
+    idx = np.array([0, k - 1]) if k > 1 else np.array([0])
+    return bool(np.asarray(meets(pts[idx], pts[idx + 1], z), dtype=bool).all())
+
+
 def _exact_ends(air: _LevelAir, xy: np.ndarray, cells: np.ndarray, ny: int, meets, z: float, loop: bool,
                 line: bool):
     """A piece (after :meth:`_LevelAir.trim` / :meth:`_LevelAir.trim_chain`) without its leading and
@@ -200,13 +210,17 @@ def _exact_ends(air: _LevelAir, xy: np.ndarray, cells: np.ndarray, ny: int, meet
     a closed chain opened at its longest run of such moves, a line cut to whole parts of about
     LINE_PART_RT x Rt: (xy, cells), or None when no move meets material. The moves are asked all at once
     of the stock as the level's cuts so far left it: a move that meets nothing there meets nothing when
-    it is cut, so no material a piece would cut is lost."""
+    it is cut, so no material a piece would cut is lost. A line or an open chain whose first and last
+    moves both meet material is kept whole after asking only those two (what the others meet cannot
+    change its ends); the other moves are asked only when an end meets nothing."""
     if line:
         a, b = xy[0], xy[-1]
         L = float(np.hypot(*(b - a)))
         n = max(1, int(math.ceil(L / (LINE_PART_RT * air.Rt))))
         t = np.linspace(0.0, 1.0, n + 1)
         pts = a[None, :] + t[:, None] * (b - a)[None, :]
+        if _ends_meet(meets, pts, z):
+            return xy, cells
         hit = np.asarray(meets(pts[:-1], pts[1:], z), dtype=bool)
         if not hit.any():
             return None
@@ -220,6 +234,8 @@ def _exact_ends(air: _LevelAir, xy: np.ndarray, cells: np.ndarray, ny: int, meet
         ends = np.array([pts[k0], pts[k1 + 1]])
         ii = np.clip(np.floor((ends[:, 0] - air.x0) / air.h).astype(np.int64), lo_i, hi_i)
         return ends, ii * ny + j
+    if not loop and _ends_meet(meets, xy, z):
+        return xy, cells
     hit = np.asarray(meets(xy[:-1], xy[1:], z), dtype=bool)
     if not hit.any():
         return None

@@ -633,11 +633,8 @@ def collides(model: TriDexel, start, end, axis, shape: ToolShape, which: str = "
     return out
 
 
-#: Queries of :func:`column_rise` from this many run one per thread; fewer are each split among the
-#: threads (:data:`RISE_PARTS`), or run on the serial kernel when numba has one thread.
+#: Queries of :func:`column_rise` below this many run on the calling thread's serial kernel.
 RISE_SERIAL = 8
-#: Fewer queries than RISE_SERIAL are each split into this many parts of their rays per thread.
-RISE_PARTS = 4
 
 
 def column_rise(model: TriDexel, tips, axis, length_mm, shape: ToolShape, *, grow_mm: float = 0.0,
@@ -684,16 +681,11 @@ def column_rise(model: TriDexel, tips, axis, length_mm, shape: ToolShape, *, gro
     # beyond this length along the axis from any tip the line has left the domain
     reach = (float(np.linalg.norm(model.hi - model.lo)) + float(np.abs(p - model.lo).max()) * 2.0
              + float(np.abs(d).max()) * 2.0 + 1.0)
-    args = (model.lo, model.res, model.n, model.base, model.off, model.cnt, model.pool, p, a,
-            np.maximum(length, 0.0), np.ascontiguousarray(d), pk, pz0, np.where(np.isfinite(pz1), pz1, 1e300), pr,
-            float(grow_mm), float(tol_mm), reach)
-    threads = numba.get_num_threads()
-    if Q >= RISE_SERIAL:
-        K.column_rise_parallel(*args, out)
-    elif threads > 1:       # a few queries: each one's rays split among the threads (the same answer)
-        K.column_rise_rays(*args, RISE_PARTS * threads, out)
-    else:
-        K.column_rise(*args, out)
+    kern = K.column_rise if Q < RISE_SERIAL else K.column_rise_parallel
+    kern(model.lo, model.res, model.n, model.base, model.off, model.cnt, model.pool, p, a,
+         np.maximum(length, 0.0), np.ascontiguousarray(d), pk, pz0, np.where(np.isfinite(pz1), pz1, 1e300), pr,
+         float(grow_mm),
+         float(tol_mm), reach, out)
     return out
 
 

@@ -1317,13 +1317,8 @@ def _clip_quad(a, b, c, lo_t, hi_t):
 
 
 @njit(cache=True)
-def _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow, tol, reach,
-              part=0, nparts=1):
-    """:func:`column_rise` for query ``q``, over the rows of rays ``j0 + part, j0 + part + nparts, ...`` of
-    every family (all of them with the defaults). The answer is the highest accepted height over the
-    rays, capped at the length: a row split gives parts whose maximum is the whole answer, exactly (a
-    part prunes only what cannot exceed its own best, and each height is computed the same way
-    whichever part meets it first)."""
+def _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow, tol, reach):
+    """:func:`column_rise` for query ``q``."""
     S = length[q]
     rmax = 0.0
     zbot = _INF
@@ -1394,7 +1389,7 @@ def _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, 
         i1 = min(n[ua] - 1, int(math.floor((hi_u + rmax - lo[ua]) / res - 0.5)))
         j0 = max(0, int(math.ceil((lo_v - rmax - lo[va]) / res - 0.5)))
         j1 = min(n[va] - 1, int(math.floor((hi_v + rmax - lo[va]) / res - 0.5)))
-        for j in range(j0 + part, j1 + 1, nparts):
+        for j in range(j0, j1 + 1):
             for i in range(i0, i1 + 1):
                 r = base[f] + j * n[ua] + i
                 c = cnt[r]
@@ -1522,23 +1517,6 @@ def column_rise(lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, p
     for q in range(tips.shape[0]):
         out[q] = _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow,
                            tol, reach)
-
-
-@njit(parallel=True, cache=True)
-def column_rise_rays(lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow, tol, reach,
-                     nparts, out):
-    """:func:`column_rise` for a few queries, each on every thread: its rows of rays in ``nparts``
-    interleaved parts (:func:`_rise_one`), the parts' answers' maximum (the same answer as one pass)."""
-    Q = tips.shape[0]
-    vals = np.empty(Q * nparts)
-    for t in prange(Q * nparts):
-        vals[t] = _rise_one(t // nparts, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr,
-                            grow, tol, reach, t % nparts, nparts)
-    for q in range(Q):
-        m = -_INF
-        for p in range(nparts):
-            m = max(m, vals[q * nparts + p])
-        out[q] = m
 
 
 @njit(parallel=True, cache=True)

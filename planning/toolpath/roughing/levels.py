@@ -666,12 +666,9 @@ class _LiveStock:
         # the material left above this level (it only ever goes down: read from the last top down;
         # where nothing is above the stop, the stop bounds what may be left below it)
         stop = z - g.h
-        old = self.top[oi, oj]
-        start = np.where(old > -np.inf, old + 1e-9, -np.inf)
         top = self.view.tops(g.x0 + oi.start * g.h, g.y0 + oj.start * g.h, g.h, oi.stop - oi.start,
-                             oj.stop - oj.start, start, stop)
-        top = np.where(np.isfinite(top), top, np.where(old > -np.inf, np.minimum(old, stop), -np.inf))
-        self.top[oi, oj] = np.maximum(top, g.cmax[oi, oj])
+                             oj.stop - oj.start, _read_start(self.top[oi, oj]), stop)
+        _lower_tops(self.top[oi, oj], top, stop, g.cmax[oi, oj])
         # an upper bound of the view's material, kept over the inner cells (their discs lie in the outer)
         bound_o = _disc_max(self.top[oi, oj], g.h, self.grow)
         # the line along the frame's Z is read on one ray family and misses slivers thinner than a ray
@@ -679,24 +676,73 @@ class _LiveStock:
         # the range femur, 30 mm above the level, which the holder met): the stock's boundary points,
         # every family, grown as the first reading was (:func:`_stock_tops`), keep the bound above them
         _stamp_max(bound_o, self._boundary_tops(oi, oj, stop), self.top[oi, oj], g.h, self.grow)
-        inner = (slice(ii.start - oi.start, ii.stop - oi.start), slice(ij.start - oj.start, ij.stop - oj.start))
-        bound = bound_o[inner]
-        read = self.top[ii, ij]
-        if self.obstacles is not None:
-            bound = np.maximum(bound, self.obstacles[ii, ij])
-            read = np.maximum(read, self.obstacles[ii, ij])
         ci = slice(ii.start // TOP_CELLS, -(-ii.stop // TOP_CELLS))
         cj = slice(ij.start // TOP_CELLS, -(-ij.stop // TOP_CELLS))
-        np.minimum(mat.top[ci, cj], _coarse_max(bound), out=mat.top[ci, cj])
-        if ent.use_fine:
-            # whether there is material under the tool: the bound; where a helix or ramp starts: the
-            # material as read (not grown: beside a wall the growth reaches the part's top), the rapid
-            # down to it being checked on the view
-            if ent.fine_start is None:     # the entries' own arrays (``fine`` is the caller's), once
-                ent.fine = np.array(ent.fine)
-                ent.fine_start = ent.fine.copy()
-            ent.fine[ii, ij] = np.minimum(ent.fine[ii, ij], bound)
-            ent.fine_start[ii, ij] = np.minimum(ent.fine[ii, ij], read)
+        if ent.use_fine and ent.fine_start is None:     # the entries' own arrays (``fine`` is the caller's), once
+            ent.fine = np.array(ent.fine)
+            ent.fine_start = ent.fine.copy()
+        # over the inner cells (their discs lie in the outer): the bound and the reading raised to the
+        # obstacles; the material map lowered to the bound's maximum per coarse cell; with the entries'
+        # fine maps, whether there is material under the tool: the bound; where a helix or ramp starts:
+        # the material as read (not grown: beside a wall the growth reaches the part's top), the rapid
+        # down to it being checked on the view
+        empty = np.zeros((0, 0))
+        if mat.top[ci, cj].shape != (-(-(ii.stop - ii.start) // TOP_CELLS), -(-(ij.stop - ij.start) // TOP_CELLS)):
+            raise AssertionError("the material map's coarse cells do not cover the inner cells")
+        _lower_maps(bound_o, ii.start - oi.start, ij.start - oj.start, self.top[ii, ij],
+                    empty if self.obstacles is None else self.obstacles[ii, ij], mat.top[ci, cj], TOP_CELLS,
+                    ent.fine[ii, ij] if ent.use_fine else empty, ent.fine_start[ii, ij] if ent.use_fine else empty)
+
+
+@njit(cache=True, nogil=True)
+def _read_start(old):
+    """Where :meth:`_LiveStock.advance` starts reading each cell: just above its last top (-inf: none)."""
+    out = np.empty(old.shape)
+    for i in range(old.shape[0]):
+        for j in range(old.shape[1]):
+            out[i, j] = old[i, j] + 1e-9 if old[i, j] > -np.inf else -np.inf
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _lower_tops(top, read, stop, cmax):
+    """``top`` (in place) lowered to the new reading (where the reading met nothing above ``stop``, to
+    the stop: what is left lies below it), never below ``cmax`` (the part itself)."""
+    for i in range(top.shape[0]):
+        for j in range(top.shape[1]):
+            r = read[i, j]
+            if not np.isfinite(r):
+                r = min(top[i, j], stop) if top[i, j] > -np.inf else -np.inf
+            top[i, j] = max(r, cmax[i, j])
+
+
+@njit(cache=True, nogil=True)
+def _lower_maps(bound_o, di, dj, read, obstacles, mat_top, k, fine, fine_start):
+    """:meth:`_LiveStock.advance`'s last step over the inner cells (``read`` (ni, nj), the bound at
+    ``bound_o[di + i, dj + j]``): both raised to ``obstacles`` (when not empty); ``mat_top`` (coarse
+    cells of k x k from the inner box's corner, in place) lowered to the bound's maximum per coarse
+    cell; ``fine`` lowered to the bound and ``fine_start`` to the lowered ``fine`` and the reading (both
+    in place, when not empty)."""
+    ni, nj = read.shape
+    obs = obstacles.shape[0] > 0
+    use_fine = fine.shape[0] > 0
+    coarse = np.full(mat_top.shape, -np.inf)
+    for i in range(ni):
+        for j in range(nj):
+            b = bound_o[di + i, dj + j]
+            r = read[i, j]
+            if obs:
+                b = max(b, obstacles[i, j])
+                r = max(r, obstacles[i, j])
+            if b > coarse[i // k, j // k]:
+                coarse[i // k, j // k] = b
+            if use_fine:
+                f = min(fine[i, j], b)
+                fine[i, j] = f
+                fine_start[i, j] = min(f, r)
+    for i in range(mat_top.shape[0]):
+        for j in range(mat_top.shape[1]):
+            mat_top[i, j] = min(mat_top[i, j], coarse[i, j])
 
 
 def _slab_reader(view, grid: _Raster, fine, Rt: float):

@@ -524,6 +524,18 @@ def test_column_rise_is_where_the_swept_test_clears_within_its_tolerance(shape):
     one = np.array([column_rise(stock, tips[k:k + 1], ax, length[k], shape, grow_mm=0.5, tol_mm=tol)[0]
                     for k in range(0, 300, 37)])
     np.testing.assert_array_equal(one, s[::37])
+    # the row segments passed over by their material bounds change nothing: every ray read gives the same
+    np.testing.assert_array_equal(column_rise(_every_ray_read(stock), tips, ax, length, shape, grow_mm=0.5,
+                                              tol_mm=tol), s)
+
+
+def _every_ray_read(stock: TriDexel) -> TriDexel:
+    """A copy of ``stock`` whose row segments' material bounds say every segment may hold material
+    anywhere: the kernels that pass segments over by those bounds then read every ray."""
+    out = stock.copy()
+    out.seg_lo[:] = -np.inf
+    out.seg_hi[:] = np.inf
+    return out
 
 
 @pytest.mark.parametrize("shape", [
@@ -572,3 +584,6 @@ def test_column_rise_of_a_rapid_across_is_where_the_swept_rapids_clear(shape):
     # a rapid never met: -inf, and the rapid at its start height clears
     never = ~np.isfinite(s)
     assert not hits(np.zeros(a.shape[0]))[never].any()
+    # the row segments passed over by their material bounds change nothing
+    np.testing.assert_array_equal(column_rise(_every_ray_read(stock), a, ax, length, shape, grow_mm=0.5, tol_mm=tol,
+                                              sweep=d), s)

@@ -684,8 +684,7 @@ def column_rise(model: TriDexel, tips, axis, length_mm, shape: ToolShape, *, gro
     kern = K.column_rise if Q < RISE_SERIAL else K.column_rise_parallel
     kern(model.lo, model.res, model.n, model.base, model.off, model.cnt, model.pool, p, a,
          np.maximum(length, 0.0), np.ascontiguousarray(d), pk, pz0, np.where(np.isfinite(pz1), pz1, 1e300), pr,
-         float(grow_mm),
-         float(tol_mm), reach, out)
+         float(grow_mm), float(tol_mm), reach, model.sbase, model.nseg, model.seg_lo, model.seg_hi, out)
     return out
 
 

@@ -1317,8 +1317,12 @@ def _clip_quad(a, b, c, lo_t, hi_t):
 
 
 @njit(cache=True)
-def _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow, tol, reach):
-    """:func:`column_rise` for query ``q``."""
+def _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow, tol, reach,
+              sbase, nseg, seg_lo, seg_hi):
+    """:func:`column_rise` for query ``q``. A row segment of SEG rays (``sbase``, ``nseg``, ``seg_lo``,
+    ``seg_hi``: the model's bounds of the material along its rays, +inf/-inf when empty) whose material
+    lies wholly outside the swept column's extent along the rays (grown by the largest radius and a ray
+    spacing) is passed over without reading its rays: none of them can meet the tool."""
     S = length[q]
     rmax = 0.0
     zbot = _INF
@@ -1377,131 +1381,148 @@ def _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, 
         hi_u = -_INF
         lo_v = _INF
         hi_v = -_INF
+        lo_f = _INF
+        hi_f = -_INF
         for lam in (0.0, 1.0):
             for zz in (zbot, zlim):
                 cu = tips[q, ua] + lam * sweep[q, ua] + zz * ax[ua]
                 cv = tips[q, va] + lam * sweep[q, va] + zz * ax[va]
+                cf = tips[q, f] + lam * sweep[q, f] + zz * ax[f]
                 lo_u = min(lo_u, cu)
                 hi_u = max(hi_u, cu)
                 lo_v = min(lo_v, cv)
                 hi_v = max(hi_v, cv)
+                lo_f = min(lo_f, cf)
+                hi_f = max(hi_f, cf)
+        # along the rays every point of the tool lies within rmax of that parallelogram
+        lo_f -= rmax + res
+        hi_f += rmax + res
         i0 = max(0, int(math.ceil((lo_u - rmax - lo[ua]) / res - 0.5)))
         i1 = min(n[ua] - 1, int(math.floor((hi_u + rmax - lo[ua]) / res - 0.5)))
         j0 = max(0, int(math.ceil((lo_v - rmax - lo[va]) / res - 0.5)))
         j1 = min(n[va] - 1, int(math.floor((hi_v + rmax - lo[va]) / res - 0.5)))
         for j in range(j0, j1 + 1):
-            for i in range(i0, i1 + 1):
-                r = base[f] + j * n[ua] + i
-                c = cnt[r]
-                if c == 0:
+            i_at = i0
+            while i_at <= i1:
+                sg = sbase[f] + j * nseg[f] + i_at // SEG
+                i_end = min(i1, (i_at // SEG) * SEG + SEG - 1)
+                if seg_lo[sg] > hi_f or seg_hi[sg] < lo_f:
+                    i_at = i_end + 1
                     continue
-                # the ray O + t e_f (O at 0 along f), w = O - tip: across the axis at
-                # (ax_, ay_) + t (bx, by), along it at zw + t uf
-                w[f] = -tips[q, f]
-                w[ua] = lo[ua] + (i + 0.5) * res - tips[q, ua]
-                w[va] = lo[va] + (j + 0.5) * res - tips[q, va]
-                zw = w[0] * ax[0] + w[1] * ax[1] + w[2] * ax[2]
-                ax_ = w[0] * e1[0] + w[1] * e1[1] + w[2] * e1[2]
-                ay_ = w[0] * e2[0] + w[1] * e2[1] + w[2] * e2[2]
-                # where the ray is within rmax of the sweep across the axis (a convex set: one interval,
-                # the hull of the two end discs and the strip between them)
-                ta, tb = _clip_quad(a, ax_ * bx + ay_ * by, ax_ * ax_ + ay_ * ay_ - r2, -_INF, _INF)
-                if dl > 0.0:
-                    t1a, t1b = _clip_quad(a, (ax_ - dl) * bx + ay_ * by, (ax_ - dl) * (ax_ - dl) + ay_ * ay_ - r2,
-                                          -_INF, _INF)
-                    if t1a <= t1b:
-                        if ta <= tb:
-                            ta, tb = min(ta, t1a), max(tb, t1b)
-                        else:
-                            ta, tb = t1a, t1b
-                    # the strip: 0 <= ax_ + t bx <= dl and |ay_ + t by| <= rmax
-                    sa, sb = _clip_quad(by * by, ay_ * by, ay_ * ay_ - r2, -_INF, _INF)
-                    if abs(bx) > 1e-12:
-                        x1 = -ax_ / bx
-                        x2 = (dl - ax_) / bx
-                        sa = max(sa, min(x1, x2))
-                        sb = min(sb, max(x1, x2))
-                    elif ax_ < 0.0 or ax_ > dl:
-                        sa, sb = 1.0, 0.0
-                    if sa <= sb:
-                        if ta <= tb:
-                            ta, tb = min(ta, sa), max(tb, sb)
-                        else:
-                            ta, tb = sa, sb
-                if not ta <= tb:
-                    continue
-                # between zbot and zlim along the axis
-                if abs(uf) > 1e-12:
-                    t1 = (zbot - zw) / uf
-                    t2 = (zlim - zw) / uf
-                    ta = max(ta, min(t1, t2))
-                    tb = min(tb, max(t1, t2))
-                elif zw < zbot or zw > zlim:
-                    continue
-                if not ta < tb:
-                    continue
-                o = off[r]
-                k = _first_above(pool, o, c, ta)
-                while k < c and pool[o + k, 0] < tb:
-                    s0 = max(pool[o + k, 0], ta)
-                    s1 = min(pool[o + k, 1], tb)
-                    k += 1
-                    if not s0 < s1:
+                first = i_at
+                i_at = i_end + 1
+                for i in range(first, i_end + 1):
+                    r = base[f] + j * n[ua] + i
+                    c = cnt[r]
+                    if c == 0:
                         continue
-                    stack_a[0] = s0
-                    stack_b[0] = s1
-                    top = 1
-                    while top > 0:
-                        top -= 1
-                        x0 = stack_a[top]
-                        x1 = stack_b[top]
-                        # the nearest point of the piece to the sweep across the axis: an end of the
-                        # piece, the point of it nearest an end of the sweep, or where they cross
-                        tv = x0
-                        dmin = _seg_dist(ax_ + x0 * bx, ay_ + x0 * by, dl)
-                        dd = _seg_dist(ax_ + x1 * bx, ay_ + x1 * by, dl)
-                        if dd < dmin:
-                            dmin, tv = dd, x1
-                        if a > 1e-12:
-                            for cx in (0.0, dl):
-                                tt = min(max(-((ax_ - cx) * bx + ay_ * by) / a, x0), x1)
-                                dd = _seg_dist(ax_ + tt * bx, ay_ + tt * by, dl)
-                                if dd < dmin:
-                                    dmin, tv = dd, tt
-                            if dl > 0.0 and abs(by) > 1e-12:
-                                tt = -ay_ / by
-                                if x0 <= tt <= x1 and 0.0 <= ax_ + tt * bx <= dl:
-                                    dmin, tv = 0.0, tt
-                        hb = _hull_bottom(dmin, pk, pz0, pr, grow)
-                        if hb == _INF:
+                    # the ray O + t e_f (O at 0 along f), w = O - tip: across the axis at
+                    # (ax_, ay_) + t (bx, by), along it at zw + t uf
+                    w[f] = -tips[q, f]
+                    w[ua] = lo[ua] + (i + 0.5) * res - tips[q, ua]
+                    w[va] = lo[va] + (j + 0.5) * res - tips[q, va]
+                    zw = w[0] * ax[0] + w[1] * ax[1] + w[2] * ax[2]
+                    ax_ = w[0] * e1[0] + w[1] * e1[1] + w[2] * e1[2]
+                    ay_ = w[0] * e2[0] + w[1] * e2[1] + w[2] * e2[2]
+                    # where the ray is within rmax of the sweep across the axis (a convex set: one interval,
+                    # the hull of the two end discs and the strip between them)
+                    ta, tb = _clip_quad(a, ax_ * bx + ay_ * by, ax_ * ax_ + ay_ * ay_ - r2, -_INF, _INF)
+                    if dl > 0.0:
+                        t1a, t1b = _clip_quad(a, (ax_ - dl) * bx + ay_ * by, (ax_ - dl) * (ax_ - dl) + ay_ * ay_ - r2,
+                                              -_INF, _INF)
+                        if t1a <= t1b:
+                            if ta <= tb:
+                                ta, tb = min(ta, t1a), max(tb, t1b)
+                            else:
+                                ta, tb = t1a, t1b
+                        # the strip: 0 <= ax_ + t bx <= dl and |ay_ + t by| <= rmax
+                        sa, sb = _clip_quad(by * by, ay_ * by, ay_ * ay_ - r2, -_INF, _INF)
+                        if abs(bx) > 1e-12:
+                            x1 = -ax_ / bx
+                            x2 = (dl - ax_) / bx
+                            sa = max(sa, min(x1, x2))
+                            sb = min(sb, max(x1, x2))
+                        elif ax_ < 0.0 or ax_ > dl:
+                            sa, sb = 1.0, 0.0
+                        if sa <= sb:
+                            if ta <= tb:
+                                ta, tb = min(ta, sa), max(tb, sb)
+                            else:
+                                ta, tb = sa, sb
+                    if not ta <= tb:
+                        continue
+                    # between zbot and zlim along the axis
+                    if abs(uf) > 1e-12:
+                        t1 = (zbot - zw) / uf
+                        t2 = (zlim - zw) / uf
+                        ta = max(ta, min(t1, t2))
+                        tb = min(tb, max(t1, t2))
+                    elif zw < zbot or zw > zlim:
+                        continue
+                    if not ta < tb:
+                        continue
+                    o = off[r]
+                    k = _first_above(pool, o, c, ta)
+                    while k < c and pool[o + k, 0] < tb:
+                        s0 = max(pool[o + k, 0], ta)
+                        s1 = min(pool[o + k, 1], tb)
+                        k += 1
+                        if not s0 < s1:
                             continue
-                        upper = max(zw + x0 * uf, zw + x1 * uf) - hb
-                        if upper < best or (upper == best and met):
-                            continue
-                        # lower: the height needed at the ends and at the nearest point
-                        lower = zw + tv * uf - hb
-                        for x in (x0, x1):
-                            hx = _hull_bottom(_seg_dist(ax_ + x * bx, ay_ + x * by, dl), pk, pz0, pr, grow)
-                            if hx < _INF:
-                                lower = max(lower, zw + x * uf - hx)
-                        if upper - lower <= tol or top >= 62:
-                            best = upper
-                            met = True
-                        else:
-                            mid = 0.5 * (x0 + x1)
-                            stack_a[top] = x0
-                            stack_b[top] = mid
-                            stack_a[top + 1] = mid
-                            stack_b[top + 1] = x1
-                            top += 2
-                    if met and best >= S:
-                        return S
+                        stack_a[0] = s0
+                        stack_b[0] = s1
+                        top = 1
+                        while top > 0:
+                            top -= 1
+                            x0 = stack_a[top]
+                            x1 = stack_b[top]
+                            # the nearest point of the piece to the sweep across the axis: an end of the
+                            # piece, the point of it nearest an end of the sweep, or where they cross
+                            tv = x0
+                            dmin = _seg_dist(ax_ + x0 * bx, ay_ + x0 * by, dl)
+                            dd = _seg_dist(ax_ + x1 * bx, ay_ + x1 * by, dl)
+                            if dd < dmin:
+                                dmin, tv = dd, x1
+                            if a > 1e-12:
+                                for cx in (0.0, dl):
+                                    tt = min(max(-((ax_ - cx) * bx + ay_ * by) / a, x0), x1)
+                                    dd = _seg_dist(ax_ + tt * bx, ay_ + tt * by, dl)
+                                    if dd < dmin:
+                                        dmin, tv = dd, tt
+                                if dl > 0.0 and abs(by) > 1e-12:
+                                    tt = -ay_ / by
+                                    if x0 <= tt <= x1 and 0.0 <= ax_ + tt * bx <= dl:
+                                        dmin, tv = 0.0, tt
+                            hb = _hull_bottom(dmin, pk, pz0, pr, grow)
+                            if hb == _INF:
+                                continue
+                            upper = max(zw + x0 * uf, zw + x1 * uf) - hb
+                            if upper < best or (upper == best and met):
+                                continue
+                            # lower: the height needed at the ends and at the nearest point
+                            lower = zw + tv * uf - hb
+                            for x in (x0, x1):
+                                hx = _hull_bottom(_seg_dist(ax_ + x * bx, ay_ + x * by, dl), pk, pz0, pr, grow)
+                                if hx < _INF:
+                                    lower = max(lower, zw + x * uf - hx)
+                            if upper - lower <= tol or top >= 62:
+                                best = upper
+                                met = True
+                            else:
+                                mid = 0.5 * (x0 + x1)
+                                stack_a[top] = x0
+                                stack_b[top] = mid
+                                stack_a[top + 1] = mid
+                                stack_b[top + 1] = x1
+                                top += 2
+                        if met and best >= S:
+                            return S
     return best if met else -_INF
 
 
 @njit(cache=True)
 def column_rise(lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow, tol, reach,
-                out):
+                sbase, nseg, seg_lo, seg_hi, out):
     """Per query ``q`` the highest position ``s`` in ``[0, length[q]]`` (mm along the unit tool axis
     ``ax`` from the tip ``tips[q]``) at which the tool's pieces (``pk``, ``pz0``, ``pz1``, ``pr`` as
     :func:`planning.simulate.dexel.tool_pieces`), grown by ``grow``, meet the material on a ray
@@ -1516,13 +1537,13 @@ def column_rise(lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, p
     infinite holder)."""
     for q in range(tips.shape[0]):
         out[q] = _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow,
-                           tol, reach)
+                           tol, reach, sbase, nseg, seg_lo, seg_hi)
 
 
 @njit(parallel=True, cache=True)
 def column_rise_parallel(lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow, tol,
-                         reach, out):
+                         reach, sbase, nseg, seg_lo, seg_hi, out):
     """:func:`column_rise` over the queries on every thread."""
     for q in prange(tips.shape[0]):
         out[q] = _rise_one(q, lo, res, n, base, off, cnt, pool, tips, ax, length, sweep, pk, pz0, pz1, pr, grow,
-                           tol, reach)
+                           tol, reach, sbase, nseg, seg_lo, seg_hi)

@@ -666,9 +666,12 @@ class _LiveStock:
         # the material left above this level (it only ever goes down: read from the last top down;
         # where nothing is above the stop, the stop bounds what may be left below it)
         stop = z - g.h
+        # (the kernels take whole arrays and the crop's corner: a view of a crop is contiguous or not
+        # with the crop's width, and each layout would be a compilation of its own)
         top = self.view.tops(g.x0 + oi.start * g.h, g.y0 + oj.start * g.h, g.h, oi.stop - oi.start,
-                             oj.stop - oj.start, _read_start(self.top[oi, oj]), stop)
-        _lower_tops(self.top[oi, oj], top, stop, g.cmax[oi, oj])
+                             oj.stop - oj.start, _read_start(self.top, oi.start, oj.start, oi.stop - oi.start,
+                                                             oj.stop - oj.start), stop)
+        _lower_tops(self.top, oi.start, oj.start, top, stop, _c(g.cmax))
         # an upper bound of the view's material, kept over the inner cells (their discs lie in the outer)
         bound_o = _disc_max(self.top[oi, oj], g.h, self.grow)
         # the line along the frame's Z is read on one ray family and misses slivers thinner than a ray
@@ -687,62 +690,77 @@ class _LiveStock:
         # the material as read (not grown: beside a wall the growth reaches the part's top), the rapid
         # down to it being checked on the view
         empty = np.zeros((0, 0))
+        for a in (self.top, mat.top) + ((ent.fine, ent.fine_start) if ent.use_fine else ()):
+            if not (a.flags.c_contiguous and a.dtype == np.float64):
+                raise AssertionError("the live stock's maps are changed in place: C-contiguous float arrays")
         if mat.top[ci, cj].shape != (-(-(ii.stop - ii.start) // TOP_CELLS), -(-(ij.stop - ij.start) // TOP_CELLS)):
             raise AssertionError("the material map's coarse cells do not cover the inner cells")
-        _lower_maps(bound_o, ii.start - oi.start, ij.start - oj.start, self.top[ii, ij],
-                    empty if self.obstacles is None else self.obstacles[ii, ij], mat.top[ci, cj], TOP_CELLS,
-                    ent.fine[ii, ij] if ent.use_fine else empty, ent.fine_start[ii, ij] if ent.use_fine else empty)
+        _lower_maps(bound_o, ii.start - oi.start, ij.start - oj.start, self.top, ii.start, ij.start,
+                    ii.stop - ii.start, ij.stop - ij.start, empty if self.obstacles is None else _c(self.obstacles),
+                    mat.top, ci.start, cj.start, TOP_CELLS, ent.fine if ent.use_fine else empty,
+                    ent.fine_start if ent.use_fine else empty)
+
+
+def _c(a: np.ndarray) -> np.ndarray:
+    """``a`` as a C-contiguous float array (itself when it is one): the layout the kernels below are
+    compiled for."""
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 @njit(cache=True, nogil=True)
-def _read_start(old):
-    """Where :meth:`_LiveStock.advance` starts reading each cell: just above its last top (-inf: none)."""
-    out = np.empty(old.shape)
-    for i in range(old.shape[0]):
-        for j in range(old.shape[1]):
-            out[i, j] = old[i, j] + 1e-9 if old[i, j] > -np.inf else -np.inf
+def _read_start(top, i0, j0, ni, nj):
+    """Where :meth:`_LiveStock.advance` starts reading each cell of the crop (``ni`` x ``nj`` cells of
+    ``top`` from (i0, j0)): just above its last top (-inf: none)."""
+    out = np.empty((ni, nj))
+    for i in range(ni):
+        for j in range(nj):
+            v = top[i0 + i, j0 + j]
+            out[i, j] = v + 1e-9 if v > -np.inf else -np.inf
     return out
 
 
 @njit(cache=True, nogil=True)
-def _lower_tops(top, read, stop, cmax):
-    """``top`` (in place) lowered to the new reading (where the reading met nothing above ``stop``, to
-    the stop: what is left lies below it), never below ``cmax`` (the part itself)."""
-    for i in range(top.shape[0]):
-        for j in range(top.shape[1]):
+def _lower_tops(top, i0, j0, read, stop, cmax):
+    """``top`` over the crop of ``read``'s shape from (i0, j0), in place, lowered to the new reading
+    (where the reading met nothing above ``stop``, to the stop: what is left lies below it), never below
+    ``cmax`` (the part itself)."""
+    for i in range(read.shape[0]):
+        for j in range(read.shape[1]):
             r = read[i, j]
+            t = top[i0 + i, j0 + j]
             if not np.isfinite(r):
-                r = min(top[i, j], stop) if top[i, j] > -np.inf else -np.inf
-            top[i, j] = max(r, cmax[i, j])
+                r = min(t, stop) if t > -np.inf else -np.inf
+            top[i0 + i, j0 + j] = max(r, cmax[i0 + i, j0 + j])
 
 
 @njit(cache=True, nogil=True)
-def _lower_maps(bound_o, di, dj, read, obstacles, mat_top, k, fine, fine_start):
-    """:meth:`_LiveStock.advance`'s last step over the inner cells (``read`` (ni, nj), the bound at
-    ``bound_o[di + i, dj + j]``): both raised to ``obstacles`` (when not empty); ``mat_top`` (coarse
-    cells of k x k from the inner box's corner, in place) lowered to the bound's maximum per coarse
-    cell; ``fine`` lowered to the bound and ``fine_start`` to the lowered ``fine`` and the reading (both
-    in place, when not empty)."""
-    ni, nj = read.shape
+def _lower_maps(bound_o, di, dj, top, i0, j0, ni, nj, obstacles, mat_top, c0, d0, k, fine, fine_start):
+    """:meth:`_LiveStock.advance`'s last step over the inner cells (``ni`` x ``nj`` cells from (i0, j0)
+    of the raster's arrays ``top``, ``obstacles``, ``fine`` and ``fine_start``; the bound at
+    ``bound_o[di + i, dj + j]``): the bound and the reading ``top`` raised to ``obstacles`` (when not
+    empty); ``mat_top`` (coarse cells of k x k, the inner box's corner at coarse cell (c0, d0); in
+    place) lowered to the bound's maximum per coarse cell; ``fine`` lowered to the bound and
+    ``fine_start`` to the lowered ``fine`` and the reading (both in place, when not empty)."""
     obs = obstacles.shape[0] > 0
     use_fine = fine.shape[0] > 0
-    coarse = np.full(mat_top.shape, -np.inf)
+    nci, ncj = -(-ni // k), -(-nj // k)
+    coarse = np.full((nci, ncj), -np.inf)
     for i in range(ni):
         for j in range(nj):
             b = bound_o[di + i, dj + j]
-            r = read[i, j]
+            r = top[i0 + i, j0 + j]
             if obs:
-                b = max(b, obstacles[i, j])
-                r = max(r, obstacles[i, j])
+                b = max(b, obstacles[i0 + i, j0 + j])
+                r = max(r, obstacles[i0 + i, j0 + j])
             if b > coarse[i // k, j // k]:
                 coarse[i // k, j // k] = b
             if use_fine:
-                f = min(fine[i, j], b)
-                fine[i, j] = f
-                fine_start[i, j] = min(f, r)
-    for i in range(mat_top.shape[0]):
-        for j in range(mat_top.shape[1]):
-            mat_top[i, j] = min(mat_top[i, j], coarse[i, j])
+                f = min(fine[i0 + i, j0 + j], b)
+                fine[i0 + i, j0 + j] = f
+                fine_start[i0 + i, j0 + j] = min(f, r)
+    for i in range(nci):
+        for j in range(ncj):
+            mat_top[c0 + i, d0 + j] = min(mat_top[c0 + i, d0 + j], coarse[i, j])
 
 
 def _slab_reader(view, grid: _Raster, fine, Rt: float):

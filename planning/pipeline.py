@@ -297,7 +297,17 @@ def _paths(points: np.ndarray, cloud: Cloud, areas: Areas, sel_axes: np.ndarray,
         points, areas.input_labels, sel_axes, tool=tool, paths_params=pp, fixtures=gv.fixtures,
         forbidden=gv.forbidden_mm, max_slope_deg=min(float(config.visibility.cone_deg[1]), 87.0),
         input_regions=areas.input_regions, progress=progress, carried=carried,
-        faces=None if surface is None else surface.faces, cone_deg=tuple(config.visibility.cone_deg))
+        faces=None if surface is None else surface.faces, cone_deg=tuple(config.visibility.cone_deg),
+        semi_tool=_semi_tool(config))
+
+
+def _semi_tool(config: PlanConfig):
+    """The semi-finishing cutter when ``paths.semi_finishing`` is enabled (with the finishing), else None."""
+    if not (config.paths.semi_finishing.enabled and config.paths.finishing.enabled):
+        return None
+    from planning.toolpath.semi_finishing import semi_tool
+
+    return semi_tool(config)
 
 
 def _carried(points: np.ndarray, areas: Areas, config: PlanConfig, tool, gv: GlobalVisibility, profile,
@@ -320,6 +330,8 @@ def _carried(points: np.ndarray, areas: Areas, config: PlanConfig, tool, gv: Glo
     return CarriedStock(stock=models.stock, obstacles=models.obstacles,
                         finishing_shape=tools[config.post.finishing_tool_number],
                         roughing_shape=tools[config.post.roughing_tool_number], machines=machines,
+                        semi_shape=tools.get(config.post.semi_finishing_tool_number)
+                        if config.paths.semi_finishing.enabled else None,
                         order=machining_order(areas.input_labels, k),
                         rapid_clearance_mm=config.simulate.rapid_clearance_mm + config.paths.guard_rapid_clearance_mm,
                         resolution_mm=config.simulate.resolution_mm,
@@ -349,7 +361,10 @@ def _paths_warnings(area_paths) -> list[str]:
         if ap.finishing is not None and not ap.gouge_free:
             warnings.append(f"area {ap.area}: the finishing path comes {ap.min_clearance_mm:.4f} mm from a cloud "
                             f"point, closer than R - tolerance: it would gouge")
-        for op, g in (("roughing", getattr(ap, "roughing_guard", None)), ("finishing", getattr(ap, "finishing_guard", None))):
+        semi = getattr(ap, "semi", None)
+        for op, g in (("roughing", getattr(ap, "roughing_guard", None)),
+                      ("semi_finishing", None if semi is None else semi.guard),
+                      ("finishing", getattr(ap, "finishing_guard", None))):
             if g is not None and g.truncated:
                 warnings.append(f"area {ap.area}: the {op} path was cut off {g.truncated} moves before its end: they "
                                 f"still met the stock, a fixture or the travel after {g.rounds} repair rounds "
@@ -536,14 +551,16 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
 
 def _simulated_operations(area_paths, carried) -> dict | None:
     """Per area, the posted operations' moves as the guard ran them on the carried stock (roughing,
-    then 3+2 finishing: the order :func:`planning.post.programs.post_areas` posts them), for the
+    semi-finishing, then 3+2 finishing: the order :func:`planning.post.programs.post_areas` posts them), for the
     single-pass verification; None when the paths were not run on the carried stock."""
     if carried is None:
         return None
     out = {}
     for ap in area_paths:
         ops = []
+        semi = getattr(ap, "semi", None)
         for tp, g in ((ap.roughing, getattr(ap, "roughing_guard", None)),
+                      (None if semi is None else semi.toolpath, None if semi is None else semi.guard),
                       (ap.finishing, getattr(ap, "finishing_guard", None))):
             if tp is None:
                 continue

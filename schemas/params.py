@@ -589,11 +589,42 @@ class RoughingParams(_Strict):
         return self
 
 
+class SemiFinishingParams(_Strict):
+    """Semi-finishing between the roughing and the finishing of each set-up (issue 31 item 3): a ball-end
+    cutter of its own (held like ``tool``: the same stick-out, holder and gauge length) run over the area
+    by ball drop like the finishing, its ball kept ``allowance_mm`` off the scan, so that the finishing
+    meets a thin, even layer instead of the roughing's steps (docs/design.md, "Semi-finishing")."""
+
+    enabled: bool = Field(False, description="Plan a semi-finishing pass for every area after its roughing.")
+    diameter_mm: float = Field(8.0, gt=0, le=100, description="Ball-end semi-finishing cutter diameter, mm.")
+    flute_length_mm: float | None = Field(
+        None, gt=0, le=1000, description="Its cutting length from the tip, mm (at least its radius); null = "
+                                         "tool.flute_length_mm, or the cutter radius when that is shorter.")
+    allowance_mm: float = Field(
+        0.2, ge=0, le=20, description="Material the pass leaves on the scan for the finishing, mm (less than "
+                                      "paths.roughing.stock_allowance_mm): every move keeps the ball at least "
+                                      "allowance_mm - tolerance_mm from every scan point.")
+    scallop_mm: float = Field(
+        0.05, gt=0, le=5, description="Target scallop height between passes over the allowance surface, mm (the side "
+                                      "step as for the finishing: 2 sqrt(2 R' h - h^2) on a plane, R' the cutter "
+                                      "radius plus allowance_mm).")
+    step_mm: float | None = Field(
+        None, gt=0, le=50, description="Forward step between CL points along a pass, mm; null = a quarter of the "
+                                       "cutter radius plus allowance_mm.")
+    tolerance_mm: float = Field(
+        0.02, gt=0, le=1, description="How much closer than allowance_mm a move may come to a scan point, and the "
+                                      "chord / arc tolerance of its CL reduction and arc fitting, mm.")
+    margin_mm: float | None = Field(
+        None, ge=0, le=100, description="How far the passes reach past the area, mm; null = paths.finishing.margin_mm.")
+    pattern: Literal["zigzag", "oneway"] = Field("zigzag", description="As paths.finishing.pattern.")
+
+
 class PathsParams(_Strict):
     """Per-area 3-axis tool paths in each set-up's frame (tool axis = +Z)."""
 
     finishing: FinishingParams = Field(default_factory=FinishingParams)
     roughing: RoughingParams = Field(default_factory=RoughingParams)
+    semi_finishing: SemiFinishingParams = Field(default_factory=SemiFinishingParams)
     surface: Literal["auto", "points", "mesh"] = Field(
         "auto", description="What the finishing ball rests on and its gouge clearance is measured to. 'auto': the "
                             "points while their spacing is at most 20 % of the tool radius (Sood), else triangles: "
@@ -615,6 +646,19 @@ class PathsParams(_Strict):
         0.5, ge=0, le=50, description="The guard keeps every rapid this far from the stock it runs over, mm "
                                       "(a margin over simulate.rapid_clearance_mm for the programs' rounding).")
 
+    @model_validator(mode="after")
+    def _semi(self) -> "PathsParams":
+        sf = self.semi_finishing
+        if sf.enabled:
+            if self.roughing.enabled and not sf.allowance_mm < self.roughing.stock_allowance_mm:
+                raise ValueError(f"semi_finishing.allowance_mm {sf.allowance_mm} must be less than "
+                                 f"roughing.stock_allowance_mm {self.roughing.stock_allowance_mm}: the pass removes "
+                                 "what the roughing leaves above it")
+            if not self.finishing.enabled:
+                raise ValueError("semi_finishing needs finishing.enabled: the pass leaves its allowance for the "
+                                 "finishing")
+        return self
+
 
 class PostParams(_Strict):
     """NC programs: one file per area per dialect, and the neutral JSON moves."""
@@ -630,6 +674,10 @@ class PostParams(_Strict):
     feed_mm_min: float = Field(1_500, gt=0, le=100_000, description="Finishing cutting feed, mm/min.")
     roughing_spindle_rpm: float = Field(8_000, gt=0, le=100_000, description="Roughing spindle speed, rev/min.")
     roughing_feed_mm_min: float = Field(2_000, gt=0, le=100_000, description="Roughing cutting feed, mm/min.")
+    semi_finishing_tool_number: int = Field(3, ge=1, le=999, description="T number of the semi-finishing ball-end "
+                                                                         "cutter (paths.semi_finishing).")
+    semi_finishing_spindle_rpm: float = Field(10_000, gt=0, le=100_000, description="Semi-finishing spindle speed, rev/min.")
+    semi_finishing_feed_mm_min: float = Field(2_000, gt=0, le=100_000, description="Semi-finishing cutting feed, mm/min.")
     plunge_mm_min: float = Field(500, gt=0, le=100_000, description="Plunge, ramp and lead feed, mm/min.")
     rapid_mm_min: float = Field(
         15_000, gt=0, le=200_000, description="Rapid rate used only to estimate the machining time, mm/min.")
@@ -661,6 +709,19 @@ class PlanConfig(_Strict):
     post: PostParams = Field(default_factory=PostParams)
     stock: StockParams = Field(default_factory=StockParams)
     simulate: SimulateParams = Field(default_factory=SimulateParams)
+
+    @model_validator(mode="after")
+    def _tool_numbers(self) -> "PlanConfig":
+        if self.paths.semi_finishing.enabled:
+            p = self.post
+            if p.semi_finishing_tool_number in (p.finishing_tool_number, p.roughing_tool_number):
+                raise ValueError(f"post.semi_finishing_tool_number {p.semi_finishing_tool_number} is also the "
+                                 "finishing or the roughing tool's T number: each tool needs its own")
+            sf = self.paths.semi_finishing
+            if sf.diameter_mm / 2.0 > self.tool.stickout_mm:
+                raise ValueError(f"paths.semi_finishing.diameter_mm {sf.diameter_mm}: its radius exceeds "
+                                 f"tool.stickout_mm {self.tool.stickout_mm}")
+        return self
 
     def to_json_dict(self) -> dict[str, Any]:
         """The configuration as JSON-ready data, with the public names (``visibility.global``)."""

@@ -207,6 +207,31 @@ class RoughingSummary(_Out):
     guard: GuardSummary | None = None
 
 
+class SemiFinishingSummary(_Out):
+    """The semi-finishing pass of one area (paths.semi_finishing; planning/toolpath/semi_finishing.py)."""
+
+    diameter_mm: float = Field(..., description="The ball-end cutter's diameter, mm.")
+    allowance_mm: float = Field(..., description="Material it leaves on the scan for the finishing, mm.")
+    n_passes: int = Field(..., description="Passes planned over the area (before the cut-out).")
+    step_over_mm: float = Field(..., description="Side step of the passes on a plane, mm.")
+    n_cl: int = Field(..., description="Moves of the final path.")
+    n_arcs: int = Field(0, description="Arcs (G2/G3) among them.")
+    length_mm: float = Field(..., description="Feed and arc length, mm.")
+    min_clearance_mm: float = Field(
+        ..., description="Smallest distance from a scan point to the cutter's ball along the final path, mm (at "
+                         "least allowance_mm - tolerance_mm).")
+    blocked_cl: dict[str, int] = Field(
+        default_factory=dict, description="Positions cut out, by reason (cloud, fixture, stock: the shank or holder "
+                                          "on the roughing's stock, travel, underside).")
+    allowance_before_mm: dict[str, float] | None = Field(
+        None, description="The stock over the area's scan points along their normals before the pass (after the "
+                          "roughing), mm: p05, p50, p95, max, n (as roughing.allowance_left_mm).")
+    allowance_after_mm: dict[str, float] | None = Field(
+        None, description="The same after the pass: what the finishing meets, mm.")
+    machining_time_s: float = Field(..., description="ESTIMATE from the tool path before posting, s.")
+    guard: GuardSummary | None = None
+
+
 class AreaPathSummary(_Out):
     """What the tool paths of one area amount to."""
 
@@ -214,6 +239,7 @@ class AreaPathSummary(_Out):
     safe_z_mm: float = Field(..., description="Ball-centre height of retracts and rapids in the area frame, mm.")
     finishing: FinishingSummary | None = None
     roughing: RoughingSummary | None = None
+    semi_finishing: SemiFinishingSummary | None = None
     programs: dict[str, str] = Field(default_factory=dict, description="NC program artifact per post dialect.")
     moves: str | None = Field(None, description="Neutral moves artifact: the JSON (format scanmill-neutral-moves), gzip "
                                                 "compressed, area_<i>.moves.json.gz.")
@@ -378,8 +404,9 @@ class OperationFigures(_Out):
     ones to judge air cutting by)."""
 
     tool: int = Field(..., description="The tool's T number.")
-    operation: Literal["roughing", "finishing"] = Field(
-        ..., description="'roughing' for post.roughing_tool_number, else 'finishing'.")
+    operation: Literal["roughing", "semi_finishing", "finishing"] = Field(
+        ..., description="'roughing' for post.roughing_tool_number, 'semi_finishing' for "
+                         "post.semi_finishing_tool_number (when paths.semi_finishing is enabled), else 'finishing'.")
     feed_mm: float = Field(..., description="Length of the feed moves (G1, G2, G3), mm.")
     air_feed_mm: float = Field(..., description="Length of the feed moves that removed no material, mm.")
     air_share: float = Field(..., description="air_feed_mm / feed_mm (0 without feed moves).")

@@ -26,6 +26,7 @@ from schemas.plan import (
     FrameSummary,
     GuardSummary,
     RoughingSummary,
+    SemiFinishingSummary,
 )
 
 _POSTS = {"iso": iso_program, "linuxcnc": linuxcnc_program}
@@ -75,6 +76,13 @@ def _operations(ap, config) -> list[Operation]:
         ops.append(Operation(name="roughing", toolpath=ap.roughing, tool_number=post.roughing_tool_number,
                              tool_diameter_mm=rp.diameter_mm, tool_type=rp.tool_type,
                              spindle_rpm=post.roughing_spindle_rpm, feed_mm_min=post.roughing_feed_mm_min,
+                             plunge_mm_min=post.plunge_mm_min))
+    semi = getattr(ap, "semi", None)
+    if semi is not None and semi.toolpath is not None:
+        sp = config.paths.semi_finishing
+        ops.append(Operation(name="semi_finishing", toolpath=semi.toolpath, tool_number=post.semi_finishing_tool_number,
+                             tool_diameter_mm=sp.diameter_mm, tool_type="ball",
+                             spindle_rpm=post.semi_finishing_spindle_rpm, feed_mm_min=post.semi_finishing_feed_mm_min,
                              plunge_mm_min=post.plunge_mm_min))
     if ap.finishing is not None and ap.finishing.axis is None:
         ops.append(Operation(name="finishing", toolpath=ap.finishing, tool_number=post.finishing_tool_number,
@@ -165,14 +173,37 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
                 machining_time_s=round(machining_time_s(ap.roughing, feed_mm_min=post.roughing_feed_mm_min,
                                                         plunge_mm_min=post.plunge_mm_min,
                                                         rapid_mm_min=post.rapid_mm_min), 1))
+        semi = _semi_summary(getattr(ap, "semi", None), config)
         rot = ap.frame.rotation
         summaries[i] = AreaPathSummary(
             frame=FrameSummary(origin_mm=tuple(map(float, ap.frame.origin_mm)), x_axis=tuple(map(float, rot[0])),
                                y_axis=tuple(map(float, rot[1])), z_axis=tuple(map(float, rot[2]))),
-            safe_z_mm=round(float(ap.safe_z_mm), 4), finishing=fin, roughing=rough, programs=names,
+            safe_z_mm=round(float(ap.safe_z_mm), 4), finishing=fin, roughing=rough, semi_finishing=semi,
+            programs=names,
             moves=f"area_{i}.moves.json.gz" if ops or five else None,
             moves_npz=f"area_{i}.moves.npz" if ops or five else None, seconds=ap.seconds)
     return files, summaries
+
+
+def _semi_summary(semi, config):
+    """plan.json's figures of a :class:`planning.toolpath.semi_finishing.SemiFinishing` (None: no pass)."""
+    if semi is None:
+        return None
+    post, sp = config.post, config.paths.semi_finishing
+    tp, passes = semi.toolpath, semi.passes
+    return SemiFinishingSummary(
+        diameter_mm=float(sp.diameter_mm), allowance_mm=float(sp.allowance_mm),
+        n_passes=int(passes.n_passes) if passes is not None else 0,
+        step_over_mm=float(passes.step_over_mm) if passes is not None else 0.0,
+        n_cl=int(tp.n_moves) if tp is not None else 0, n_arcs=int(semi.n_arcs),
+        length_mm=round(float(_cut_length(tp)), 3) if tp is not None else 0.0,
+        min_clearance_mm=round(float(min(semi.min_clearance_mm, semi.offset_radius_mm)) - float(semi.radius_mm), 6),
+        blocked_cl=dict(semi.blocked), allowance_before_mm=semi.allowance_before_mm,
+        allowance_after_mm=semi.allowance_after_mm,
+        machining_time_s=round(machining_time_s(tp, feed_mm_min=post.semi_finishing_feed_mm_min,
+                                                plunge_mm_min=post.plunge_mm_min, rapid_mm_min=post.rapid_mm_min), 1)
+        if tp is not None else 0.0,
+        guard=_guard_summary(semi.guard))
 
 
 def _five_axis_summary(f):

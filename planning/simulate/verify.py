@@ -104,9 +104,15 @@ def stock_extent(points: np.ndarray, stock, blank=None) -> tuple[np.ndarray, np.
 def tool_shapes(config, tool: ToolAssembly) -> dict:
     """The plan's tools as the simulation sees them, by T number (:mod:`planning.simulate.tools`)."""
     post = config.post
-    return {post.finishing_tool_number: finishing_shape(tool, post.finishing_tool_number, config.tool.flute_length_mm),
-            post.roughing_tool_number: roughing_shape(tool, post.roughing_tool_number, config.paths.roughing,
-                                                      config.tool.stickout_mm)}
+    out = {post.finishing_tool_number: finishing_shape(tool, post.finishing_tool_number, config.tool.flute_length_mm),
+           post.roughing_tool_number: roughing_shape(tool, post.roughing_tool_number, config.paths.roughing,
+                                                     config.tool.stickout_mm)}
+    if config.paths.semi_finishing.enabled:
+        from planning.toolpath.semi_finishing import semi_flute_mm, semi_tool
+
+        n = post.semi_finishing_tool_number
+        out[n] = finishing_shape(semi_tool(config), n, semi_flute_mm(config))
+    return out
 
 
 def move_minutes(motion: ProgramMotion, config) -> np.ndarray:
@@ -124,6 +130,8 @@ def move_minutes(motion: ProgramMotion, config) -> np.ndarray:
     feed = ~rapid
     nominal = np.where(motion.tool == config.post.roughing_tool_number, config.post.roughing_feed_mm_min,
                        config.post.feed_mm_min).astype(np.float64)
+    if config.paths.semi_finishing.enabled:
+        nominal[motion.tool == config.post.semi_finishing_tool_number] = config.post.semi_finishing_feed_mm_min
     if motion.line_feed is None:
         out[feed] = length[feed] / np.maximum(nominal[feed], 1e-9)
         return out
@@ -192,7 +200,9 @@ def operation_figures(motion: ProgramMotion, removed_mm3: np.ndarray, config) ->
     minutes = move_minutes(motion, config)
     feed = motion.kind != RAPID
     rough = int(config.post.roughing_tool_number)
-    tools = sorted({int(t) for t in np.unique(motion.tool)}, key=lambda t: (t != rough, t))
+    semi = int(config.post.semi_finishing_tool_number) if config.paths.semi_finishing.enabled else None
+    # in the order they run: roughing, semi-finishing, then the others by T number
+    tools = sorted({int(t) for t in np.unique(motion.tool)}, key=lambda t: (t != rough, t != semi, t))
     for t in tools:
         mine = motion.tool == t
         f = mine & feed
@@ -203,7 +213,8 @@ def operation_figures(motion: ProgramMotion, removed_mm3: np.ndarray, config) ->
             continue
         time_s = 60.0 * float(minutes[mine].sum())
         out.append(OperationFigures(
-            tool=t, operation="roughing" if t == rough else "finishing", feed_mm=round(feed_mm, 1),
+            tool=t, operation="roughing" if t == rough else ("semi_finishing" if t == semi else "finishing"),
+            feed_mm=round(feed_mm, 1),
             air_feed_mm=round(air_mm, 1), air_share=round(air_mm / feed_mm, 4) if feed_mm > 0 else 0.0,
             rapid_mm=round(rapid_mm, 1), removed_mm3=round(float(removed_mm3[mine].sum()), 1),
             machining_time_s=round(time_s, 1),

@@ -103,6 +103,7 @@ class AreaPaths:
     unmachined: np.ndarray | None = None       # input point indices of the area no kept finishing move reaches
     five_axis: object = None                   # FiveAxisFigures of a simultaneous 5-axis finishing
     five_axis_input: Toolpath | None = None    # the 3-axis passes it was planned from
+    semi: object = None                        # SemiFinishing between the roughing and the finishing, or None
 
     @property
     def gouge_free(self) -> bool:
@@ -184,7 +185,7 @@ class _PathsProgress:
     #: name that is not is still reported, with no share of its own (:meth:`step`), never an error.
     STEPS: ClassVar[dict[str, tuple[float, float]]] = {
         "frame": (0.0, 0.02), "roughing": (0.02, 0.2), "guard_roughing": (0.2, 0.3),
-        "finishing": (0.3, 0.55), "cut_blocked": (0.55, 0.75), "five_axis": (0.55, 0.75),
+        "semi_finishing": (0.3, 0.3), "finishing": (0.3, 0.55), "cut_blocked": (0.55, 0.75), "five_axis": (0.55, 0.75),
         "reduce_arcs": (0.75, 0.85), "verify": (0.85, 0.87), "collisions": (0.87, 0.89),
         "guard_finishing": (0.89, 1.0)}
 
@@ -252,7 +253,8 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
                    paths_params, fixtures: Sequence = (), forbidden: np.ndarray | None = None,
                    max_slope_deg: float = 87.0, input_regions: np.ndarray | None = None,
                    progress: Progress | None = None, carried=None,
-                   faces: np.ndarray | None = None, cone_deg=(10.0, 80.0)) -> list[AreaPaths]:
+                   faces: np.ndarray | None = None, cone_deg=(10.0, 80.0),
+                   semi_tool: ToolAssembly | None = None) -> list[AreaPaths]:
     """Tool paths for every area (see the module docstring).
 
     ``points`` (N,3) mm: the whole cloud (part frame); ``input_labels`` (N,): the area of every
@@ -272,8 +274,11 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     and its gouge clearance is measured to, besides the points (:mod:`planning.toolpath.surface`);
     None: the points only. ``cone_deg``: the tool cone (``visibility.cone_deg``) the axes of
     simultaneous 5-axis finishing keep to (``paths.finishing.mode`` / ``area_modes`` "5axis":
-    :mod:`planning.toolpath.fiveaxis.finishing` on the reduced path, no arcs). The result lists the
-    areas in the order they were done.
+    :mod:`planning.toolpath.fiveaxis.finishing` on the reduced path, no arcs). ``semi_tool``: the
+    semi-finishing cutter (:func:`planning.toolpath.semi_finishing.semi_tool`) when
+    ``paths.semi_finishing`` is enabled: each 3+2 set-up gets a semi-finishing pass after its roughing
+    (:mod:`planning.toolpath.semi_finishing`; with ``carried``, cut and guarded on the stock like the
+    finishing, with ``carried.semi_shape``). The result lists the areas in the order they were done.
     """
     fp = paths_params.finishing
     forbidden = np.zeros((0, 3)) if forbidden is None else np.asarray(forbidden, dtype=np.float64).reshape(-1, 3)
@@ -286,14 +291,14 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
     worker = FinishingWorker.open(obstacles.shape[0]) if fp.enabled else None
     try:
         return _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, obstacles, max_slope_deg,
-                               regions, carried, faces, cone_deg, order, prog, worker)
+                               regions, carried, faces, cone_deg, order, prog, worker, semi_tool)
     finally:
         if worker is not None:
             worker.close()
 
 
 def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, obstacles, max_slope_deg, regions,
-                    carried, faces, cone_deg, order, prog, worker):
+                    carried, faces, cone_deg, order, prog, worker, semi_tool=None):
     """The loop of :func:`area_toolpaths` over the areas in ``order`` (its arguments, the progress
     ``prog`` and the finishing ``worker`` or None)."""
     fp = paths_params.finishing
@@ -342,10 +347,15 @@ def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, ob
             _guard_roughing(ap, carried, top + paths_params.roughing.stock_margin_mm + paths_params.safe_clearance_mm,
                             progress=prog.step("guard_roughing"))
             sec["guard_roughing"] = time.perf_counter() - t0
+        if semi_tool is not None and fp.enabled and not five:
+            _add_semi(ap, cloud_f, mine, regions, faces, paths_params, semi_tool, max_slope_deg, carried, obstacles,
+                      axes[i], fixtures, area_f, points, sec, prog)
         if carried is not None and carried.normals is not None:
             # issue 16 item 1: the stock the finishing meets over this area (roughing allowance
             # where roughing reached; more where the roughing tool or its holder could not go)
             ap.allowance_left = carried.allowance_left(points[mine], carried.normals[mine])
+            if ap.semi is not None:
+                ap.semi.allowance_after_mm = ap.allowance_left
         if fp.enabled:
             _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec, faces=faces, job=job,
                            blocked=None if (carried is None or five) else
@@ -552,6 +562,48 @@ def _guard_roughing(ap: AreaPaths, carried, safe_tip_z: float, progress: Progres
                        rapid_clearance_mm=carried.rapid_clearance_mm, progress=progress)
     ap.roughing, ap.roughing_guard = (g.toolpath if g.toolpath.n_moves else None), g
     carried.stock = g.stock
+
+
+def _add_semi(ap: AreaPaths, cloud_f, mine, regions, faces, paths_params, tool: ToolAssembly, max_slope_deg: float,
+              carried, obstacles, axis, fixtures, area_f, points, sec: dict, prog: _PathsProgress) -> None:
+    """The semi-finishing of ``ap``'s set-up into ``ap.semi`` (:mod:`planning.toolpath.semi_finishing`):
+    planned on the area's regions, the positions its shank, holder or travel forbid cut out on the
+    carried stock, then guarded on it (the stock it leaves is carried on to the finishing)."""
+    from planning.toolpath.safety import guard_finishing as cut_out
+    from planning.toolpath.semi_finishing import plan_semi_finishing
+
+    sp, fp = paths_params.semi_finishing, paths_params.finishing
+    t0 = time.perf_counter()
+    report = prog.step("semi_finishing")
+    safe_tip = ap.safe_z_mm - ap.radius_mm
+    R_off = float(tool.radius_mm) + float(sp.allowance_mm)
+    before = blocked = machine = None
+    if carried is not None:
+        if carried.normals is not None:
+            before = carried.allowance_left(points[mine], carried.normals[mine])
+        shape = carried.semi_shape
+        machine = None if carried.machines is None else carried.machines[ap.area]
+        travel = None if machine is None else (lambda tips: machine.travel_ok(tips, shape.gauge_length_mm))
+
+        def blocked(fin):
+            out, figs = cut_out(fin, ap.frame, axis, tool=tool, obstacles_part=obstacles, area_points_frame=area_f,
+                                safe_z_mm=safe_tip + R_off, fixtures=fixtures, stock=carried.stock, stock_shape=shape,
+                                travel_ok=travel, floor_z_part_mm=carried.footprint, tol_mm=sp.tolerance_mm,
+                                scallop_mm=sp.scallop_mm, step_mm=sp.step_mm)
+            return out, dict(figs.blocked)
+    semi = plan_semi_finishing(cloud_f, _region_masks(mine, regions, cloud_f.shape[0]), faces, sp=sp, fp=fp,
+                               tool=tool, safe_tip_z_mm=safe_tip, max_slope_deg=max_slope_deg, blocked=blocked,
+                               progress=report)
+    semi.allowance_before_mm = before
+    if carried is not None and semi.toolpath is not None and semi.toolpath.n_moves:
+        g = guard_toolpath(semi.toolpath, ap.frame, carried.semi_shape, carried.stock, carried.obstacles, machine,
+                           safe_z_mm=safe_tip + R_off, rapid_clearance_mm=carried.rapid_clearance_mm)
+        semi.toolpath, semi.guard = (g.toolpath if g.toolpath.n_moves else None), g
+        carried.stock = g.stock
+    if semi.toolpath is not None and semi.toolpath.n_moves == 0:
+        semi.toolpath = None
+    ap.semi = semi
+    sec["semi_finishing"] = time.perf_counter() - t0
 
 
 def _guard_finishing(ap: AreaPaths, carried, area_f, fp, progress: Progress | None = None) -> None:

@@ -37,7 +37,8 @@ class CarriedStock:
     inside it), ``normals`` (N,3) unit normals of the
     scan's points (for the allowance left before finishing), ``visible`` (N,k) bool: which set-up
     sees each scan point (the visibility of its nearest sample): points a set-up leaves unmachined
-    are handed to a later one that sees them."""
+    are handed to a later one that sees them; ``semi_shape``: the semi-finishing cutter
+    (``paths.semi_finishing``) as the simulation sees it, or None when there is none."""
 
     stock: TriDexel
     obstacles: TriDexel | None
@@ -50,6 +51,7 @@ class CarriedStock:
     footprint: Footprint | None = None
     normals: np.ndarray | None = None
     visible: np.ndarray | None = None
+    semi_shape: ToolShape | None = None
 
     def allowance_left(self, points: np.ndarray, normals: np.ndarray) -> dict:
         """The stock left over the scan ``points`` (k,3, part frame) along their unit ``normals``

@@ -74,12 +74,17 @@ def summary_lines(plan: dict) -> list[str]:
     if f is None:
         return _legacy_lines(plan)
     source = f.get("time_source", "none")
-    head = ["area", "roughing min", "finishing min", "total min", "finished", "left", "unreached", "not covered"]
+    # a semi-finishing column only where a plan has one (paths.semi_finishing)
+    semi = any(a.get("semi_finishing_time_s") is not None for a in f.get("areas") or [])
+    head = ["area", "roughing min"] + (["semi min"] if semi else []) + [
+        "finishing min", "total min", "finished", "left", "unreached", "not covered"]
     rows = []
     for a in f.get("areas") or []:
-        rows.append([str(a.get("area")), _minutes(a.get("roughing_time_s")), _minutes(a.get("finishing_time_s")),
-                     _minutes(a.get("machining_time_s")), _count(a.get("finished")), _count(a.get("left")),
-                     _count(a.get("unreached")), _count(a.get("not_covered"))])
+        rows.append([str(a.get("area")), _minutes(a.get("roughing_time_s"))]
+                    + ([_minutes(a.get("semi_finishing_time_s"))] if semi else [])
+                    + [_minutes(a.get("finishing_time_s")), _minutes(a.get("machining_time_s")),
+                       _count(a.get("finished")), _count(a.get("left")), _count(a.get("unreached")),
+                       _count(a.get("not_covered"))])
     what = {"simulated": "simulated: the programs as the control runs them",
             "estimate": "ESTIMATE from the tool paths: the programs were not simulated"}.get(source, "no paths")
     lines = [f"machining summary (areas in machining order; minutes {what}; points: input points):"]

@@ -499,6 +499,8 @@ class AreaFigures(_Out):
                                             "by distance; no finishing is planned for them on purpose).")
     roughing_time_s: float | None = Field(None, description="Roughing machining time, s (see "
                                                             "PlanFigures.time_source).")
+    semi_finishing_time_s: float | None = Field(None, description="Semi-finishing machining time, s (null: no "
+                                                                  "semi-finishing; paths.semi_finishing).")
     finishing_time_s: float | None = Field(None, description="Finishing machining time, s.")
     machining_time_s: float = Field(0.0, description="The area's whole program, s.")
 

@@ -180,3 +180,20 @@ def test_semi_finishing_off_adds_nothing_to_a_plan():
     cfg = parse_config({})
     assert not cfg.paths.semi_finishing.enabled
     assert cfg.post.semi_finishing_tool_number not in tool_shapes(cfg, cfg.tool.assembly())
+
+
+def test_the_summary_shows_the_semi_finishing_minutes(semi_plan):
+    """plan.json figures carry each area's semi-finishing minutes (the simulated program's), and the CLI
+    summary gets a column for them; the area's total is the sum of its three operations."""
+    from scanmill.summary import summary_lines
+
+    doc = semi_plan.result.model_dump(mode="json")
+    by_area = {a.area: a for a in semi_plan.result.verification.areas}
+    for a in doc["figures"]["areas"]:
+        ops = {o.operation: o.machining_time_s for o in by_area[a["area"]].operations}
+        assert a["semi_finishing_time_s"] == ops["semi_finishing"] > 0
+        assert a["roughing_time_s"] + a["semi_finishing_time_s"] + a["finishing_time_s"] == \
+            pytest.approx(a["machining_time_s"], abs=1.0)
+    lines = summary_lines(doc)
+    head = next(ln for ln in lines if "roughing min" in ln)
+    assert "semi min" in head

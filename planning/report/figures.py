@@ -75,24 +75,26 @@ def plan_figures(*, n_points: int, input_labels: np.ndarray, order: Sequence[int
     for a in order:
         mine = input_labels == a
         c = np.bincount(classes[mine], minlength=4)
-        rough = fin = None
+        rough = fin = semi = None
         if sim:
             av = by_area.get(a)
             whole = float(av.machining_time_s) if av is not None else 0.0
             if av is not None:
                 ops = {op.operation: op.machining_time_s for op in av.operations}
-                rough, fin = ops.get("roughing"), ops.get("finishing")
+                rough, fin, semi = ops.get("roughing"), ops.get("finishing"), ops.get("semi_finishing")
         else:
             p = paths.get(a)
             if p is not None:
                 rough = p.roughing.machining_time_s if p.roughing is not None else None
                 fin = p.finishing.machining_time_s if p.finishing is not None else None
-            whole = (rough or 0.0) + (fin or 0.0)
+                semi = p.semi_finishing.machining_time_s if p.semi_finishing is not None else None
+            whole = (rough or 0.0) + (semi or 0.0) + (fin or 0.0)
         total += whole
         areas.append(AreaFigures(
             area=int(a), n_points=int(mine.sum()), finished=int(c[FINISHED]) if measured else None,
             left=int(c[LEFT]) if measured else None, unreached=int(c[UNREACHED]), not_covered=int(c[NOT_COVERED]),
-            roughing_time_s=rough, finishing_time_s=fin, machining_time_s=round(whole, 1)))
+            roughing_time_s=rough, semi_finishing_time_s=semi, finishing_time_s=fin,
+            machining_time_s=round(whole, 1)))
     source = "simulated" if sim else ("estimate" if any(paths.get(a) is not None for a in order) else "none")
     return PlanFigures(
         n_points=int(n_points), measured=bool(measured),

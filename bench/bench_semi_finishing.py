@@ -6,7 +6,8 @@ in machining order:
 
 * the stock over the set-up's scan points along their normals when its finishing starts, read on the carried
   stock (``setups[].path.roughing.allowance_left_mm``: p50 / p95 / max, mm), without and with the pass; with
-  it, also before it (``semi_finishing.allowance_before_mm``, the same reading as the first without it);
+  it, also over the points the pass reaches (``semi_finishing.allowance_reached_mm``, ``reached_share``:
+  issue 31's "within 2x the allowance where the tool reaches");
 * the simulated machining minutes of its roughing, semi-finishing and finishing (``verification.areas[].
   operations``, the programs as the machine runs them) and the volume each removed (cm^3);
 
@@ -78,6 +79,8 @@ def plan(name: str, semi: bool, extra: list[str]) -> dict:
             "area": a.area,
             "finishing_meets": q(p.roughing.allowance_left_mm) if p is not None and p.roughing is not None else None,
             "before_semi": q(semi_s.allowance_before_mm) if semi_s is not None else None,
+            "semi_reached": q(semi_s.allowance_reached_mm) if semi_s is not None else None,
+            "reached_share": semi_s.reached_share if semi_s is not None else None,
             "min": {k: round(o.machining_time_s / 60.0, 1) for k, o in ops.items()},
             "removed_cm3": {k: round(o.removed_mm3 / 1000.0, 2) for k, o in ops.items()}})
     return {"case": name, "semi": semi, "seconds": round(seconds, 1),
@@ -99,10 +102,13 @@ def _stock(d) -> str:
 
 def table(off: dict, on: dict) -> str:
     lines = [f"### {off['case']}", "",
-             "| set-up | stock the finishing meets, p50 / p95 / max mm: without | with | roughing / semi / finishing "
-             "min (with) | finishing removed cm^3: without -> with |", "|---|---|---|---|---|"]
+             "| set-up | stock the finishing meets, p50 / p95 / max mm: without | with | with, where the pass reaches "
+             "(share of the set-up's points) | roughing / semi / finishing min (with) | finishing removed cm^3: "
+             "without -> with |", "|---|---|---|---|---|---|"]
     for a, b in zip(off["areas"], on["areas"]):
+        share = "-" if b["reached_share"] is None else f"{b['reached_share']:.1%}"
         lines.append(f"| {a['area']} | {_stock(a['finishing_meets'])} | {_stock(b['finishing_meets'])} | "
+                     f"{_stock(b['semi_reached'])} ({share}) | "
                      f"{b['min'].get('roughing', 0)} / {b['min'].get('semi_finishing', 0)} / "
                      f"{b['min'].get('finishing', 0)} | {a['removed_cm3'].get('finishing', 0)} -> "
                      f"{b['removed_cm3'].get('finishing', 0)} |")

@@ -228,6 +228,11 @@ class SemiFinishingSummary(_Out):
                           "roughing), mm: p05, p50, p95, max, n (as roughing.allowance_left_mm).")
     allowance_after_mm: dict[str, float] | None = Field(
         None, description="The same after the pass: what the finishing meets, mm.")
+    allowance_reached_mm: dict[str, float] | None = Field(
+        None, description="The same after the pass over the points it reaches (its kept moves' ball of radius "
+                          "diameter/2 + allowance within the scallop, the tolerance and the sampling's slack): "
+                          "the uniform layer it leaves, where it could go, mm.")
+    reached_share: float = Field(0.0, description="Share of the area's points the pass reaches.")
     machining_time_s: float = Field(..., description="ESTIMATE from the tool path before posting, s.")
     guard: GuardSummary | None = None
 

@@ -128,6 +128,9 @@ def test_the_finishing_meets_an_even_stock_after_semi_finishing(semi_plan):
         assert after["p95"] <= 2 * rough_allowance, after
         assert after["p50"] < before["p50"] and after["p50"] == pytest.approx(s.allowance_mm, abs=0.1)
         assert st.path.roughing.allowance_left_mm == after          # what the finishing meets
+        # where the pass reaches (most of the set-up), the layer is even: p95 within twice the allowance asked
+        assert s.reached_share > 0.8 and s.allowance_reached_mm["n"] <= after["n"]
+        assert s.allowance_reached_mm["p95"] <= 2 * rough_allowance, s.allowance_reached_mm
 
 
 def test_rs274_reads_the_semi_finishing_programs_within_the_travel(semi_plan):

@@ -199,7 +199,8 @@ def _semi_summary(semi, config):
         length_mm=round(float(_cut_length(tp)), 3) if tp is not None else 0.0,
         min_clearance_mm=round(float(min(semi.min_clearance_mm, semi.offset_radius_mm)) - float(semi.radius_mm), 6),
         blocked_cl=dict(semi.blocked), allowance_before_mm=semi.allowance_before_mm,
-        allowance_after_mm=semi.allowance_after_mm,
+        allowance_after_mm=semi.allowance_after_mm, allowance_reached_mm=semi.allowance_reached_mm,
+        reached_share=round(semi.n_reached / max(semi.n_points, 1), 4),
         machining_time_s=round(machining_time_s(tp, feed_mm_min=post.semi_finishing_feed_mm_min,
                                                 plunge_mm_min=post.plunge_mm_min, rapid_mm_min=post.rapid_mm_min), 1)
         if tp is not None else 0.0,

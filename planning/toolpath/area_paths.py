@@ -569,7 +569,6 @@ def _add_semi(ap: AreaPaths, cloud_f, mine, regions, faces, paths_params, tool: 
     """The semi-finishing of ``ap``'s set-up into ``ap.semi`` (:mod:`planning.toolpath.semi_finishing`):
     planned on the area's regions, the positions its shank, holder or travel forbid cut out on the
     carried stock, then guarded on it (the stock it leaves is carried on to the finishing)."""
-    from planning.toolpath.safety import guard_finishing as cut_out
     from planning.toolpath.semi_finishing import plan_semi_finishing
 
     sp, fp = paths_params.semi_finishing, paths_params.finishing
@@ -586,7 +585,7 @@ def _add_semi(ap: AreaPaths, cloud_f, mine, regions, faces, paths_params, tool: 
         travel = None if machine is None else (lambda tips: machine.travel_ok(tips, shape.gauge_length_mm))
 
         def blocked(fin):
-            out, figs = cut_out(fin, ap.frame, axis, tool=tool, obstacles_part=obstacles, area_points_frame=area_f,
+            out, figs = guard_finishing(fin, ap.frame, axis, tool=tool, obstacles_part=obstacles, area_points_frame=area_f,
                                 safe_z_mm=safe_tip + R_off, fixtures=fixtures, stock=carried.stock, stock_shape=shape,
                                 travel_ok=travel, floor_z_part_mm=carried.footprint, tol_mm=sp.tolerance_mm,
                                 scallop_mm=sp.scallop_mm, step_mm=sp.step_mm)
@@ -602,6 +601,16 @@ def _add_semi(ap: AreaPaths, cloud_f, mine, regions, faces, paths_params, tool: 
         carried.stock = g.stock
     if semi.toolpath is not None and semi.toolpath.n_moves == 0:
         semi.toolpath = None
+    if semi.toolpath is not None:
+        # the area's points its kept moves reach (the ball of radius R' within the scallop, the tolerance and
+        # the sampling's slack), and the stock over them it leaves (issue 31 item 3's measure)
+        spacing = float(tool.radius_mm) / 4.0
+        reach = finished_reach_mm(R_off, tol_mm=sp.tolerance_mm, scallop_mm=sp.scallop_mm, spacing_mm=spacing)
+        reached = ~unmachined_points(area_f, cutting_positions(semi.toolpath, spacing), R_off, reach)
+        semi.n_points, semi.n_reached = int(reached.size), int(reached.sum())
+        if carried is not None and carried.normals is not None and reached.any():
+            idx = np.flatnonzero(mine)[reached]
+            semi.allowance_reached_mm = carried.allowance_left(points[idx], carried.normals[idx])
     ap.semi = semi
     sec["semi_finishing"] = time.perf_counter() - t0
 

@@ -78,7 +78,9 @@ class SemiFinishing:
     with), ``min_clearance_mm`` (smallest distance from a scan point to the final moves' ball
     centres: at least ``R' - tolerance_mm``), ``blocked`` (positions cut out, by reason), ``n_arcs``,
     ``guard`` (the guard's outcome on the carried stock, or None), ``allowance_before_mm`` /
-    ``allowance_after_mm`` (the stock over the area's points before and after it), ``seconds``."""
+    ``allowance_after_mm`` (the stock over the area's points before and after it),
+    ``allowance_reached_mm`` (after it, over the ``n_reached`` of the area's ``n_points`` points its kept
+    moves reach), ``seconds``."""
 
     toolpath: Toolpath | None
     passes: FinishingPath | None
@@ -91,6 +93,9 @@ class SemiFinishing:
     guard: object = None
     allowance_before_mm: dict | None = None
     allowance_after_mm: dict | None = None
+    allowance_reached_mm: dict | None = None
+    n_points: int = 0
+    n_reached: int = 0
     seconds: dict = field(default_factory=dict)
 
     @property

@@ -617,6 +617,12 @@ class SemiFinishingParams(_Strict):
     margin_mm: float | None = Field(
         None, ge=0, le=100, description="How far the passes reach past the area, mm; null = paths.finishing.margin_mm.")
     pattern: Literal["zigzag", "oneway"] = Field("zigzag", description="As paths.finishing.pattern.")
+    max_depth_mm: float | None = Field(
+        None, gt=0, le=1000, description="Deepest cut: a position where the stock the roughing left stands more than "
+                                         "this above the cutter's lower surface, within its radius (read along the "
+                                         "tool axis), is cut out of the pass and left to the finishing, mm; null = "
+                                         "paths.roughing.step_down_mm + stock_allowance_mm + simulate.resolution_mm "
+                                         "(the roughing's stair and the stock model's reading error).")
 
 
 class PathsParams(_Strict):

@@ -200,3 +200,60 @@ def test_the_summary_shows_the_semi_finishing_minutes(semi_plan):
     lines = summary_lines(doc)
     head = next(ln for ln in lines if "roughing min" in ln)
     assert "semi min" in head
+
+
+# -- the deepest cut -------------------------------------------------------------------------------------
+
+def test_the_depth_of_cut_is_the_chip_a_ball_takes_off_a_box():
+    """On a box of stock whose top is the plane z = 10 (a tri-dexel, read through the frame), a ball of
+    radius 4 whose lowest point is 1.5 mm under the top cuts 1.5 mm; one that hangs 0.3 mm above it cuts
+    nothing; one beside the box's wall, its centre 1 mm outside the wall at mid height, cuts 3 mm
+    (radially, into the wall); the limit blocks what is deeper than it."""
+    from planning.simulate.dexel import TriDexel
+    from planning.toolpath.frames import AreaFrame
+    from planning.toolpath.semi_finishing import DepthLimit
+
+    stock = TriDexel.box([0.0, 0.0, 0.0], [40.0, 40.0, 10.0], 0.5)
+    frame = AreaFrame(rotation=np.eye(3), origin_mm=np.zeros(3))
+    lim = DepthLimit(stock, frame, (-10.0, -10.0), (50.0, 50.0), r=4.0, max_depth_mm=2.0, stop_z_mm=-5.0, cell_mm=0.25)
+    c = np.array([[20.0, 20.0, 10.0 + 4.0 - 1.5],     # 1.5 mm into the top
+                  [20.0, 20.0, 10.0 + 4.0 + 0.3],     # above it
+                  [41.0, 20.0, 5.0],                  # 1 mm outside the wall x = 40: 3 mm into it
+                  [20.0, 20.0, 10.0 + 4.0 - 2.5]])    # 2.5 mm into the top
+    d = lim.depth_mm(c)
+    assert d[0] == pytest.approx(1.5, abs=0.26)        # the ray reading and the 0.25 mm cells
+    assert not d[1] > 0.0
+    assert d[2] == pytest.approx(3.0, abs=0.26)
+    assert d[3] == pytest.approx(2.5, abs=0.26)
+    assert lim(c).tolist() == [False, False, True, True]
+
+
+def test_the_depth_kernel_agrees_with_sampling_the_ball():
+    """The radial depth over a rough random height field, against brute force: points on a fine grid
+    inside the ball that lie under the field's top (the field solid below it), the deepest one."""
+    from planning.toolpath.semi_finishing import _depth_kernel
+
+    rng = np.random.default_rng(5)
+    h, r = 0.5, 3.0
+    top = rng.uniform(-2.0, 2.0, size=(30, 30))
+    top[rng.random(top.shape) < 0.1] = -np.inf                 # cells with no material at all
+    centres = np.column_stack([rng.uniform(4.0, 11.0, 40), rng.uniform(4.0, 11.0, 40), rng.uniform(-1.0, 4.0, 40)])
+    out = np.empty(40)
+    _depth_kernel(top, 0.0, 0.0, h, centres, r, out)
+    for k, c in enumerate(centres):
+        best = -np.inf
+        i0, i1 = int(np.floor((c[0] - r) / h)), int(np.floor((c[0] + r) / h))
+        j0, j1 = int(np.floor((c[1] - r) / h)), int(np.floor((c[1] + r) / h))
+        zs = np.linspace(c[2] - r, c[2] + r, 601)
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                x, y = (i + 0.5) * h, (j + 0.5) * h
+                q = np.column_stack([np.full_like(zs, x), np.full_like(zs, y), zs])
+                dist = np.linalg.norm(q - c, axis=1)
+                inside = (dist < r) & (zs <= top[i, j])
+                if inside.any():
+                    best = max(best, float(r - dist[inside].min()))
+        if np.isfinite(best):
+            assert out[k] == pytest.approx(best, abs=0.011), k
+        else:
+            assert not out[k] > -np.inf, k

@@ -569,7 +569,7 @@ def _add_semi(ap: AreaPaths, cloud_f, mine, regions, faces, paths_params, tool: 
     """The semi-finishing of ``ap``'s set-up into ``ap.semi`` (:mod:`planning.toolpath.semi_finishing`):
     planned on the area's regions, the positions its shank, holder or travel forbid cut out on the
     carried stock, then guarded on it (the stock it leaves is carried on to the finishing)."""
-    from planning.toolpath.semi_finishing import plan_semi_finishing
+    from planning.toolpath.semi_finishing import DepthLimit, plan_semi_finishing
 
     sp, fp = paths_params.semi_finishing, paths_params.finishing
     t0 = time.perf_counter()
@@ -583,12 +583,21 @@ def _add_semi(ap: AreaPaths, cloud_f, mine, regions, faces, paths_params, tool: 
         shape = carried.semi_shape
         machine = None if carried.machines is None else carried.machines[ap.area]
         travel = None if machine is None else (lambda tips: machine.travel_ok(tips, shape.gauge_length_mm))
+        rp = paths_params.roughing
+        max_depth = sp.max_depth_mm if sp.max_depth_mm is not None else (
+            rp.step_down_mm + rp.stock_allowance_mm + carried.resolution_mm if rp.enabled else None)
+        depth = None
+        if max_depth is not None:
+            grow = float(fp.margin_mm if sp.margin_mm is None else sp.margin_mm) + R_off + float(tool.radius_mm) + 1.0
+            depth = DepthLimit(carried.stock, ap.frame, area_f[:, :2].min(axis=0) - grow,
+                               area_f[:, :2].max(axis=0) + grow, float(tool.radius_mm), float(max_depth),
+                               float(area_f[:, 2].min()) - 1.0)
 
         def blocked(fin):
             out, figs = guard_finishing(fin, ap.frame, axis, tool=tool, obstacles_part=obstacles, area_points_frame=area_f,
                                 safe_z_mm=safe_tip + R_off, fixtures=fixtures, stock=carried.stock, stock_shape=shape,
                                 travel_ok=travel, floor_z_part_mm=carried.footprint, tol_mm=sp.tolerance_mm,
-                                scallop_mm=sp.scallop_mm, step_mm=sp.step_mm)
+                                scallop_mm=sp.scallop_mm, step_mm=sp.step_mm, depth=depth)
             return out, dict(figs.blocked)
     semi = plan_semi_finishing(cloud_f, _region_masks(mine, regions, cloud_f.shape[0]), faces, sp=sp, fp=fp,
                                tool=tool, safe_tip_z_mm=safe_tip, max_slope_deg=max_slope_deg, blocked=blocked,

@@ -81,6 +81,9 @@ from planning.toolpath.moves import (
 
 #: The reasons :func:`blocked_cl` reports, in this order.
 REASONS = ("cloud", "fixture", "stock", "travel", "underside")
+#: Reasons counted only where they were checked: ``depth`` (the semi-finishing's deepest cut, the
+#: ``depth`` argument of :func:`blocked_cl`).
+OPTIONAL_REASONS = ("depth",)
 
 #: A point this close below the safe height counts as at it (mm).
 _AT_SAFE_MM = 1e-6
@@ -105,7 +108,9 @@ class BlockedCL:
     def counts(self) -> dict:
         """Points blocked per reason (every name of :data:`REASONS`; 0 where not checked). A point
         blocked for several reasons counts under each."""
-        return {r: int(self.reasons[r].sum()) if r in self.reasons else 0 for r in REASONS}
+        out = {r: int(self.reasons[r].sum()) if r in self.reasons else 0 for r in REASONS}
+        out.update({r: int(self.reasons[r].sum()) for r in OPTIONAL_REASONS if r in self.reasons})
+        return out
 
     @property
     def n_blocked(self) -> int:
@@ -145,7 +150,8 @@ def blocked_cl(centres_frame, frame: AreaFrame, axis=None, *, tool: ToolAssembly
                travel_ok: Callable[[np.ndarray], np.ndarray] | None = None,
                floor_z_part_mm: float | None = None, tol_mm: float = 1e-3,
                progress: Callable[[float, str], None] | None = None,
-               cloud_known: np.ndarray | None = None) -> BlockedCL:
+               cloud_known: np.ndarray | None = None,
+               depth: Callable[[np.ndarray], np.ndarray] | None = None) -> BlockedCL:
     """Which ball-centre positions the tool may not take (module docstring, step 1).
 
     ``centres_frame`` (n,3): ball centres in the area frame ``frame``; ``axis`` (3,): the tool axis
@@ -161,7 +167,9 @@ def blocked_cl(centres_frame, frame: AreaFrame, axis=None, *, tool: ToolAssembly
     reaching below the underside INSIDE the part's footprint counts); ``tol_mm``: how far below the
     underside the ball may reach. ``progress(fraction, message)``: each check as it starts (the
     stock's inside it). ``cloud_known`` (n,) bool: the cloud reason already found for these points
-    (:func:`cloud_blocked`), not computed again. Vectorised: one call of each check for all points."""
+    (:func:`cloud_blocked`), not computed again. ``depth``: ball centres (n,3, area frame) -> (n,)
+    bool, the positions that would cut deeper than allowed (reason ``depth``; None: not checked).
+    Vectorised: one call of each check for all points."""
     say = progress or (lambda fraction, message="": None)
     c_f = np.asarray(centres_frame, dtype=np.float64).reshape(-1, 3)
     n = c_f.shape[0]
@@ -206,6 +214,8 @@ def blocked_cl(centres_frame, frame: AreaFrame, axis=None, *, tool: ToolAssembly
             reasons["underside"] = floor_z_part_mm.below_floor(c_p, R, float(tol_mm))
         else:
             reasons["underside"] = c_p[:, 2] - R < float(floor_z_part_mm) - float(tol_mm)
+    if depth is not None:
+        reasons["depth"] = np.asarray(depth(c_f), dtype=bool).reshape(n)
     mask = np.zeros(n, dtype=bool)
     for m in reasons.values():
         mask |= m
@@ -676,7 +686,8 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
                     step_mm: float | None = None, reach_mm: float | None = None, approach_mm: float = 1.0,
                     sample_mm: float | None = None, max_rounds: int = 8,
                     progress: Callable[[float, str], None] | None = None,
-                    cloud_known: tuple[float, np.ndarray] | None = None) -> tuple[FinishingPath | None, FinishingSafety]:
+                    cloud_known: tuple[float, np.ndarray] | None = None,
+                    depth: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[FinishingPath | None, FinishingSafety]:
     """Steps 1 to 3 of the module docstring for one area's finishing ``fin``, best on the dense CL
     points before CL reduction and arc fitting (arcs are handled too).
 
@@ -707,7 +718,7 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
     70 %, the rounds of step 2 the next 20 %, step 3 the rest. ``cloud_known``: ``(spacing, mask)``,
     the cloud reason of step 1's positions (:func:`check_positions` at that spacing,
     :func:`cloud_blocked`) found beforehand; used when the spacing is this call's and the count
-    matches."""
+    matches. ``depth``: as :func:`blocked_cl`'s (the semi-finishing's deepest cut)."""
     say = progress or (lambda fraction, message="": None)
     tp = fin.toolpath
     R = float(tool.radius_mm)
@@ -720,7 +731,8 @@ def guard_finishing(fin: FinishingPath, frame: AreaFrame, axis=None, *, tool: To
     reach = finished_reach_mm(R, tol_mm=tol_mm, scallop_mm=scallop_mm, spacing_mm=step) if reach_mm is None \
         else float(reach_mm)
     kw = {"tool": tool, "obstacles_part": obstacles_part, "fixtures": fixtures, "stock": stock,
-          "stock_shape": stock_shape, "travel_ok": travel_ok, "floor_z_part_mm": floor_z_part_mm, "tol_mm": tol_mm}
+          "stock_shape": stock_shape, "travel_ok": travel_ok, "floor_z_part_mm": floor_z_part_mm, "tol_mm": tol_mm,
+          "depth": depth}
 
     def check(points, message):
         return blocked_cl(points, frame, axis, **kw,

@@ -35,12 +35,82 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit, prange
 
 from planning.geometry.tool import ToolAssembly
 from planning.toolpath.finishing import FinishingPath
 from planning.toolpath.moves import ARC_CCW, ARC_CW, Toolpath
 from planning.toolpath.reduce import fit_arcs, reduce_cl
 from planning.toolpath.verify import move_clearance
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _depth_kernel(top, x0, y0, h, centres, r, out):
+    nx, ny = top.shape
+    r2 = r * r
+    for k in prange(centres.shape[0]):
+        cx, cy, cz = centres[k, 0], centres[k, 1], centres[k, 2]
+        i0 = max(int(math.floor((cx - r - x0) / h)), 0)
+        i1 = min(int(math.floor((cx + r - x0) / h)), nx - 1)
+        j0 = max(int(math.floor((cy - r - y0) / h)), 0)
+        j1 = min(int(math.floor((cy + r - y0) / h)), ny - 1)
+        best = -math.inf
+        for i in range(i0, i1 + 1):
+            dx = x0 + (i + 0.5) * h - cx
+            for j in range(j0, j1 + 1):
+                dy = y0 + (j + 0.5) * h - cy
+                d2 = dx * dx + dy * dy
+                t = top[i, j]
+                if d2 >= r2 or not t > cz - math.sqrt(r2 - d2):
+                    continue                     # no material of this line inside the ball
+                # the material on this line inside the ball lies from the ball's lower surface up to the top
+                # (or the ball's upper surface); its point nearest the centre is at min(t, cz)
+                dz = min(t, cz) - cz
+                e = r - math.sqrt(d2 + dz * dz)
+                if e > best:
+                    best = e
+        out[k] = best
+
+
+class DepthLimit:
+    """The semi-finishing's deepest cut as a test of ball centres (the ``depth`` of
+    :func:`planning.toolpath.safety.blocked_cl`): a centre ``c`` (area frame) cuts too deep where stock
+    lies more than ``max_depth_mm`` inside the cutter's ball of radius ``r``, measured radially (``r``
+    less the distance from ``c`` to the stock's nearest point inside the ball): the chip thickness a
+    ball cuts, normal to the surface it leaves, on a slope as on a flat. The stock is read once along
+    the frame's Z on a raster of ``cell_mm`` cells over ``lo``..``hi`` (frame x, y;
+    :func:`planning.simulate.heightfield.stock_tops_in_frame`, the stock as the pass finds it; the
+    positions beyond the raster see none of it) and taken as solid below its top on every cell's line
+    within ``r`` of the centre's (x, y). Units mm."""
+
+    def __init__(self, stock, frame, lo, hi, r: float, max_depth_mm: float, stop_z_mm: float, cell_mm: float = 0.5):
+        self.stock, self.frame, self.r, self.max_depth = stock, frame, float(r), float(max_depth_mm)
+        self.h = float(cell_mm)
+        self.x0, self.y0 = float(lo[0]), float(lo[1])
+        self.nx = max(1, int(math.ceil((float(hi[0]) - self.x0) / self.h)))
+        self.ny = max(1, int(math.ceil((float(hi[1]) - self.y0) / self.h)))
+        self.stop = float(stop_z_mm)
+        self._top = None
+
+    def top(self) -> np.ndarray:
+        """(nx, ny) the stock's top per cell (frame z, -inf where there is none), read at the first call."""
+        if self._top is None:
+            from planning.simulate.heightfield import stock_tops_in_frame
+
+            self._top = stock_tops_in_frame(self.stock, self.frame.rotation, self.frame.origin_mm, self.x0, self.y0,
+                                            self.h, self.nx, self.ny, math.inf, self.stop)
+        return self._top
+
+    def depth_mm(self, centres_frame) -> np.ndarray:
+        """(n,) how deep the stock lies inside the cutter's ball at each centre, radially (-inf: none)."""
+        c = np.ascontiguousarray(np.asarray(centres_frame, dtype=np.float64).reshape(-1, 3))
+        out = np.empty(c.shape[0])
+        if c.shape[0]:
+            _depth_kernel(self.top(), self.x0, self.y0, self.h, c, self.r, out)
+        return out
+
+    def __call__(self, centres_frame) -> np.ndarray:
+        return self.depth_mm(centres_frame) > self.max_depth
 
 
 def semi_flute_mm(config) -> float:

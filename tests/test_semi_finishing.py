@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -257,3 +258,30 @@ def test_the_depth_kernel_agrees_with_sampling_the_ball():
             assert out[k] == pytest.approx(best, abs=0.011), k
         else:
             assert not out[k] > -np.inf, k
+
+
+def test_the_viewer_draws_the_semi_finishing_paths(semi_plan, tmp_path):
+    """The viewer's data carries each area's semi-finishing path beside its finishing and roughing paths:
+    every move's end point, at the tool tip in the part frame, is a vertex (within the quantisation)."""
+    import json
+
+    from scipy.spatial import cKDTree
+
+    from planning.report.plan_files import write_plan
+    from planning.report.viewer_data import dequantise
+    from test_viewer import _arrays
+
+    write_plan(semi_plan, tmp_path)
+    index = json.loads((tmp_path / "viewer.json").read_text())
+    box = index["paths"]["box"]
+    step = float(np.max((np.array(box["max_mm"]) - box["min_mm"]) / 65535))
+    items = {(i["area"], i["operation"]): i for i in index["paths"]["items"]}
+    for ap in semi_plan.extra["area_paths"]:
+        item = items[(ap.area, "semi_finishing")]
+        a = _arrays(tmp_path, index, {"v": item["vertices"]})
+        v = dequantise(a["v"], box["min_mm"], box["max_mm"])
+        tips = ap.frame.to_part(ap.semi.toolpath.tip_mm())
+        dist, _ = cKDTree(v).query(tips)
+        assert dist.max() <= 2 * step, ap.area
+    html = (Path(__file__).resolve().parents[1] / "scanmill/viewer/static/index.html").read_text()
+    assert 'id="show-semi"' in html

@@ -26,9 +26,13 @@ import pytest
 from browser import canvas_pixels, chromium, console_entries, js_errors, wait_viewer
 from scipy.spatial import cKDTree
 from service_fixtures import (
+    HALF_SPHERE_PARAMS,
     KEY_A,
     KEY_B,
     ROOT,
+    submit,
+    wait_status,
+    write_half_sphere,
 )
 
 from planning.inputs import Cloud, samples
@@ -510,3 +514,37 @@ def test_scanmill_view_refuses_a_directory_without_a_plan(tmp_path):
     r = subprocess.run([sys.executable, "-m", "scanmill.cli", "view", str(tmp_path)], cwd=ROOT, capture_output=True,
                        check=False, text=True, timeout=120)
     assert r.returncode == 2 and "error [not_a_plan]" in r.stderr and "viewer.json" in r.stderr
+
+
+def test_semi_finishing_paths_are_off_at_first_and_switch_on_together(server, browser, tmp_path):
+    """A plan with semi-finishing (paths.semi_finishing): its paths load with the others, every row's
+    semi switch enabled and off when the page opens; "semi-finishing paths of every area" turns them all
+    on and draws them; the finishing switches are untouched."""
+    import copy
+
+    params = copy.deepcopy(HALF_SPHERE_PARAMS)
+    params["paths"]["semi_finishing"] = {"enabled": True, "scallop_mm": 0.2}
+    cloud = write_half_sphere(tmp_path / "half_sphere.ply")
+    with server.client(KEY_A) as c:
+        r = submit(c, cloud, params)
+        assert r.status_code == 202, r.text
+        job = wait_status(c, r.json()["id"])
+    assert job["status"] == "succeeded", job
+    browser.get(f"{server.url}/jobs/{job['id']}/viewer")
+    state = wait_viewer(browser, paths=True)
+    if state.get("keyform"):                      # a test before may have left the tab without the key
+        browser.find_element("id", "key").send_keys(KEY_A)
+        browser.find_element("css selector", "#keyform button").click()
+        state = wait_viewer(browser, paths=True)
+    assert state["pathsReady"] and state["error"] is None, state
+    semi = browser.find_elements("css selector", '.toggle-path[data-op="semi_finishing"]')
+    assert len(semi) == 2 and all(e.is_enabled() for e in semi)
+    assert _checked(browser, '.toggle-path[data-op="semi_finishing"], #show-semi') == [False, False, False]
+    _click_and_draw(browser, "#show-axes")
+    _click_and_draw(browser, "#shading")
+    before = canvas_pixels(browser)
+    _click_and_draw(browser, "#show-semi")
+    assert _checked(browser, '.toggle-path[data-op="semi_finishing"]') == [True, True]
+    assert _checked(browser, '.toggle-path[data-op="finishing"]') == [True, True]
+    assert np.count_nonzero(np.any(canvas_pixels(browser) != before, axis=-1)) > 1000
+    assert js_errors(browser, console_entries(browser)) == []

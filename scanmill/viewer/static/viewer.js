@@ -393,6 +393,7 @@ function fillTable(idx) {
       `<td>${s.n_input_points.toLocaleString('en')}</td><td>${s.finishing_mode || ''}</td>` +
       `<td><input type="checkbox" class="toggle-scan" checked title="scan points of this area"></td>` +
       `<td><input type="checkbox" class="toggle-path" data-op="finishing" disabled checked title="finishing path"></td>` +
+      `<td><input type="checkbox" class="toggle-path" data-op="semi_finishing" disabled title="semi-finishing path"></td>` +
       `<td><input type="checkbox" class="toggle-path" data-op="roughing" disabled title="roughing path"></td>`;
     body.appendChild(tr);
   });
@@ -468,7 +469,8 @@ function wireScanToggles(idx) {
 }
 
 // ------------------------------------------------------------------------------------------- paths
-// finishing paths in the area's colour, shown from the start; roughing paths (off at the start) darker;
+// finishing paths in the area's colour, shown from the start; semi-finishing (off at the start) a little
+// darker, roughing paths (off at the start) darker;
 // both translucent and without depth writes, so the shaded scan stays visible under the passes and
 // through the roughing levels; rapids grey, off. The deviation colours hide the paths (they would cover
 // the map) and the area colours bring back the switches as they were.
@@ -477,7 +479,7 @@ const pathObjects = [];         // { item, cb, cutLines, rapidLines }
 let savedPathSwitches = null;   // the path switches' states while the deviation colours hide them
 
 function pathSwitches() {
-  return [...document.querySelectorAll('.toggle-path:not(:disabled), #show-finishing, #show-roughing')];
+  return [...document.querySelectorAll('.toggle-path:not(:disabled), #show-finishing, #show-semi, #show-roughing')];
 }
 
 function pathsForColour() {
@@ -515,8 +517,8 @@ function buildPaths(idx, buffers) {
     }
     const s = idx.setups.find((x) => x.id === item.area);
     const c = s ? s.color : [0, 0, 0];
-    const roughing = item.operation === 'roughing';
-    const shade = roughing ? 0.5 : 1.0;
+    const roughing = item.operation === 'roughing', semi = item.operation === 'semi_finishing';
+    const shade = roughing ? 0.5 : (semi ? 0.75 : 1.0);
     const colour = new THREE.Color(c[0] * shade / 255, c[1] * shade / 255, c[2] * shade / 255);
     const gc = new THREE.BufferGeometry(), gr = new THREE.BufferGeometry();
     gc.setAttribute('position', attr); gc.setIndex(new THREE.BufferAttribute(cuts, 1));
@@ -529,7 +531,7 @@ function buildPaths(idx, buffers) {
     const cb = document.querySelector(`tr[data-setup="${item.area}"] .toggle-path[data-op="${item.operation}"]`);
     if (cb) {
       cb.disabled = false;
-      const all = roughing ? $('show-roughing') : $('show-finishing');
+      const all = roughing ? $('show-roughing') : (semi ? $('show-semi') : $('show-finishing'));
       if (savedPathSwitches) {       // the deviation colours were chosen while the paths loaded
         savedPathSwitches.set(cb, savedPathSwitches.get(all));
         cb.checked = false;
@@ -539,7 +541,7 @@ function buildPaths(idx, buffers) {
     pathObjects.push({ item, cb, cutLines, rapidLines });
   }
   // the switches of every area at once
-  for (const [id, op] of [['show-finishing', 'finishing'], ['show-roughing', 'roughing']]) {
+  for (const [id, op] of [['show-finishing', 'finishing'], ['show-semi', 'semi_finishing'], ['show-roughing', 'roughing']]) {
     $(id).onchange = (e) => {
       for (const p of pathObjects) if (p.cb && p.item.operation === op) p.cb.checked = e.target.checked;
       applyPaths();

@@ -86,8 +86,8 @@ def test_a_worker_that_dies_is_replaced_by_the_passes_computed_here(worker_on, m
     monkeypatch.setattr(W, "MIN_POINTS", 0)
     real = W.FinishingWorker.submit
 
-    def submit_then_die(self, *a):
-        ok = real(self, *a)
+    def submit_then_die(self, *a, **kw):
+        ok = real(self, *a, **kw)
         if ok:
             self._proc.kill()
         return ok
@@ -216,3 +216,46 @@ def test_the_regions_travel_as_indices_and_read_back_as_the_same_masks():
     assert size < len(pickle.dumps(masks)) / 5
     whole = _region_masks(mine, None, n + pad)
     assert len(whole) == 1 and np.array_equal(whole[0], np.concatenate([mine, np.zeros(pad, bool)]))
+
+
+def test_a_plan_with_semi_finishing_is_the_same_with_the_worker(monkeypatch):
+    """With paths.semi_finishing the worker computes each set-up's semi-finishing passes first (answered on
+    their own) and then its finishing passes: the same programs as without the worker, and both answers
+    of every set-up came from it."""
+    from planning.inputs import Cloud
+    from planning.inputs.samples import filleted_box
+    from planning.pipeline import run_plan
+    from schemas.params import apply_overrides, parse_config
+
+    monkeypatch.delenv("SCANMILL_FINISHING_WORKER", raising=False)
+    monkeypatch.setattr(W, "_threads", lambda: 2)
+    s = filleted_box(density_per_mm2=0.5, seed=3)
+    cfg = parse_config(apply_overrides({}, ["tool.diameter_mm=4", "paths.finishing.scallop_mm=0.2",
+                                            "paths.roughing.step_down_mm=5", "simulate.resolution_mm=1.0",
+                                            "paths.semi_finishing.enabled=true", "paths.semi_finishing.diameter_mm=6",
+                                            "paths.semi_finishing.scallop_mm=0.2"]))
+
+    def plan():
+        return run_plan(Cloud(points=s.points, normals=s.normals, source_format="generated"), cfg, name="box")
+
+    monkeypatch.setattr(W, "MIN_POINTS", 10 ** 12)
+    here = plan()
+    asked = []
+    real_semi, real = W.FinishingWorker.semi_passes, W.FinishingWorker.passes
+
+    def semi_counted(self, progress=None):
+        asked.append("semi")
+        return real_semi(self, progress)
+
+    def counted(self, progress=None):
+        asked.append("finishing")
+        return real(self, progress)
+    monkeypatch.setattr(W.FinishingWorker, "semi_passes", semi_counted)
+    monkeypatch.setattr(W.FinishingWorker, "passes", counted)
+    monkeypatch.setattr(W, "MIN_POINTS", 0)
+    there = plan()
+    k = len(there.result.setups)
+    assert asked == ["semi", "finishing"] * k
+    assert any(op.operation == "semi_finishing" for a in there.result.verification.areas for op in a.operations)
+    assert here.extra["programs"] == there.extra["programs"]
+    assert here.result.verification.status == there.result.verification.status == "passed"

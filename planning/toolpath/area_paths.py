@@ -331,12 +331,16 @@ def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, ob
                        tolerance_mm=tol)
         masks, job = None, None
         five = fp.area_modes.get(i, fp.mode) == "5axis"
+        semi = _SemiJob.of(semi_tool, paths_params, mine, regions, cloud_f.shape[0], safe - R) \
+            if (semi_tool is not None and fp.enabled and not five) else None
         if fp.enabled:
             # and the points set-ups before left that this one sees, as one more region
             masks = _region_masks(mine, regions, cloud_f.shape[0], extra=extra)
-            # computed there while this process roughs (with the cloud's part of their check)
+            # computed there while this process roughs (with the cloud's part of their check; the
+            # semi-finishing's passes first)
             check = None if (carried is None or five) else (frame, axes[i], tool, obstacles)
-            if worker is not None and worker.submit(cloud_f, masks, faces, fp, R, tol, safe, max_slope_deg, check):
+            if worker is not None and worker.submit(cloud_f, masks, faces, fp, R, tol, safe, max_slope_deg, check,
+                                                    semi=None if semi is None else semi.worker_args()):
                 job = worker
         _add_roughing(ap, cloud_f, area_f, top, paths_params, sec, roughing_window_reach_mm(paths_params, tool),
                       stock_f=stock_f, carried=carried, progress=prog.step("roughing"))
@@ -347,9 +351,9 @@ def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, ob
             _guard_roughing(ap, carried, top + paths_params.roughing.stock_margin_mm + paths_params.safe_clearance_mm,
                             progress=prog.step("guard_roughing"))
             sec["guard_roughing"] = time.perf_counter() - t0
-        if semi_tool is not None and fp.enabled and not five:
-            _add_semi(ap, cloud_f, mine, regions, faces, paths_params, semi_tool, max_slope_deg, carried, obstacles,
-                      axes[i], fixtures, area_f, points, sec, prog)
+        if semi is not None:
+            _add_semi(ap, cloud_f, mine, semi, faces, paths_params, semi_tool, max_slope_deg, carried, obstacles,
+                      axes[i], fixtures, area_f, points, sec, prog, job)
         if carried is not None and carried.normals is not None:
             # issue 16 item 1: the stock the finishing meets over this area (roughing allowance
             # where roughing reached; more where the roughing tool or its holder could not go)
@@ -564,18 +568,55 @@ def _guard_roughing(ap: AreaPaths, carried, safe_tip_z: float, progress: Progres
     carried.stock = g.stock
 
 
-def _add_semi(ap: AreaPaths, cloud_f, mine, regions, faces, paths_params, tool: ToolAssembly, max_slope_deg: float,
-              carried, obstacles, axis, fixtures, area_f, points, sec: dict, prog: _PathsProgress) -> None:
+@dataclass
+class _SemiJob:
+    """What a set-up's semi-finishing passes are planned from (known when the set-up starts, so the
+    finishing worker can compute them while this process roughs): the area's region masks, the passes'
+    parameters (:func:`planning.toolpath.semi_finishing.pass_params`), the radius ``R'`` they are planned
+    with, their tolerance and the tool tip's safe height (frame z, mm)."""
+
+    masks: IndexMasks
+    fp: object
+    radius_mm: float
+    tol_mm: float
+    safe_tip_z_mm: float
+
+    @classmethod
+    def of(cls, tool: ToolAssembly, paths_params, mine, regions, n_obstacles: int, safe_tip_z_mm: float) -> _SemiJob:
+        from planning.toolpath.semi_finishing import pass_params
+
+        sp = paths_params.semi_finishing
+        return cls(masks=_region_masks(mine, regions, n_obstacles), fp=pass_params(paths_params.finishing, sp),
+                   radius_mm=float(tool.radius_mm) + float(sp.allowance_mm), tol_mm=float(sp.tolerance_mm),
+                   safe_tip_z_mm=float(safe_tip_z_mm))
+
+    def worker_args(self) -> tuple:
+        """``FinishingWorker.submit``'s ``semi``: (masks, fp, R', tol, the ball-centre safe height)."""
+        return (self.masks, self.fp, self.radius_mm, self.tol_mm, self.safe_tip_z_mm + self.radius_mm)
+
+
+def _add_semi(ap: AreaPaths, cloud_f, mine, job_semi: _SemiJob, faces, paths_params, tool: ToolAssembly,
+              max_slope_deg: float, carried, obstacles, axis, fixtures, area_f, points, sec: dict,
+              prog: _PathsProgress, job=None) -> None:
     """The semi-finishing of ``ap``'s set-up into ``ap.semi`` (:mod:`planning.toolpath.semi_finishing`):
-    planned on the area's regions, the positions its shank, holder or travel forbid cut out on the
-    carried stock, then guarded on it (the stock it leaves is carried on to the finishing)."""
+    planned on the area's regions (its passes from the finishing ``job`` when it computed them), the
+    positions its shank, holder, depth of cut or travel forbid cut out on the carried stock, then guarded
+    on it (the stock it leaves is carried on to the finishing)."""
     from planning.toolpath.semi_finishing import DepthLimit, plan_semi_finishing
 
     sp, fp = paths_params.semi_finishing, paths_params.finishing
     t0 = time.perf_counter()
     report = prog.step("semi_finishing")
-    safe_tip = ap.safe_z_mm - ap.radius_mm
-    R_off = float(tool.radius_mm) + float(sp.allowance_mm)
+    safe_tip = job_semi.safe_tip_z_mm
+    R_off = job_semi.radius_mm
+    passes = None
+    if job is not None:
+        try:
+            passes = job.semi_passes(report)
+        except WorkerFailed as e:
+            _log.warning("finishing worker failed on the semi-finishing passes (%s): computed in this process", e)
+        except ParameterError:
+            pass                               # no pass lies on the area: found again here, and none planned
     before = blocked = machine = None
     if carried is not None:
         if carried.normals is not None:
@@ -599,9 +640,8 @@ def _add_semi(ap: AreaPaths, cloud_f, mine, regions, faces, paths_params, tool: 
                                 travel_ok=travel, floor_z_part_mm=carried.footprint, tol_mm=sp.tolerance_mm,
                                 scallop_mm=sp.scallop_mm, step_mm=sp.step_mm, depth=depth)
             return out, dict(figs.blocked)
-    semi = plan_semi_finishing(cloud_f, _region_masks(mine, regions, cloud_f.shape[0]), faces, sp=sp, fp=fp,
-                               tool=tool, safe_tip_z_mm=safe_tip, max_slope_deg=max_slope_deg, blocked=blocked,
-                               progress=report)
+    semi = plan_semi_finishing(cloud_f, job_semi.masks, faces, sp=sp, fp=fp, tool=tool, safe_tip_z_mm=safe_tip,
+                               max_slope_deg=max_slope_deg, blocked=blocked, progress=report, passes=passes)
     semi.allowance_before_mm = before
     if carried is not None and semi.toolpath is not None and semi.toolpath.n_moves:
         g = guard_toolpath(semi.toolpath, ap.frame, carried.semi_shape, carried.stock, carried.obstacles, machine,

@@ -150,7 +150,8 @@ def _read_frame(stream):
 
 def _serve() -> int:
     """The worker's loop: a job per frame on stdin, ``("ok", FinishingPath)`` or ``("error", exc)``
-    per frame on stdout, until stdin closes."""
+    per frame on stdout, until stdin closes. A job with a semi-finishing part answers it first, in a frame
+    of its own (its passes: the same function with the semi-finishing's radius and parameters)."""
     numba.set_num_threads(1)
     src, dst = sys.stdin.buffer, sys.stdout.buffer
     sys.stdout = sys.stderr                  # nothing else may write on the answers' stream
@@ -159,8 +160,15 @@ def _serve() -> int:
             job = _read_frame(src)
         except EOFError:
             return 0
+        passes, check = job[0], job[1]
+        semi = job[2] if len(job) > 2 else None
+        if semi is not None:
+            try:
+                answer = ("ok", region_passes(*semi)[0])
+            except Exception as e:            # noqa: BLE001 - the caller raises it as its own
+                answer = ("error", e)
+            _write_frame(dst, answer)
         try:
-            passes, check = job
             fin, _ = region_passes(*passes)
             answer = ("ok", (fin, cloud_check(fin, passes[6], passes[4], check)))
         except Exception as e:                # noqa: BLE001 - the caller raises it as its own
@@ -179,6 +187,7 @@ class FinishingWorker:
         self._proc: subprocess.Popen | None = proc
         self._writer: threading.Thread | None = None
         self._write_error: BaseException | None = None
+        self._semi_pending = False             # the job's semi-finishing answer not read yet
 
     @classmethod
     def open(cls, n_points: int) -> FinishingWorker | None:
@@ -204,16 +213,23 @@ class FinishingWorker:
         return self._proc is not None and self._proc.poll() is None
 
     def submit(self, cloud_f, region_masks, faces, fp, R: float, tol: float, safe: float,
-               max_slope_deg: float, check=None) -> bool:
+               max_slope_deg: float, check=None, semi=None) -> bool:
         """Start one set-up's passes in the worker (the job is written by a thread: the worker may still
         be starting), and with ``check`` (:func:`cloud_check`'s) the cloud reason of their check;
-        False when the worker is not usable (compute the passes here)."""
+        ``semi``: ``(region_masks, fp, R, tol, safe)`` of the set-up's semi-finishing passes
+        (:mod:`planning.toolpath.semi_finishing`, on the same cloud), computed first and read by
+        :meth:`semi_passes`, or None. False when the worker is not usable (compute the passes here)."""
         if not self.usable or self._writer is not None:
             return False
         # region_masks as given: the planner's are IndexMasks, a few MB where the masks themselves would
         # be one byte per cloud point each (the femur-like plan's first set-up: 103 regions, 103 MB)
-        job = ((np.ascontiguousarray(cloud_f), region_masks, None if faces is None else np.asarray(faces),
-                fp, float(R), float(tol), float(safe), float(max_slope_deg)), check)
+        cloud = np.ascontiguousarray(cloud_f)
+        tri = None if faces is None else np.asarray(faces)
+        semi_job = None if semi is None else (cloud, semi[0], tri, semi[1], float(semi[2]), float(semi[3]),
+                                              float(semi[4]), float(max_slope_deg))
+        job = ((cloud, region_masks, tri, fp, float(R), float(tol), float(safe), float(max_slope_deg)), check,
+               semi_job)
+        self._semi_pending = semi is not None
 
         def write():
             try:
@@ -225,6 +241,22 @@ class FinishingWorker:
         self._writer.start()
         return True
 
+    def semi_passes(self, progress: Callable[[float, str], None] | None = None):
+        """The semi-finishing passes of the job submitted last (its ``semi`` part; waiting as :meth:`passes`).
+        The worker's errors are raised here; :class:`WorkerFailed` when there is no such part or the worker
+        died (it is closed; the caller computes the passes itself)."""
+        if self._writer is None or not self._semi_pending:
+            raise WorkerFailed("no semi-finishing job submitted")
+        self._semi_pending = False
+        try:
+            kind, value = self._answer(progress)
+        except WorkerFailed:
+            self._writer = None
+            raise
+        if kind == "error":
+            raise value
+        return value
+
     def passes(self, progress: Callable[[float, str], None] | None = None):
         """``(the passes, the cloud reason of their check or None)`` of the job submitted last
         (:func:`region_passes`, :func:`cloud_check`; waiting for them, ``progress(0, ...)`` about
@@ -232,6 +264,20 @@ class FinishingWorker:
         died (it is closed; the caller computes the passes itself)."""
         if self._writer is None:
             raise WorkerFailed("no job submitted")
+        try:
+            if self._semi_pending:             # a semi-finishing answer nobody asked for: read and dropped
+                self._semi_pending = False
+                self._answer(None)
+            kind, value = self._answer(progress)
+        finally:
+            self._writer = None
+        if kind == "error":
+            raise value
+        return value
+
+    def _answer(self, progress):
+        """The next answer frame ``(kind, value)``, waiting for it (``progress(0, ...)`` about every second);
+        :class:`WorkerFailed` (the worker closed) when it died or answered nonsense."""
         t0 = time.perf_counter()
         try:
             out = self._proc.stdout
@@ -243,18 +289,13 @@ class FinishingWorker:
             self._writer.join()
             if self._write_error is not None:
                 raise WorkerFailed(f"the job could not be sent: {self._write_error}")
-            kind, value = _read_frame(out)
+            return _read_frame(out)
         except (EOFError, OSError, pickle.UnpicklingError, struct.error) as e:
             self.close()
             raise WorkerFailed(f"the worker failed: {e!r}") from e
         except WorkerFailed:
             self.close()
             raise
-        finally:
-            self._writer = None
-        if kind == "error":
-            raise value
-        return value
 
     def close(self) -> None:
         """Close the worker's input (it exits) and wait for it a little; then kill it."""

@@ -175,7 +175,8 @@ class SemiFinishing:
 
 
 def plan_semi_finishing(cloud_f: np.ndarray, region_masks, faces, *, sp, fp, tool: ToolAssembly,
-                        safe_tip_z_mm: float, max_slope_deg: float, blocked=None, progress=None) -> SemiFinishing:
+                        safe_tip_z_mm: float, max_slope_deg: float, blocked=None, progress=None,
+                        passes: FinishingPath | None = None) -> SemiFinishing:
     """The semi-finishing passes of one set-up (module docstring), before the guard.
 
     ``cloud_f`` (N,3): the scan and the forbidden points in the area frame; ``region_masks``: the
@@ -187,8 +188,12 @@ def plan_semi_finishing(cloud_f: np.ndarray, region_masks, faces, *, sp, fp, too
     its tip ``allowance_mm`` above the finishing's, never lower); ``max_slope_deg``: as for the finishing;
     ``blocked``: ``(FinishingPath) -> FinishingPath | None`` the positions the tool may not take cut out
     (:func:`planning.toolpath.safety.guard_finishing` with this tool), or None: not checked;
-    ``progress(fraction, message)``."""
-    from planning.toolpath.finishing_worker import region_passes
+    ``progress(fraction, message)``; ``passes``: the passes already computed with these arguments (the
+    finishing worker's, :class:`planning.toolpath.finishing_worker.FinishingWorker`), or None: computed
+    here. An area on which no pass lies gets none (``toolpath`` None), not an error: the finishing
+    still runs."""
+    from planning.errors import ParameterError
+    from planning.toolpath.finishing_worker import binned_cloud, region_passes
 
     r = float(tool.radius_mm)
     R = r + float(sp.allowance_mm)
@@ -196,9 +201,15 @@ def plan_semi_finishing(cloud_f: np.ndarray, region_masks, faces, *, sp, fp, too
     sec = {}
     t0 = time.perf_counter()
     pfp = pass_params(fp, sp)
-    fin, binned = region_passes(cloud_f, region_masks, faces, pfp, R, tol, float(safe_tip_z_mm) + R, max_slope_deg,
-                                progress=None if progress is None else
-                                (lambda f, m="": progress(0.6 * f, f"passes, {m}" if m else "passes")))
+    if passes is not None:
+        fin, binned = passes, binned_cloud(cloud_f, faces, R)
+    else:
+        try:
+            fin, binned = region_passes(cloud_f, region_masks, faces, pfp, R, tol, float(safe_tip_z_mm) + R,
+                                        max_slope_deg, progress=None if progress is None else
+                                        (lambda f, m="": progress(0.6 * f, f"passes, {m}" if m else "passes")))
+        except ParameterError:
+            return SemiFinishing(toolpath=None, passes=None, radius_mm=r, offset_radius_mm=R, tolerance_mm=tol)
     # the real cutter's tip is r under the centre (the posts, the guard and the simulation read it there)
     tip = dataclasses.replace(fin.toolpath, tip_offset_mm=r)
     fin = dataclasses.replace(fin, toolpath=tip)

@@ -301,6 +301,10 @@ def _paths(points: np.ndarray, cloud: Cloud, areas: Areas, sel_axes: np.ndarray,
         semi_tool=_semi_tool(config))
 
 
+#: An area's operations in the order the posts write them (AreaPaths attributes, each with its ``_guard``).
+_OPERATIONS = ("roughing", "semi_finishing", "finishing")
+
+
 def _semi_tool(config: PlanConfig):
     """The semi-finishing cutter when ``paths.semi_finishing`` is enabled (with the finishing), else None."""
     if not (config.paths.semi_finishing.enabled and config.paths.finishing.enabled):
@@ -361,10 +365,8 @@ def _paths_warnings(area_paths) -> list[str]:
         if ap.finishing is not None and not ap.gouge_free:
             warnings.append(f"area {ap.area}: the finishing path comes {ap.min_clearance_mm:.4f} mm from a cloud "
                             f"point, closer than R - tolerance: it would gouge")
-        semi = getattr(ap, "semi", None)
-        for op, g in (("roughing", getattr(ap, "roughing_guard", None)),
-                      ("semi_finishing", None if semi is None else semi.guard),
-                      ("finishing", getattr(ap, "finishing_guard", None))):
+        for op in _OPERATIONS:
+            g = getattr(ap, f"{op}_guard", None)
             if g is not None and g.truncated:
                 warnings.append(f"area {ap.area}: the {op} path was cut off {g.truncated} moves before its end: they "
                                 f"still met the stock, a fixture or the travel after {g.rounds} repair rounds "
@@ -558,10 +560,7 @@ def _simulated_operations(area_paths, carried) -> dict | None:
     out = {}
     for ap in area_paths:
         ops = []
-        semi = getattr(ap, "semi", None)
-        for tp, g in ((ap.roughing, getattr(ap, "roughing_guard", None)),
-                      (None if semi is None else semi.toolpath, None if semi is None else semi.guard),
-                      (ap.finishing, getattr(ap, "finishing_guard", None))):
+        for tp, g in ((getattr(ap, op, None), getattr(ap, f"{op}_guard", None)) for op in _OPERATIONS):
             if tp is None:
                 continue
             if g is None or g.moves is None or tp.axis is not None:

@@ -77,10 +77,9 @@ def _operations(ap, config) -> list[Operation]:
                              tool_diameter_mm=rp.diameter_mm, tool_type=rp.tool_type,
                              spindle_rpm=post.roughing_spindle_rpm, feed_mm_min=post.roughing_feed_mm_min,
                              plunge_mm_min=post.plunge_mm_min))
-    semi = getattr(ap, "semi", None)
-    if semi is not None and semi.toolpath is not None:
+    if getattr(ap, "semi_finishing", None) is not None:
         sp = config.paths.semi_finishing
-        ops.append(Operation(name="semi_finishing", toolpath=semi.toolpath, tool_number=post.semi_finishing_tool_number,
+        ops.append(Operation(name="semi_finishing", toolpath=ap.semi_finishing, tool_number=post.semi_finishing_tool_number,
                              tool_diameter_mm=sp.diameter_mm, tool_type="ball",
                              spindle_rpm=post.semi_finishing_spindle_rpm, feed_mm_min=post.semi_finishing_feed_mm_min,
                              plunge_mm_min=post.plunge_mm_min))
@@ -200,7 +199,7 @@ def _semi_summary(semi, config):
         min_clearance_mm=round(float(min(semi.min_clearance_mm, semi.offset_radius_mm)) - float(semi.radius_mm), 6),
         blocked_cl=dict(semi.blocked), allowance_before_mm=semi.allowance_before_mm,
         allowance_after_mm=semi.allowance_after_mm, allowance_reached_mm=semi.allowance_reached_mm,
-        reached_share=round(semi.n_reached / max(semi.n_points, 1), 4),
+        reached_share=round(semi.reached_share, 4),
         machining_time_s=round(machining_time_s(tp, feed_mm_min=post.semi_finishing_feed_mm_min,
                                                 plunge_mm_min=post.plunge_mm_min, rapid_mm_min=post.rapid_mm_min), 1)
         if tp is not None else 0.0,

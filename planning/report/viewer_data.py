@@ -248,8 +248,7 @@ def viewer_index(outcome, *, max_points: int = MAX_POINTS, arc_step_mm: float = 
     verts, uses, owners = [], [], []
     for ap in outcome.extra.get("area_paths", []) or []:
         for op in ("finishing", "semi_finishing", "roughing"):
-            semi = getattr(ap, "semi", None)
-            tp = (None if semi is None else semi.toolpath) if op == "semi_finishing" else getattr(ap, op, None)
+            tp = getattr(ap, op, None)
             if tp is None or tp.n_moves == 0:
                 continue
             v, u = chords(tp, ap.frame, arc_step_mm)

@@ -57,6 +57,7 @@ from planning.toolpath.finishing_worker import (
     binned_cloud,
     region_passes,
 )
+from planning.toolpath.carried import stock_figures
 from planning.toolpath.frames import AreaFrame, area_frame
 from planning.toolpath.guard import guard_toolpath
 from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath, concatenate
@@ -104,6 +105,16 @@ class AreaPaths:
     five_axis: object = None                   # FiveAxisFigures of a simultaneous 5-axis finishing
     five_axis_input: Toolpath | None = None    # the 3-axis passes it was planned from
     semi: object = None                        # SemiFinishing between the roughing and the finishing, or None
+
+    @property
+    def semi_finishing(self) -> Toolpath | None:
+        """The semi-finishing toolpath (None: none), named like ``roughing`` and ``finishing``."""
+        return None if self.semi is None else self.semi.toolpath
+
+    @property
+    def semi_finishing_guard(self):
+        """The guard's outcome of the semi-finishing (None: none or not guarded)."""
+        return None if self.semi is None else self.semi.guard
 
     @property
     def gouge_free(self) -> bool:
@@ -357,9 +368,13 @@ def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, ob
         if carried is not None and carried.normals is not None:
             # issue 16 item 1: the stock the finishing meets over this area (roughing allowance
             # where roughing reached; more where the roughing tool or its holder could not go)
-            ap.allowance_left = carried.allowance_left(points[mine], carried.normals[mine])
+            left = carried.stock_over(points[mine], carried.normals[mine])
+            ap.allowance_left = stock_figures(left)
             if ap.semi is not None:
+                # what the semi-finishing left: over the area, and over the points it reaches
                 ap.semi.allowance_after_mm = ap.allowance_left
+                if ap.semi.reached is not None and ap.semi.reached.any():
+                    ap.semi.allowance_reached_mm = stock_figures(left[ap.semi.reached])
         if fp.enabled:
             _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec, faces=faces, job=job,
                            blocked=None if (carried is None or five) else
@@ -620,7 +635,7 @@ def _add_semi(ap: AreaPaths, cloud_f, mine, job_semi: _SemiJob, faces, paths_par
     before = blocked = machine = None
     if carried is not None:
         if carried.normals is not None:
-            before = carried.allowance_left(points[mine], carried.normals[mine])
+            before = stock_figures(carried.stock_over(points[mine], carried.normals[mine]))
         shape = carried.semi_shape
         machine = None if carried.machines is None else carried.machines[ap.area]
         travel = None if machine is None else (lambda tips: machine.travel_ok(tips, shape.gauge_length_mm))
@@ -648,18 +663,13 @@ def _add_semi(ap: AreaPaths, cloud_f, mine, job_semi: _SemiJob, faces, paths_par
                            safe_z_mm=safe_tip + R_off, rapid_clearance_mm=carried.rapid_clearance_mm)
         semi.toolpath, semi.guard = (g.toolpath if g.toolpath.n_moves else None), g
         carried.stock = g.stock
-    if semi.toolpath is not None and semi.toolpath.n_moves == 0:
-        semi.toolpath = None
     if semi.toolpath is not None:
         # the area's points its kept moves reach (the ball of radius R' within the scallop, the tolerance and
-        # the sampling's slack), and the stock over them it leaves (issue 31 item 3's measure)
+        # the sampling's slack): the stock it leaves over them is issue 31 item 3's measure (read with the
+        # area's, after this step)
         spacing = float(tool.radius_mm) / 4.0
         reach = finished_reach_mm(R_off, tol_mm=sp.tolerance_mm, scallop_mm=sp.scallop_mm, spacing_mm=spacing)
-        reached = ~unmachined_points(area_f, cutting_positions(semi.toolpath, spacing), R_off, reach)
-        semi.n_points, semi.n_reached = int(reached.size), int(reached.sum())
-        if carried is not None and carried.normals is not None and reached.any():
-            idx = np.flatnonzero(mine)[reached]
-            semi.allowance_reached_mm = carried.allowance_left(points[idx], carried.normals[idx])
+        semi.reached = ~unmachined_points(area_f, cutting_positions(semi.toolpath, spacing), R_off, reach)
     ap.semi = semi
     sec["semi_finishing"] = time.perf_counter() - t0
 

@@ -53,19 +53,25 @@ class CarriedStock:
     visible: np.ndarray | None = None
     semi_shape: ToolShape | None = None
 
-    def allowance_left(self, points: np.ndarray, normals: np.ndarray) -> dict:
-        """The stock left over the scan ``points`` (k,3, part frame) along their unit ``normals``
-        on the carried stock as it is now (:func:`planning.simulate.dexel.signed_deviation`, clipped
-        at 20 mm; mm): ``p05``, ``p50``, ``p95``, ``max`` of the readings, and ``n`` read."""
+    def stock_over(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """(k,) the stock left over the scan ``points`` (k,3, part frame) along their unit ``normals`` on
+        the carried stock as it is now (:func:`planning.simulate.dexel.signed_deviation`, clipped at 20 mm;
+        mm; NaN where not read)."""
         from planning.simulate.dexel import signed_deviation
 
-        d = signed_deviation(self.stock, points, normals, max_mm=20.0)
-        d = d[np.isfinite(d)]
-        if d.size == 0:
-            return {"n": 0}
-        q = np.percentile(d, [5, 50, 95])
-        return {"n": int(d.size), "p05": round(float(q[0]), 3), "p50": round(float(q[1]), 3),
-                "p95": round(float(q[2]), 3), "max": round(float(d.max()), 3)}
+        return signed_deviation(self.stock, points, normals, max_mm=20.0)
+
+
+def stock_figures(d: np.ndarray) -> dict:
+    """``p05``, ``p50``, ``p95``, ``max`` (mm) of the finite readings ``d`` of :meth:`CarriedStock.stock_over`,
+    and ``n`` read."""
+    d = np.asarray(d, dtype=np.float64)
+    d = d[np.isfinite(d)]
+    if d.size == 0:
+        return {"n": 0}
+    q = np.percentile(d, [5, 50, 95])
+    return {"n": int(d.size), "p05": round(float(q[0]), 3), "p50": round(float(q[1]), 3),
+            "p95": round(float(q[2]), 3), "max": round(float(d.max()), 3)}
 
 
 @dataclass

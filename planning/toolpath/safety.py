@@ -81,9 +81,6 @@ from planning.toolpath.moves import (
 
 #: The reasons :func:`blocked_cl` reports, in this order.
 REASONS = ("cloud", "fixture", "stock", "travel", "underside")
-#: Reasons counted only where they were checked: ``depth`` (the semi-finishing's deepest cut, the
-#: ``depth`` argument of :func:`blocked_cl`).
-OPTIONAL_REASONS = ("depth",)
 
 #: A point this close below the safe height counts as at it (mm).
 _AT_SAFE_MM = 1e-6
@@ -106,10 +103,11 @@ class BlockedCL:
 
     @property
     def counts(self) -> dict:
-        """Points blocked per reason (every name of :data:`REASONS`; 0 where not checked). A point
-        blocked for several reasons counts under each."""
-        out = {r: int(self.reasons[r].sum()) if r in self.reasons else 0 for r in REASONS}
-        out.update({r: int(self.reasons[r].sum()) for r in OPTIONAL_REASONS if r in self.reasons})
+        """Points blocked per reason: every name of :data:`REASONS` (0 where not checked), then any other
+        reason checked (``depth``, the semi-finishing's). A point blocked for several reasons counts under
+        each."""
+        out = {r: 0 for r in REASONS}
+        out.update({r: int(m.sum()) for r, m in self.reasons.items()})
         return out
 
     @property

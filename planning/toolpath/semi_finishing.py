@@ -149,8 +149,8 @@ class SemiFinishing:
     centres: at least ``R' - tolerance_mm``), ``blocked`` (positions cut out, by reason), ``n_arcs``,
     ``guard`` (the guard's outcome on the carried stock, or None), ``allowance_before_mm`` /
     ``allowance_after_mm`` (the stock over the area's points before and after it),
-    ``allowance_reached_mm`` (after it, over the ``n_reached`` of the area's ``n_points`` points its kept
-    moves reach), ``seconds``."""
+    ``allowance_reached_mm`` (after it, over the points its kept moves reach: ``reached``, (n,) bool over
+    the area's points), ``seconds``."""
 
     toolpath: Toolpath | None
     passes: FinishingPath | None
@@ -164,9 +164,13 @@ class SemiFinishing:
     allowance_before_mm: dict | None = None
     allowance_after_mm: dict | None = None
     allowance_reached_mm: dict | None = None
-    n_points: int = 0
-    n_reached: int = 0
+    reached: np.ndarray | None = None
     seconds: dict = field(default_factory=dict)
+
+    @property
+    def reached_share(self) -> float:
+        """Share of the area's points its kept moves reach (0 when it has none)."""
+        return 0.0 if self.reached is None or self.reached.size == 0 else float(self.reached.mean())
 
     @property
     def gouge_free(self) -> bool:

@@ -31,6 +31,15 @@ then workqueue, then TBB: the layer that was in use anyway (GNU OpenMP, parallel
 ``NUMBA_NUM_THREADS``), chosen without probing TBB, and still a working layer (workqueue) where
 libgomp is missing. GNU OpenMP is not fork-safe; no process of the service runs a parallel kernel
 and then forks (the fork server and the Celery main process only import).
+
+**Idle OpenMP threads sleep.** Unless the user set ``OMP_WAIT_POLICY`` or ``GOMP_SPINCOUNT``, the wait
+policy is set to ``PASSIVE``: a GNU OpenMP thread whose parallel kernel is done sleeps at once instead
+of spinning for the next one (the default spins some 300,000 rounds first). The planner calls many
+small parallel kernels between stretches of Python, and on the femur-like plan with two threads the
+spinning took the core the Python thread, the finishing worker process or another job needed: 0.87x
+the CPU seconds and 0.93x the wall time with ``PASSIVE``, the same programs (BENCHMARKS.md, "Idle
+OpenMP threads sleep"). libgomp reads the variable when it is loaded, at the first parallel kernel,
+after ``planning`` is imported (tests/test_warmup.py checks what libgomp itself reports).
 """
 
 from __future__ import annotations
@@ -45,6 +54,8 @@ from pathlib import Path
 ENV_VAR = "SCANMILL_CACHE_DIR"
 #: numba's layers in the order tried when the user chose none (see the module docstring).
 THREADING_LAYER_PRIORITY = "omp workqueue tbb"
+#: OpenMP's wait policy when the user chose none (see the module docstring).
+OMP_WAIT_POLICY = "PASSIVE"
 
 #: What :func:`configure` decided: ``cache_dir`` (str or None when the user's NUMBA_CACHE_DIR is kept
 #: as it is), ``source`` (``NUMBA_CACHE_DIR``, ``SCANMILL_CACHE_DIR``, ``XDG``, ``temp``) and ``skipped``
@@ -92,12 +103,15 @@ def _private_temp_dir() -> Path:
 
 
 def configure() -> dict:
-    """Set ``NUMBA_CACHE_DIR`` and the threading-layer priority unless the user set them; return :data:`state`.
+    """Set ``NUMBA_CACHE_DIR``, the threading-layer priority and OpenMP's wait policy unless the user set
+    them; return :data:`state`.
 
     Idempotent; called once when ``planning`` is imported.
     """
     if not os.environ.get("NUMBA_THREADING_LAYER") and not os.environ.get("NUMBA_THREADING_LAYER_PRIORITY"):
         os.environ["NUMBA_THREADING_LAYER_PRIORITY"] = THREADING_LAYER_PRIORITY
+    if not os.environ.get("OMP_WAIT_POLICY") and not os.environ.get("GOMP_SPINCOUNT"):
+        os.environ["OMP_WAIT_POLICY"] = OMP_WAIT_POLICY
     if os.environ.get("NUMBA_CACHE_DIR"):
         state.update(cache_dir=os.environ["NUMBA_CACHE_DIR"],
                      source=state["source"] or "NUMBA_CACHE_DIR")

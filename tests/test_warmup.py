@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -196,3 +197,39 @@ print(numba.threading_layer(), numba.get_num_threads())
     assert "TBB" not in p.stderr
     layer, threads = p.stdout.split()
     assert layer in ("omp", "workqueue") and int(threads) == 2
+
+
+def test_idle_openmp_threads_sleep_unless_the_user_chose_a_wait_policy(src, tmp_path):
+    """``planning`` sets OMP_WAIT_POLICY=PASSIVE before libgomp is loaded (also with Open3D imported after
+    it): libgomp itself reports a spin count of 0 instead of its default 300,000. A policy or spin count
+    the user set is kept."""
+    code = r"""
+import planning, open3d, numba, numpy as np
+@numba.njit(parallel=True, cache=False)
+def total(a):
+    s = 0.0
+    for i in numba.prange(a.size):
+        s += a[i]
+    return s
+assert total(np.ones(1000)) == 1000.0
+print(numba.threading_layer())
+"""
+
+    def spin(**env):
+        e = _env(src, tmp_path / "kernels")
+        e.update(NUMBA_NUM_THREADS="2", OMP_DISPLAY_ENV="VERBOSE", **env)
+        for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT"):
+            if k not in env:
+                e.pop(k, None)
+        p = subprocess.run([sys.executable, "-c", code], check=False, cwd=src, env=e, capture_output=True, text=True,
+                           timeout=300)
+        assert p.returncode == 0, p.stderr[-3000:]
+        assert p.stdout.split()[-1] == "omp", p.stdout     # the layer kernel_cache puts first
+        got = re.findall(r"GOMP_SPINCOUNT = '(\d+)'", p.stderr)
+        policy = re.findall(r"OMP_WAIT_POLICY = '(\w+)'", p.stderr)
+        assert got and policy, p.stderr[-2000:]
+        return int(got[-1]), policy[-1]
+
+    assert spin() == (0, "PASSIVE")
+    assert spin(OMP_WAIT_POLICY="ACTIVE")[1] == "ACTIVE"
+    assert spin(GOMP_SPINCOUNT="1000")[0] == 1000

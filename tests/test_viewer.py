@@ -519,7 +519,7 @@ def test_scanmill_view_refuses_a_directory_without_a_plan(tmp_path):
 def test_semi_finishing_paths_are_off_at_first_and_switch_on_together(server, browser, tmp_path):
     """A plan with semi-finishing (paths.semi_finishing): its paths load with the others, every row's
     semi switch enabled and off when the page opens; "semi-finishing paths of every area" turns them all
-    on and draws them; the finishing switches are untouched."""
+    on and draws them; the finishing switches are untouched. The figures table has a semi column."""
     import copy
 
     params = copy.deepcopy(HALF_SPHERE_PARAMS)
@@ -547,4 +547,19 @@ def test_semi_finishing_paths_are_off_at_first_and_switch_on_together(server, br
     assert _checked(browser, '.toggle-path[data-op="semi_finishing"]') == [True, True]
     assert _checked(browser, '.toggle-path[data-op="finishing"]') == [True, True]
     assert np.count_nonzero(np.any(canvas_pixels(browser) != before, axis=-1)) > 1000
+    # the figures table has a semi-finishing column, as the CLI summary, so that each row adds up
+    fig = browser.execute_script("return window.scanmillViewer.index.figures")
+    heads = [th.text for th in browser.find_elements("css selector", "#figures thead tr:nth-child(2) th")]
+    assert heads[:4] == ["rough", "semi", "finish", "total"], heads
+    assert browser.find_element("id", "figures-minutes").get_attribute("colspan") == "4"
+    rows = browser.find_elements("css selector", "#figures tbody tr")
+    assert len(rows) == len(fig["areas"]) == 2
+    for row, a in zip(rows, fig["areas"], strict=True):
+        cells = [c.text for c in row.find_elements("css selector", "td")]
+        assert a["semi_finishing_time_s"] > 0
+        assert cells[2:6] == [_minutes(a["roughing_time_s"]), _minutes(a["semi_finishing_time_s"]),
+                              _minutes(a["finishing_time_s"]), _minutes(a["machining_time_s"])], (cells, a)
+        assert len(cells) == 10
+    for r in browser.find_elements("css selector", "#figures tfoot tr"):
+        assert len(r.find_elements("css selector", "td")) == 10
     assert js_errors(browser, console_entries(browser)) == []

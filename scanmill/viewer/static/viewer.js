@@ -400,8 +400,9 @@ function fillTable(idx) {
   fillFigures(idx);
 }
 
-// plan.json's figures (issue 34), nothing recomputed: per area in machining order its roughing, finishing and
-// total minutes and its input points finished / left / unreached / not covered; the plan's totals below
+// plan.json's figures (issue 34), nothing recomputed: per area in machining order its roughing, semi-finishing
+// (a column only where the plan has that operation, as the CLI summary), finishing and total minutes and its
+// input points finished / left / unreached / not covered; the plan's totals below
 function fillFigures(idx) {
   const f = idx.figures;
   if (!f) {
@@ -412,26 +413,38 @@ function fillFigures(idx) {
   const colour = new Map(idx.setups.map((s) => [s.id, s.color]));
   const body = document.querySelector('#figures tbody');
   const cells = (vals, cls) => vals.map((v, i) => `<td class="${cls[i]}">${v}</td>`).join('');
-  const cls = ['order', 'area', 'rough', 'finish', 'total', 'finished', 'left', 'unreached', 'not-covered'];
+  const semi = (f.areas || []).some((a) => a.semi_finishing_time_s !== null && a.semi_finishing_time_s !== undefined);
+  if (semi && !$('figures-semi')) {
+    const th = document.createElement('th');
+    th.id = 'figures-semi';
+    th.title = 'semi-finishing, minutes (paths.semi_finishing)';
+    th.textContent = 'semi';
+    document.querySelector('#figures thead tr:nth-child(2) th').after(th);
+    $('figures-minutes').colSpan = 4;
+  }
+  const withSemi = (vals, v) => (semi ? [...vals.slice(0, 3), v, ...vals.slice(3)] : vals);
+  const cls = withSemi(['order', 'area', 'rough', 'finish', 'total', 'finished', 'left', 'unreached', 'not-covered'],
+                       'semi');
   (f.areas || []).forEach((a, k) => {
     const tr = document.createElement('tr');
     tr.dataset.area = a.area;
     const c = colour.get(a.area);
-    tr.innerHTML = cells([k + 1, (c ? swatch(c) : '') + a.area, figFmt.minutes(a.roughing_time_s),
+    tr.innerHTML = cells(withSemi([k + 1, (c ? swatch(c) : '') + a.area, figFmt.minutes(a.roughing_time_s),
       figFmt.minutes(a.finishing_time_s), figFmt.minutes(a.machining_time_s), figFmt.count(a.finished),
-      figFmt.count(a.left), figFmt.count(a.unreached), figFmt.count(a.not_covered)], cls);
+      figFmt.count(a.left), figFmt.count(a.unreached), figFmt.count(a.not_covered)],
+      figFmt.minutes(a.semi_finishing_time_s)), cls);
     body.appendChild(tr);
   });
   const foot = document.querySelector('#figures tfoot');
   const tr = document.createElement('tr');
   tr.className = 'total';
-  tr.innerHTML = cells(['', 'plan', '', '', figFmt.minutes(f.machining_time_s), figFmt.count(f.finished),
-    figFmt.count(f.left), figFmt.count(f.unreached), figFmt.count(f.not_covered)], cls);
+  tr.innerHTML = cells(withSemi(['', 'plan', '', '', figFmt.minutes(f.machining_time_s), figFmt.count(f.finished),
+    figFmt.count(f.left), figFmt.count(f.unreached), figFmt.count(f.not_covered)], ''), cls);
   foot.appendChild(tr);
   const shares = document.createElement('tr');
   shares.className = 'shares';
-  shares.innerHTML = cells(['', 'share', '', '', figFmt.hmm(f.machining_time_s), figFmt.share(f.finished_share),
-    figFmt.share(f.left_share), figFmt.share(f.unreached_share), figFmt.share(f.not_covered_share)], cls);
+  shares.innerHTML = cells(withSemi(['', 'share', '', '', figFmt.hmm(f.machining_time_s), figFmt.share(f.finished_share),
+    figFmt.share(f.left_share), figFmt.share(f.unreached_share), figFmt.share(f.not_covered_share)], ''), cls);
   foot.appendChild(shares);
   const source = { simulated: 'simulated: the posted programs as the control runs them (feeds, rapids, no acceleration)',
                    estimate: 'estimate: from the tool paths before posting (no tool changes), not simulated',

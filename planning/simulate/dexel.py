@@ -49,7 +49,6 @@ shows that much, so a buried holder does not cost every ray of its footprint.
 from __future__ import annotations
 
 import math
-import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
@@ -473,9 +472,6 @@ def _run(model: TriDexel, start, end, axis, pieces, mode, grow=None, depth_cap_m
 
 _POOL: ThreadPoolExecutor | None = None
 _POOL_SIZE = 0
-#: the pool is made once by whichever thread asks first (two threads may run kernels at once:
-#: :mod:`planning.toolpath.overlap`)
-_POOL_LOCK = threading.Lock()
 
 
 def _map(fn, items, poll: Callable[[], None] | None = None, inline: bool = False) -> None:
@@ -488,12 +484,10 @@ def _map(fn, items, poll: Callable[[], None] | None = None, inline: bool = False
         for it in items:
             fn(it)
         return
-    with _POOL_LOCK:
-        if _POOL is None or _POOL_SIZE != nth:
-            _POOL = ThreadPoolExecutor(max_workers=nth, thread_name_prefix="dexel")
-            _POOL_SIZE = nth
-        pool = _POOL
-    futs = [pool.submit(fn, it) for it in items]
+    if _POOL is None or _POOL_SIZE != nth:
+        _POOL = ThreadPoolExecutor(max_workers=nth, thread_name_prefix="dexel")
+        _POOL_SIZE = nth
+    futs = [_POOL.submit(fn, it) for it in items]
     if poll is not None:
         while wait(futs, timeout=0.1).not_done:
             poll()

@@ -61,7 +61,6 @@ from planning.toolpath.carried import stock_figures
 from planning.toolpath.frames import AreaFrame, area_frame
 from planning.toolpath.guard import guard_toolpath
 from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath, concatenate
-from planning.toolpath.overlap import Overlap
 from planning.toolpath.reduce import fit_arcs, reduce_cl
 from planning.toolpath.roughing import roughing_paths
 from planning.toolpath.safety import (
@@ -309,139 +308,88 @@ def area_toolpaths(points: np.ndarray, input_labels: np.ndarray, axes: np.ndarra
             worker.close()
 
 
-@dataclass
-class _SetUp:
-    """One set-up on its way through :func:`_areas_in_order`: what its roughing is planned from, and what
-    its finishing needs when it runs (possibly beside the next set-up's roughing, :mod:`overlap`)."""
-
-    i: int
-    mine: np.ndarray
-    ap: AreaPaths
-    cloud_f: np.ndarray
-    area_f: np.ndarray
-    top: float
-    stock_f: np.ndarray | None
-    view: StockView | None
-    five: bool
-    semi: _SemiJob | None
-    sec: dict
-    extra: np.ndarray | None = None
-    masks: IndexMasks | None = None
-    job: FinishingWorker | None = None
-
-
 def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, obstacles, max_slope_deg, regions,
                     carried, faces, cone_deg, order, prog, worker, semi_tool=None):
     """The loop of :func:`area_toolpaths` over the areas in ``order`` (its arguments, the progress
-    ``prog`` and the finishing ``worker`` or None).
-
-    A set-up's roughing is planned on the stock as the set-ups before left it after THEIR roughing and
-    semi-finishing: the view (:class:`StockView`) is taken before the previous set-up's finishing runs.
-    The finishing takes off the allowance and what the roughing could not reach; planning on the stock
-    with that still on is safe (the roughing, its entries and its rapids meet at most what is there,
-    never less) and costs at most some feed through air where it was. It frees the previous set-up's
-    finishing (its passes' cut-out, arcs, guard: mostly kernels that release the interpreter lock) to
-    run beside this roughing (mostly Python) on a second thread where the plan may use two
-    (:mod:`planning.toolpath.overlap`); the guard of this roughing then runs on the carried stock with
-    everything before done, as always. The plan is the same with the overlap or without it."""
+    ``prog`` and the finishing ``worker`` or None)."""
     fp = paths_params.finishing
     R = float(tool.radius_mm)
     tol = float(fp.tolerance_mm)
     reach = max([s.radius_mm for s in tool.segments] + [R])
     out: list[AreaPaths] = []
     pool = np.zeros(points.shape[0], dtype=bool)       # unmachined by a set-up before: handed on
-    silent = _PathsProgress(None, 1)
-
-    def begin(i: int, mine: np.ndarray) -> _SetUp:
-        """Steps 1-2 of set-up ``i``: its frame, the safe height, and the stock its roughing is planned on."""
+    for n_done, i in enumerate(order):
+        sec: dict[str, float] = {}
         t0 = time.perf_counter()
+        mine = input_labels == i
+        if not mine.any():
+            continue
+        prog.start_area(n_done, i)
+        prog.step("frame")
+        extra = np.zeros_like(mine)
+        if carried is not None and carried.visible is not None and pool.any():
+            extra = pool & carried.visible[:, i] & ~mine
         frame, cloud_f, area_f, top = _frame_and_top(points, mine, axes[i], obstacles, fixtures, fp, R, reach)
-        stock_f = view = None
+        stock_f = None
         if carried is not None:
             # the stock left by the set-ups before, in this frame: its top raises the safe height
             stock_f = frame.to_frame(carried.stock.boundary_points())
             if stock_f.shape[0]:
                 top = max(top, float(stock_f[:, 2].max()))
-            if paths_params.roughing.enabled:
-                # a copy, before the previous set-up's finishing changes the carried stock
-                view = StockView(carried.stock, frame, carried.roughing_shape, obstacles=carried.obstacles)
         safe = top + paths_params.safe_clearance_mm + R
+        sec["frame"] = time.perf_counter() - t0
         ap = AreaPaths(area=i, frame=frame, safe_z_mm=safe, finishing=None, finishing_info=None, radius_mm=R,
                        tolerance_mm=tol)
+        masks, job = None, None
         five = fp.area_modes.get(i, fp.mode) == "5axis"
         semi = _SemiJob.of(semi_tool, paths_params, mine, regions, cloud_f.shape[0], safe - R) \
             if (semi_tool is not None and fp.enabled and not five) else None
-        return _SetUp(i=i, mine=mine, ap=ap, cloud_f=cloud_f, area_f=area_f, top=top, stock_f=stock_f, view=view,
-                      five=five, semi=semi, sec={"frame": time.perf_counter() - t0})
-
-    def submit(s: _SetUp) -> None:
-        """The finishing regions of ``s`` (with the points the set-ups before left that it sees, as one more
-        region: known once they are finished) handed to the worker, which computes them (and the
-        semi-finishing's passes first) while this process roughs."""
-        s.extra = np.zeros_like(s.mine)
-        if carried is not None and carried.visible is not None and pool.any():
-            s.extra = pool & carried.visible[:, s.i] & ~s.mine
         if fp.enabled:
-            s.masks = _region_masks(s.mine, regions, s.cloud_f.shape[0], extra=s.extra)
-            check = None if (carried is None or s.five) else (s.ap.frame, axes[s.i], tool, obstacles)
-            if worker is not None and worker.submit(s.cloud_f, s.masks, faces, fp, R, tol, s.ap.safe_z_mm,
-                                                    max_slope_deg, check,
-                                                    semi=None if s.semi is None else s.semi.worker_args()):
-                s.job = worker
-
-    def rough(s: _SetUp, n_done: int) -> None:
-        """Step 3 of ``s`` (roughing on its view) with the progress of area ``n_done``."""
-        prog.start_area(n_done, s.i)
-        prog.step("frame")
-        _add_roughing(s.ap, s.cloud_f, s.area_f, s.top, paths_params, s.sec, roughing_window_reach_mm(paths_params, tool),
-                      stock_f=s.stock_f, carried=carried, progress=prog.step("roughing"), view=s.view)
-        s.view = None
-        if s.ap.roughing is not None and s.ap.roughing.n_moves == 0:
-            s.ap.roughing = None                 # rest roughing: nothing left above this area
-
-    def after_roughing(s: _SetUp) -> None:
-        """The roughing of ``s`` run on the carried stock (everything before it done), its semi-finishing,
-        and the stock its finishing will meet."""
-        ap, i = s.ap, s.i
+            # and the points set-ups before left that this one sees, as one more region
+            masks = _region_masks(mine, regions, cloud_f.shape[0], extra=extra)
+            # computed there while this process roughs (with the cloud's part of their check; the
+            # semi-finishing's passes first)
+            check = None if (carried is None or five) else (frame, axes[i], tool, obstacles)
+            if worker is not None and worker.submit(cloud_f, masks, faces, fp, R, tol, safe, max_slope_deg, check,
+                                                    semi=None if semi is None else semi.worker_args()):
+                job = worker
+        _add_roughing(ap, cloud_f, area_f, top, paths_params, sec, roughing_window_reach_mm(paths_params, tool),
+                      stock_f=stock_f, carried=carried, progress=prog.step("roughing"))
+        if ap.roughing is not None and ap.roughing.n_moves == 0:
+            ap.roughing = None                 # rest roughing: nothing left above this area
         if carried is not None and ap.roughing is not None:
             t0 = time.perf_counter()
-            _guard_roughing(ap, carried, s.top + paths_params.roughing.stock_margin_mm + paths_params.safe_clearance_mm,
+            _guard_roughing(ap, carried, top + paths_params.roughing.stock_margin_mm + paths_params.safe_clearance_mm,
                             progress=prog.step("guard_roughing"))
-            s.sec["guard_roughing"] = time.perf_counter() - t0
-        if s.semi is not None:
-            _add_semi(ap, s.cloud_f, s.mine, s.semi, faces, paths_params, semi_tool, max_slope_deg, carried, obstacles,
-                      axes[i], fixtures, s.area_f, points, s.sec, prog, s.job)
+            sec["guard_roughing"] = time.perf_counter() - t0
+        if semi is not None:
+            _add_semi(ap, cloud_f, mine, semi, faces, paths_params, semi_tool, max_slope_deg, carried, obstacles,
+                      axes[i], fixtures, area_f, points, sec, prog, job)
         if carried is not None and carried.normals is not None:
             # issue 16 item 1: the stock the finishing meets over this area (roughing allowance
             # where roughing reached; more where the roughing tool or its holder could not go)
-            left = carried.stock_over(points[s.mine], carried.normals[s.mine])
+            left = carried.stock_over(points[mine], carried.normals[mine])
             ap.allowance_left = stock_figures(left)
             if ap.semi is not None:
                 # what the semi-finishing left: over the area, and over the points it reaches
                 ap.semi.allowance_after_mm = ap.allowance_left
                 if ap.semi.reached is not None and ap.semi.reached.any():
                     ap.semi.allowance_reached_mm = stock_figures(left[ap.semi.reached])
-
-    def finish(s: _SetUp, pr: _PathsProgress) -> None:
-        """Steps 4-5 of ``s`` (finishing, its cut-out, collisions, guard) and the points it hands on;
-        ``pr``: the progress (``silent`` beside the next roughing)."""
-        ap, i, sec = s.ap, s.i, s.sec
         if fp.enabled:
-            five, area_f = s.five, s.area_f
-            _add_finishing(ap, s.cloud_f, s.masks, fp, max_slope_deg, sec, faces=faces, job=s.job,
+            _add_finishing(ap, cloud_f, masks, fp, max_slope_deg, sec, faces=faces, job=job,
                            blocked=None if (carried is None or five) else
                            (lambda fin, prg, known: _cut_blocked(ap, fin, carried, obstacles, axes[i], tool, fixtures,
                                                                       area_f, fp, progress=prg, cloud_known=known)),
-                           progress=pr, five_axis=None if not five else
+                           progress=prog, five_axis=None if not five else
                            _FiveAxisArea(obstacles, tool, cone_deg, carried, fp))
             # cutter, shank and holder above the ball at every CL point of the cut
             t0 = time.perf_counter()
-            pr.step("collisions")
+            prog.step("collisions")
             _count_collisions(ap, obstacles, axes[i], tool, fixtures)
             sec["collisions"] = time.perf_counter() - t0
             if carried is not None and ap.finishing is not None:
                 t0 = time.perf_counter()
-                _guard_finishing(ap, carried, area_f, fp, progress=pr.step("guard_finishing"))
+                _guard_finishing(ap, carried, area_f, fp, progress=prog.step("guard_finishing"))
                 sec["guard_finishing"] = time.perf_counter() - t0
             if five and carried is not None:
                 # what the 3+2 ball-drop passes finish and no kept 5-axis move does (after the guard), as
@@ -451,49 +399,16 @@ def _areas_in_order(points, input_labels, axes, tool, paths_params, fixtures, ob
                           else np.ones(area_f.shape[0], dtype=bool))
                 ap.unmachined = _still_unmachined(ap, area_f, fp) & ~before
             if carried is not None and ap.unmachined is not None:
-                ap.unmachined = np.flatnonzero(s.mine)[ap.unmachined]       # input point indices
+                ap.unmachined = np.flatnonzero(mine)[ap.unmachined]       # input point indices
             if carried is not None:
                 pool[ap.unmachined if ap.unmachined is not None else np.zeros(0, np.int64)] = True
-                if s.extra.any():
-                    left = _still_unmachined(ap, s.cloud_f[:points.shape[0]][s.extra], fp)
-                    ap.handed_in = int(s.extra.sum() - left.sum())
-                    pool[np.flatnonzero(s.extra)[~left]] = False
+                if extra.any():
+                    left = _still_unmachined(ap, cloud_f[:points.shape[0]][extra], fp)
+                    ap.handed_in = int(extra.sum() - left.sum())
+                    pool[np.flatnonzero(extra)[~left]] = False
         ap.seconds = {k2: round(v, 4) for k2, v in sec.items()}
-
-    def done(s: _SetUp) -> None:
-        out.append(s.ap)
-        s.cloud_f = s.area_f = s.stock_f = None          # the finished set-up keeps only its paths
-
-    with Overlap.open(worker is not None and carried is not None) as beside:
-        prev: _SetUp | None = None
-        n_done = -1
-        for i in order:
-            mine = input_labels == i
-            if not mine.any():
-                continue
-            n_done += 1
-            s = begin(i, mine)
-            if prev is None:
-                submit(s)
-            elif beside.on:
-                # the previous set-up's finishing beside this roughing; this set-up's regions go to the
-                # worker once it is done (they need the points it hands on)
-                beside.start(lambda p=prev, s=s: (finish(p, silent), submit(s)))
-            else:
-                finish(prev, prog)
-                prog.area_done()
-                submit(s)
-            rough(s, n_done)
-            if prev is not None and beside.on:
-                beside.join()
-            if prev is not None:
-                done(prev)
-            after_roughing(s)
-            prev = s
-        if prev is not None:
-            finish(prev, prog)
-            prog.area_done()
-            done(prev)
+        out.append(ap)
+        prog.area_done()
     if carried is not None:
         # what no set-up finished, by the area it belongs to
         for ap in out:
@@ -577,12 +492,11 @@ def _frame_and_top(points, mine, axis, obstacles, fixtures, fp, R: float, reach:
 
 
 def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec: dict, window_reach: float,
-                  stock_f=None, carried=None, progress=None, view: StockView | None = None) -> None:
+                  stock_f=None, carried=None, progress=None) -> None:
     """Step 3: roughing (when enabled and there is stock above the area's floor) into ``ap``, the
     tool centre within ``window_reach`` mm of the area's points (:func:`roughing_window_reach_mm`).
     With ``carried``, rest roughing: only the material of the carried stock (its boundary points
-    ``stock_f`` in the area frame) is cut, planned on ``view`` (the stock as it was when ``stock_f`` was
-    read; None: a view of the carried stock now)."""
+    ``stock_f`` in the area frame) is cut."""
     rp = paths_params.roughing
     safe_tip_z = top + rp.stock_margin_mm + paths_params.safe_clearance_mm
     floor = float(area_f[:, 2].min()) + rp.stock_allowance_mm
@@ -592,8 +506,8 @@ def _add_roughing(ap: AreaPaths, cloud_f, area_f, top: float, paths_params, sec:
     if rp.enabled and floor < stock_top:
         t0 = time.perf_counter()
         # with the carried stock: rest roughing, and the end mill's holder kept out of the stock and the part
-        if carried is not None and view is None:
-            view = StockView(carried.stock, ap.frame, carried.roughing_shape, obstacles=carried.obstacles)
+        view = None if carried is None else StockView(carried.stock, ap.frame, carried.roughing_shape,
+                                                      obstacles=carried.obstacles)
         rest = {} if carried is None else {"stock_points_mm": stock_f, "stock_spacing_mm": carried.resolution_mm,
                                            "holder_pieces": carried.roughing_shape.pieces,
                                            "stock_view": view,

@@ -36,9 +36,9 @@ and then forks (the fork server and the Celery main process only import).
 policy is set to ``PASSIVE``: a GNU OpenMP thread whose parallel kernel is done sleeps at once instead
 of spinning for the next one (the default spins some 300,000 rounds first). The planner calls many
 small parallel kernels between stretches of Python, and on the femur-like plan with two threads the
-spinning took the core the Python thread, the finishing worker process or another job needed: 0.87x
-the CPU seconds and 0.93x the wall time with ``PASSIVE``, the same programs (BENCHMARKS.md, "Idle
-OpenMP threads sleep"). libgomp reads the variable when it is loaded, at the first parallel kernel,
+spinning took the core the Python thread, the finishing worker process or another job needed:
+0.87-0.93x the CPU seconds and 0.93-1.00x the wall time with ``PASSIVE``, the same programs
+(BENCHMARKS.md, "Idle OpenMP threads sleep"). libgomp reads the variable when it is loaded, at the first parallel kernel,
 after ``planning`` is imported (tests/test_warmup.py checks what libgomp itself reports).
 """
 

@@ -42,6 +42,14 @@ STEPS = (
     ("planning.toolpath.stock_view", "StockView.rapid_clear_z"),
     ("planning.toolpath.roughing.levels", "_LiveStock.advance"),
     ("planning.toolpath.roughing.levels", "_LiveStock._boundary_tops"),
+    # inside the roughing: its level loop, one level, the entries (and the descents they write), the
+    # steps off a wall, and the stock view brought up to date with the moves written (a function another
+    # module imported by name is not seen there: the retracts are not listed for that reason)
+    ("planning.toolpath.roughing.levels", "_cut_levels"), ("planning.toolpath.roughing.levels", "_cut_level"),
+    ("planning.toolpath.roughing.entries", "_Entries.enter"), ("planning.toolpath.roughing.entries", "_Entries._write"),
+    ("planning.toolpath.roughing.entries", "_Entries._sweep_top"),
+    ("planning.toolpath.roughing.links", "_step_off"),
+    ("planning.toolpath.roughing.levels", "_LiveStock.sync"),
 )
 
 

@@ -174,9 +174,9 @@ def test_cache_directory_choice(src, tmp_path):
     assert Path(cache_dir).is_dir() and os.access(cache_dir, os.W_OK)
 
 
-def test_parallel_kernels_run_on_openmp_after_open3d_without_a_tbb_warning(src, tmp_path):
-    """Open3D loads its own old TBB; numba must not probe it (no warning) and still run prange in parallel."""
-    code = r"""
+#: A child that imports ``planning`` then Open3D (as the service does), with any warning an error, runs a
+#: prange kernel and prints numba's threading layer and thread count.
+_PARALLEL_CHILD = r"""
 import warnings
 warnings.simplefilter("error")
 import planning, open3d, numba, numpy as np
@@ -189,11 +189,25 @@ def total(a):
 assert total(np.ones(1000)) == 1000.0
 print(numba.threading_layer(), numba.get_num_threads())
 """
+
+
+def _parallel_child(src, tmp_path, env: dict, drop=()) -> subprocess.CompletedProcess:
+    """:data:`_PARALLEL_CHILD` run with two numba threads, ``env`` added and the variables ``drop`` removed;
+    it must exit 0."""
     e = _env(src, tmp_path / "kernels")
     e["NUMBA_NUM_THREADS"] = "2"
-    p = subprocess.run([sys.executable, "-c", code], check=False, cwd=src, env=e, capture_output=True, text=True,
-                       timeout=300)
+    for k in drop:
+        e.pop(k, None)
+    e.update(env)
+    p = subprocess.run([sys.executable, "-c", _PARALLEL_CHILD], check=False, cwd=src, env=e, capture_output=True,
+                       text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
+    return p
+
+
+def test_parallel_kernels_run_on_openmp_after_open3d_without_a_tbb_warning(src, tmp_path):
+    """Open3D loads its own old TBB; numba must not probe it (no warning) and still run prange in parallel."""
+    p = _parallel_child(src, tmp_path, {})
     assert "TBB" not in p.stderr
     layer, threads = p.stdout.split()
     assert layer in ("omp", "workqueue") and int(threads) == 2
@@ -203,28 +217,11 @@ def test_idle_openmp_threads_sleep_unless_the_user_chose_a_wait_policy(src, tmp_
     """``planning`` sets OMP_WAIT_POLICY=PASSIVE before libgomp is loaded (also with Open3D imported after
     it): libgomp itself reports a spin count of 0 instead of its default 300,000. A policy or spin count
     the user set is kept."""
-    code = r"""
-import planning, open3d, numba, numpy as np
-@numba.njit(parallel=True, cache=False)
-def total(a):
-    s = 0.0
-    for i in numba.prange(a.size):
-        s += a[i]
-    return s
-assert total(np.ones(1000)) == 1000.0
-print(numba.threading_layer())
-"""
 
     def spin(**env):
-        e = _env(src, tmp_path / "kernels")
-        e.update(NUMBA_NUM_THREADS="2", OMP_DISPLAY_ENV="VERBOSE", **env)
-        for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT"):
-            if k not in env:
-                e.pop(k, None)
-        p = subprocess.run([sys.executable, "-c", code], check=False, cwd=src, env=e, capture_output=True, text=True,
-                           timeout=300)
-        assert p.returncode == 0, p.stderr[-3000:]
-        assert p.stdout.split()[-1] == "omp", p.stdout     # the layer kernel_cache puts first
+        p = _parallel_child(src, tmp_path, dict(OMP_DISPLAY_ENV="VERBOSE", **env),
+                            drop=("OMP_WAIT_POLICY", "GOMP_SPINCOUNT"))
+        assert p.stdout.split()[0] == "omp", p.stdout     # the layer kernel_cache puts first
         got = re.findall(r"GOMP_SPINCOUNT = '(\d+)'", p.stderr)
         policy = re.findall(r"OMP_WAIT_POLICY = '(\w+)'", p.stderr)
         assert got and policy, p.stderr[-2000:]

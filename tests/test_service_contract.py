@@ -26,6 +26,13 @@ from service_fixtures import HALF_SPHERE_PARAMS, KEY_A, KEY_B, ServerProcess, wr
 # - use_after_free: DELETE of a queued/running job cancels it and the job stays readable (status
 #   'cancelled'), as the API specifies; only a finished job is deleted.
 EXCLUDED_CHECKS = "positive_data_acceptance,use_after_free"
+# "--checks all" also turns on schemathesis's response-time check, 10 s unless told (it cannot be
+# excluded by name). A test holds no wall-clock limit of its own: on a loaded two-core CI machine the
+# first upload after the server starts waits for the fork server to import the planning code
+# (service/validation.py) and once took 17 s. So that check is given the request timeout itself, the
+# bound that keeps a hung server from hanging the test: a response is late only if it never comes.
+# How fast the service answers is measured in bench/, not asserted here.
+REQUEST_TIMEOUT_S = "60"
 MAX_EXAMPLES = 10       # per operation in the default run; the slow 'deep' run takes 300
 
 
@@ -46,7 +53,7 @@ def test_schemathesis_finds_no_server_error_and_no_schema_violation(server, tmp_
            "--header", f"Authorization: Bearer {KEY_A}", "--checks", "all", "--exclude-checks", EXCLUDED_CHECKS,
            "--phases", "examples,coverage,fuzzing,stateful", "--max-examples", str(max_examples), "--seed", str(seed),
            "--workers", "1", "--generation-database", "none", "--generation-with-security-parameters", "false",
-           "--request-timeout", "60", "--no-color"]
+           "--request-timeout", REQUEST_TIMEOUT_S, "--max-response-time", REQUEST_TIMEOUT_S, "--no-color"]
     run = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)
     out = run.stdout + run.stderr
     assert run.returncode == 0, out[-8000:]

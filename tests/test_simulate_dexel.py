@@ -328,6 +328,80 @@ def test_many_splits_grow_the_rays_without_losing_material():
     assert np.all(np.diff(iv, axis=0)[:, 0] > 0)
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_a_few_moves_in_one_kernel_call_give_what_the_threaded_tasks_give(monkeypatch, threads):
+    """dexel._run_small (a handful of moves, every task in one kernel call in this thread) against the
+    general path (a kernel call per task, on threads when there are two): the same removed volumes,
+    depths and stock, bit for bit, over single-move cuts that split the rays until they are repacked,
+    grooves, oblique feeds, rapids and collision checks."""
+    import numba
+
+    import planning.simulate.dexel as D
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        _compare_one_call_with_tasks(monkeypatch, D)
+    finally:
+        numba.set_num_threads(before)
+
+
+def _compare_one_call_with_tasks(monkeypatch, D):
+    rng = np.random.default_rng(11)
+    x = 2.0 + 2.7 * np.arange(15)
+    grooves = [(np.array([[xi, -5.0, 19.7]]), np.array([[xi, 45.0, 19.7]]), np.array([[0, 0, 1.0]])) for xi in x]
+    a = rng.normal(size=(60, 3)) * [0.3, 0.3, 0.0] + [0, 0, 1.0]
+    st_ = rng.uniform([0, 0, 12], [40, 40, 21], (60, 3))
+    oblique = [(st_[k:k + 3], st_[k:k + 3] + rng.uniform(-6, 6, (3, 3)), a[k:k + 3]) for k in range(0, 60, 3)]
+    tool = ToolShape(number=2, kind="flat", radius_mm=2.0, corner_radius_mm=0.0, flute_length_mm=8.0,
+                     pieces=((8.0, 30.0, 3.0), (30.0, 60.0, 12.0)))
+    repacks = []
+    real_repack = D.TriDexel._repack
+
+    def counted(self, status):
+        repacks.append(int(np.count_nonzero(status)))
+        return real_repack(self, status)
+
+    monkeypatch.setattr(D.TriDexel, "_repack", counted)
+
+    small_calls = []
+    real_small = D._run_small
+
+    def counted_small(*args):
+        small_calls.append(1)
+        return real_small(*args)
+
+    monkeypatch.setattr(D, "_run_small", counted_small)
+
+    def run(one_call: bool):
+        monkeypatch.setattr(D, "_in_one_call", lambda P: one_call)
+        st = _stock()
+        out = []
+        for s, e, ax in grooves:
+            out.append(cut(st, s, e, ax, BALL3))
+        for s, e, ax in oblique:
+            kind = np.array([FEED, RAPID, FEED])
+            r = simulate_moves(st, s, e, ax, tool, kind, rapid_clearance_mm=0.5)
+            out += [r.removed_mm3, r.rapid_depth_mm, r.holder_depth_mm, np.array([r.ray_visits])]
+            out.append(collide(st, s, e + 1.0, ax, tool, which="tool", grow_mm=0.25))
+        return out, st
+
+    small, st_small = run(True)               # every call in one kernel call
+    n_small, n_calls = len(repacks), len(small_calls)
+    general, st_general = run(False)          # none
+    assert n_calls == len(grooves) + 2 * len(oblique) and len(small_calls) == n_calls
+    assert n_small > 0 and len(repacks) > n_small          # the grooves split the rays past their room
+    assert any(float(v.max()) > 0 for v in small[len(grooves)::5])   # the oblique feeds cut
+    assert any(float(v.max()) > 0 for v in small[len(grooves) + 4::5])  # and the checks meet material
+    for u, v in zip(small, general, strict=True):
+        np.testing.assert_array_equal(u, v)
+    np.testing.assert_array_equal(st_small.volumes_mm3(), st_general.volumes_mm3())
+    for f in range(3):
+        u, v = st_small.ray_coordinates(f)
+        for i, j in ((3, 5), (len(u) // 2, len(v) // 2), (len(u) - 4, len(v) - 3)):
+            np.testing.assert_array_equal(st_small.ray_intervals(f, i, j), st_general.ray_intervals(f, i, j))
+
+
 # ------------------------------------------------------------------------------------------------ collisions
 
 def test_rapid_through_the_block_reports_its_depth():

@@ -48,7 +48,6 @@ shows that much, so a buried holder does not cost every ray of its footprint.
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, wait
@@ -345,11 +344,9 @@ def bull_slices(corner_radius_mm: float, tol_mm: float) -> int:
     return max(1, int(math.ceil(math.pi * corner_radius_mm / (4.0 * max(tol_mm, 1e-6)))))
 
 
-@functools.lru_cache(maxsize=256)
 def tool_pieces(shape: ToolShape, bull_tol_mm: float):
     """The convex pieces of a tool (module docstring): (kind, z0, z1, radius, cutting) arrays;
-    a sphere has its centre at z0. Kept per (shape, tolerance): the planner asks thousands of single
-    checks with the same tool, and the arrays are only read (never change them)."""
+    a sphere has its centre at z0."""
     R = float(shape.radius_mm)
     L = float(shape.flute_length_mm)
     out = []
@@ -411,12 +408,8 @@ def _run(model: TriDexel, start, end, axis, pieces, mode, grow=None, depth_cap_m
          chunk: int | None = None, progress: Progress | None = None, what: str = "moves"):
     """The kernel over all moves in chunks. Returns (length removed/added per move summed over the
     families, (3,P) largest overlap per family, rays evaluated). ``progress(fraction, message)`` after
-    every chunk (the caller throttles it). ``start``, ``end``, ``axis``: as :func:`_as_moves` returns
-    them (checked, contiguous; the axes are normalised once more here, as they always were, so that
-    the kernels see the same bits). A few moves without progress (a planner's single check) run in
-    one kernel call in this thread (:func:`_run_small`)."""
-    s, e = start, end
-    a = np.ascontiguousarray(axis / np.linalg.norm(axis, axis=1, keepdims=True))
+    every chunk (the caller throttles it)."""
+    s, e, a = _as_moves(start, end, axis)
     P = s.shape[0]
     chunk = CHUNK if chunk is None else int(chunk)
     mode = np.ascontiguousarray(np.broadcast_to(np.asarray(mode, np.int64), (P,)))
@@ -425,12 +418,11 @@ def _run(model: TriDexel, start, end, axis, pieces, mode, grow=None, depth_cap_m
     pk, pz0, pz1, pr, pcut = pieces
     # how far up the axis anything can reach the domain: z = (X - P).a - t (d.a) over X in the
     # domain grown by the largest radius and t in [0, 1]
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
     rmax = float(pr.max()) + float(grow.max()) if pr.size else 0.0
-    box = (model.lo - rmax) + _CORNERS * (model.hi - model.lo + 2 * rmax)
+    box = (model.lo - rmax) + corners * (model.hi - model.lo + 2 * rmax)
     zcap = ((box @ a.T).max(0) - np.einsum("ij,ij->i", s, a) + np.maximum(0.0, -np.einsum("ij,ij->i", d, a))
             + grow + 1e-6)
-    if progress is None and P <= chunk and _in_one_call(P):
-        return _run_small(model, s, d, a, mode, zcap, pieces, grow, depth_cap_mm)
     T = model.t_fam.shape[0]
     removed = np.zeros(P)
     depth = np.zeros((3, P))
@@ -478,49 +470,6 @@ def _run(model: TriDexel, start, end, axis, pieces, mode, grow=None, depth_cap_m
     return removed, depth, visits
 
 
-#: The eight corners of the unit cube (for :func:`_run`'s reach along the axis).
-_CORNERS = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
-
-
-def _in_one_call(P: int) -> bool:
-    """Whether :func:`_run` gives ``P`` moves (one chunk, no progress) to :func:`_run_small`: fewer than
-    :data:`INLINE_MOVES`, or any number on one thread (where the tasks would run here one by one anyway)."""
-    return P < INLINE_MOVES or numba.get_num_threads() == 1
-
-
-def _run_small(model: TriDexel, s, d, a, mode, zcap, pieces, grow, depth_cap_mm: float):
-    """:func:`_run` of one chunk of moves in this thread, every task in one kernel call
-    (:func:`planning.simulate.dexel_kernels.run_tasks`): the same answer (the tasks own disjoint rays,
-    and the sums and maxima below are taken as there), without a kernel call and a thread hand-over per
-    task. A planner's single checks (a column, a rapid, a piece's ends) are thousands of calls of a
-    few moves, where that overhead was most of the time."""
-    pk, pz0, pz1, pr, pcut = pieces
-    P = s.shape[0]
-    T = model.t_fam.shape[0]
-    mptr, midx = K.assign_moves(model.lo, model.res, model.n, model.t_fam, model.t_res, model.t_mod,
-                                s, d, a, zcap, pk, pz0, pz1, pr, grow)
-    t_next = mptr[:-1].copy()
-    t_status = np.zeros(T, np.int64)
-    rem = np.zeros((T, P))
-    dep = np.zeros((T, P))
-    vis = np.zeros(T, np.int64)
-    while True:
-        K.run_tasks(model.lo, model.res, model.n, model.base, model.sbase, model.nseg, model.seg_lo, model.seg_hi,
-                    model.tbase, model.tile_lo, model.tile_hi, model.dirty, model.off, model.cnt, model.cap,
-                    model.pool, model.t_fam, model.t_res, model.t_mod, model.t_top, model.t_end, t_next, t_status,
-                    mptr, midx, s, d, a, mode, zcap, pk, pz0, pz1, pr, pcut, grow, float(depth_cap_mm), rem, dep,
-                    vis)
-        if not t_status.any():
-            break
-        model._repack(t_status)              # a ray ran out of room: the stopped tasks go on from there
-        t_status[:] = 0
-    model._refresh_dirty()
-    depth = np.zeros((3, P))
-    for f in range(3):
-        depth[f] = dep[model.t_fam == f].max(0, initial=0.0)
-    return rem.sum(0), depth, int(vis.sum())
-
-
 _POOL: ThreadPoolExecutor | None = None
 _POOL_SIZE = 0
 
@@ -548,9 +497,7 @@ def _map(fn, items, poll: Callable[[], None] | None = None, inline: bool = False
 
 def _depth(dep: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """Per move the collision depth from the per-family largest overlaps (module docstring)."""
-    # the axes normalised once more, as :func:`_as_moves` did here (the callers' are checked already)
-    a = np.ascontiguousarray(axis, float).reshape(-1, 3)
-    a = np.abs(a / np.linalg.norm(a, axis=1, keepdims=True))
+    a = np.abs(_as_moves(axis, axis, axis)[2])
     P = a.shape[0]
     k = np.argmax(a, axis=1)
     rows = np.arange(P)

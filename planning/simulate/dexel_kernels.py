@@ -753,21 +753,6 @@ def run_task(t, lo, res, n, base, sbase, nseg, seg_lo, seg_hi, tbase, tile_lo, t
     t_status[t] = st
 
 
-@njit(nogil=True, cache=True)
-def run_tasks(lo, res, n, base, sbase, nseg, seg_lo, seg_hi, tbase, tile_lo, tile_hi, dirty, off, cnt, cap, pool,
-              t_fam, t_res, t_mod, t_top, t_end, t_next, t_status, mptr, midx, start, dvec, axv, mode, zcap,
-              pk, pz0, pz1, pr, pcut, grow, depth_cap, removed, depth, visits):
-    """:func:`run_task` of every task with moves left, one after the other in the calling thread: a
-    handful of moves (a planner's single check), where handing the tasks to threads one kernel call
-    each costs more than the work. The tasks own disjoint rays, so the order does not change the
-    answer; a task that stops on a full ray (``t_status``) is resumed by the caller after a repack."""
-    for t in range(t_fam.shape[0]):
-        if t_next[t] < mptr[t + 1]:
-            run_task(t, lo, res, n, base, sbase, nseg, seg_lo, seg_hi, tbase, tile_lo, tile_hi, dirty, off, cnt,
-                     cap, pool, t_fam, t_res, t_mod, t_top, t_end, t_next, t_status, mptr, midx, start, dvec, axv,
-                     mode, zcap, pk, pz0, pz1, pr, pcut, grow, depth_cap, removed, depth, visits)
-
-
 @njit(cache=True)
 def assign_moves(lo, res, n, t_fam, t_res, t_mod, start, dvec, axv, zcap, pk, pz0, pz1, pr, grow):
     """Deal every move to the tasks that own a grid row its swept bounding box meets (program

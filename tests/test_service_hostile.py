@@ -285,6 +285,23 @@ def test_healthz_answers_while_a_submission_is_checked(tmp_path_factory):
             c.delete(f"/jobs/{result['r'].json()['id']}")
 
 
+def test_healthz_answers_once_uploads_can_be_checked_without_waiting_for_the_planning_imports(tmp_path_factory):
+    """The first upload after a start is checked at once: by the time /healthz first answers, the server's
+    fork server (the parent of every check and job process) runs and has imported the planning code (its
+    compiled kernels' library, llvmlite, is mapped). Before, it was started beside the first requests, and
+    the first upload waited for those imports (17 s once on a loaded CI machine)."""
+    import psutil
+
+    root = tmp_path_factory.mktemp("readiness")
+    with ServerProcess(root / "data", workers=1) as srv:
+        forkservers = [p for p in psutil.Process(srv.proc.pid).children()
+                       if "forkserver" in " ".join(p.cmdline())]
+        assert len(forkservers) == 1, [p.cmdline() for p in psutil.Process(srv.proc.pid).children()]
+        mapped = {m.path for m in forkservers[0].memory_maps()}
+        assert any("libllvmlite" in path for path in mapped), sorted(mapped)[:40]
+        assert "submission checks ready in" in srv.log_text()
+
+
 def _raw_post(url: str, body: bytes, boundary: str, headers: dict[str, str]) -> socket.socket:
     host, port = url.removeprefix("http://").split(":")
     s = socket.create_connection((host, int(port)))

@@ -82,11 +82,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         # imports, 17 s on a loaded two-core machine)
         t0 = time.monotonic()
         try:
-            await anyio.to_thread.run_sync(checker.warm)
+            ready = await anyio.to_thread.run_sync(checker.warm)
+        except Exception as e:      # noqa: BLE001 - each upload's check then says what fails
+            ready, why = False, str(e)
+        else:
+            why = "no forked process ran within 60 s"
+        if ready:
             log.info("submission checks ready in %.1f s (fork server up, planning code imported)",
                      time.monotonic() - t0)
-        except Exception as e:      # noqa: BLE001 - each upload's check then says what fails
-            log.error("the fork server for submission checks did not start (%s); uploads will try again", e)
+        else:
+            log.error("the fork server for submission checks is not ready (%s); uploads will try again", why)
         app.state.jobs = JobService(settings, store, storage, backend, anyio.CapacityLimiter(1), checker)
         log.info("scanmill %s serving; backend %s; jobs in %s; files in %s (%s)", scanmill.__version__,
                  backend.name, store.display_url, storage.root, storage.kind)

@@ -202,11 +202,13 @@ class SubmissionChecker:
             self._ctx.set_forkserver_preload(PRELOAD)
         self.running = 0
 
-    def warm(self) -> None:
-        """Start the fork server now (it imports the planning modules once) rather than at the first upload."""
+    def warm(self, timeout_s: float = 60.0) -> bool:
+        """Start the fork server now (it imports the planning modules once) rather than at the first upload;
+        True once a process forked from it has run (at most ``timeout_s`` seconds waited)."""
         p = self._ctx.Process(target=_noop, daemon=True)
         p.start()
-        p.join(60)
+        p.join(timeout_s)
+        return p.exitcode == 0
 
     async def check(self, spec: dict[str, Any], *, what: str = "cloud",
                     disconnected: Callable[[], Awaitable[bool]] | None = None) -> dict[str, Any]:

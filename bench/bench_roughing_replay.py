@@ -1,0 +1,94 @@
+"""Benchmark: a case's roughing alone, every set-up's call replayed on the stock it met (issue 30, speed).
+Prints figures only.
+
+The case (``bench/bench_stock_first.py``'s cases) is planned once without verification, every set-up's
+roughing call captured (``bench_roughing_air.capture_all``); then the calls are planned again, in
+machining order, each on a copy of the stock view it met, ``--rounds`` times (the first compiles nothing
+the plan did not: the kernels come from the numba cache). Printed: per round each call's seconds and
+moves, and the round's total:
+
+    NUMBA_NUM_THREADS=2 .venv/bin/python bench/bench_roughing_replay.py femur_like
+
+Where that time goes, by a sampling profiler (py-spy, not a dependency: ``pip install py-spy``), then
+``--shares`` reads its raw output and prints, over the samples inside ``roughing_paths``, the functions'
+inclusive shares and the deepest ``planning/`` line of each sample (a kernel shows as the line that
+calls it):
+
+    .venv/bin/py-spy record -r 100 -f raw -o /tmp/rough.raw -- .venv/bin/python bench/bench_roughing_replay.py femur_like
+    .venv/bin/python bench/bench_roughing_replay.py --shares /tmp/rough.raw
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import re
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE / "bench"))
+
+_FRAME = re.compile(r"(.*) \((.*):(\d+)\)")
+
+
+def shares(raw: Path, top: int = 25) -> None:
+    """The inclusive share of each function and the share of each deepest planning line, over the
+    py-spy raw samples (``stack count`` lines) whose stack holds ``roughing_paths``."""
+    incl: collections.Counter = collections.Counter()
+    deepest: collections.Counter = collections.Counter()
+    total = 0
+    for line in raw.read_text().splitlines():
+        stack, _, n = line.rpartition(" ")
+        frames = stack.split(";")
+        if not any("roughing_paths" in f for f in frames):
+            continue
+        total += int(n)
+        parsed = [m.groups() for m in map(_FRAME.match, frames) if m]
+        for key in {(name, path.split("/")[-1]) for name, path, _ in parsed}:
+            incl[key] += int(n)
+        inner = [(name, path.split("planning/")[-1], ln) for name, path, ln in parsed if "planning/" in path]
+        if inner:
+            deepest[inner[-1]] += int(n)
+    if not total:
+        raise SystemExit(f"{raw}: no sample inside roughing_paths")
+    print(f"{total} samples inside roughing_paths")
+    print("inclusive share, function, file")
+    for (name, path), n in incl.most_common(top):
+        print(f"{100 * n / total:5.1f} %  {name}  {path}")
+    print("share of samples by the deepest planning line")
+    for (name, path, ln), n in deepest.most_common(top):
+        print(f"{100 * n / total:5.1f} %  {name}  {path}:{ln}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("case", nargs="?", default="femur_like", help="a bench_stock_first case")
+    ap.add_argument("--rounds", type=int, default=2, help="replays of all the calls")
+    ap.add_argument("--shares", type=Path, help="read a py-spy raw file instead (module docstring)")
+    args = ap.parse_args()
+    if args.shares is not None:
+        shares(args.shares)
+        return 0
+    from bench_roughing_air import capture_all
+
+    from planning.toolpath.roughing import roughing_paths
+    from planning.toolpath.stock_view import StockView
+
+    calls, _, _ = capture_all(args.case)
+    for r in range(args.rounds):
+        total = 0.0
+        for cloud_f, kw, (stock, frame, shape, obstacles) in calls:
+            t = time.perf_counter()
+            out = roughing_paths(cloud_f, stock_view=StockView(stock.copy(), frame, shape, obstacles=obstacles), **kw)
+            dt = time.perf_counter() - t
+            total += dt
+            print(f"round {r + 1}: {dt:7.2f} s, {out.toolpath.n_moves} moves", flush=True)
+        print(f"round {r + 1}: {len(calls)} roughing calls, {total:.2f} s", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

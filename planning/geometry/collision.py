@@ -38,6 +38,7 @@ import math
 import os
 from typing import Callable, Optional
 
+import numba
 import numpy as np
 from numba import njit
 from scipy import ndimage
@@ -513,8 +514,9 @@ def _raster(obst, u, v, t_ref, bounds, group, cell_fraction, slack, ext):
 def _each_axis(one_axis, out: np.ndarray, progress) -> None:
     """``out[rows, j] = ~hit`` for ``rows, hit = one_axis(j)``, every axis j of ``out``, in order."""
     m = out.shape[1]
-    # axes are independent and the kernels release the GIL: two threads (the cores here)
-    workers = min(_THREADS, m)
+    # axes are independent and the kernels release the GIL: up to two threads (the cores here), never
+    # more than the plan's own thread budget (numba's threads: a service job's SCANMILL_WORKER_THREADS)
+    workers = min(_THREADS, max(1, numba.get_num_threads()), m)
     if workers > 1:
         from concurrent.futures import ThreadPoolExecutor
         with ThreadPoolExecutor(max_workers=workers) as ex:

@@ -81,6 +81,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable, NamedTuple, Sequence
 
+import numba
 import numpy as np
 
 from planning.errors import InputError, ParameterError
@@ -579,7 +580,8 @@ def _workers(k: int) -> int:
         ncpu = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # pragma: no cover - non-Linux
         ncpu = os.cpu_count() or 1
-    return max(1, min(k, ncpu, 4))
+    # never more than the plan's own thread budget (numba's threads: a service job's SCANMILL_WORKER_THREADS)
+    return max(1, min(k, ncpu, 4, numba.get_num_threads()))
 
 
 def sphere_throwing(points, *, sphere_diameter_mm: float = 7.0, grid_spacing_mm: float | None = None,

@@ -16,6 +16,14 @@ calls it):
 
     .venv/bin/py-spy record -r 100 -f raw -o /tmp/rough.raw -- .venv/bin/python bench/bench_roughing_replay.py femur_like
     .venv/bin/python bench/bench_roughing_replay.py --shares /tmp/rough.raw
+
+``--questions``: over the last round, how many questions the roughing asked its stock view of each kind
+and the seconds they took (:class:`planning.toolpath.roughing.levels._LiveStock`: the view brought up
+to date with the moves written since the last question (``sync``, counted in the question that asked
+it, and on its own), the questions themselves, and the per-level reading ``advance``), timed where
+they are asked: what a rewrite asking a level's questions together would have to take over:
+
+    NUMBA_NUM_THREADS=2 .venv/bin/python bench/bench_roughing_replay.py femur_like --questions
 """
 
 from __future__ import annotations
@@ -68,11 +76,15 @@ def main() -> int:
     ap.add_argument("case", nargs="?", default="femur_like", help="a bench_stock_first case")
     ap.add_argument("--rounds", type=int, default=2, help="replays of all the calls")
     ap.add_argument("--shares", type=Path, help="read a py-spy raw file instead (module docstring)")
+    ap.add_argument("--questions", action="store_true",
+                    help="count and time the questions to the stock view over the last round (docstring)")
     args = ap.parse_args()
     if args.shares is not None:
         shares(args.shares)
         return 0
     from bench_roughing_air import capture_all
+
+    asked = _count_questions() if args.questions else None
 
     from planning.toolpath.roughing import roughing_paths
     from planning.toolpath.stock_view import StockView
@@ -80,6 +92,8 @@ def main() -> int:
     calls, _, _ = capture_all(args.case)
     for r in range(args.rounds):
         total = 0.0
+        if asked is not None:
+            asked.clear()
         for cloud_f, kw, (stock, frame, shape, obstacles) in calls:
             t = time.perf_counter()
             out = roughing_paths(cloud_f, stock_view=StockView(stock.copy(), frame, shape, obstacles=obstacles), **kw)
@@ -87,7 +101,47 @@ def main() -> int:
             total += dt
             print(f"round {r + 1}: {dt:7.2f} s, {out.toolpath.n_moves} moves", flush=True)
         print(f"round {r + 1}: {len(calls)} roughing calls, {total:.2f} s", flush=True)
+    if asked is not None:
+        print(f"questions to the stock view in round {args.rounds} (of its {total:.2f} s):")
+        for kind, (n, sec) in sorted(asked.items(), key=lambda kv: -kv[1][1]):
+            print(f"  {kind:20s} {n:7d} calls {sec:7.2f} s  {1000 * sec / max(n, 1):6.2f} ms each")
     return 0
+
+
+#: :class:`planning.toolpath.roughing.levels._LiveStock`'s questions: methods that return the closure a
+#: level's writer calls (each call one question), and the methods timed as they are.
+_QUESTIONS = ("column_clear", "material_rise", "meets", "column_clear_many", "column_is_clear", "rapid_clear")
+_STEPS = ("sync", "advance")
+
+
+def _count_questions() -> dict:
+    """Wrap the live stock's questions (module docstring) to count them and sum their seconds into the
+    returned dict, ``kind -> [calls, seconds]``, for the rest of the process."""
+    import collections
+
+    from planning.toolpath.roughing import levels
+
+    asked: dict = collections.defaultdict(lambda: [0, 0.0])
+
+    def timed(kind, fn):
+        def run(*a, **k):
+            t = time.perf_counter()
+            try:
+                return fn(*a, **k)
+            finally:
+                asked[kind][0] += 1
+                asked[kind][1] += time.perf_counter() - t
+        return run
+
+    for name in _QUESTIONS:
+        make = getattr(levels._LiveStock, name)
+        setattr(levels._LiveStock, name,
+                lambda self, *a, _make=make, _name=name, **k: timed(_name, _make(self, *a, **k)))
+    for name in _STEPS:
+        method = getattr(levels._LiveStock, name)
+        setattr(levels._LiveStock, name,
+                lambda self, *a, _m=method, _name=name, **k: timed(_name, lambda: _m(self, *a, **k))())
+    return asked
 
 
 if __name__ == "__main__":

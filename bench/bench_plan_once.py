@@ -7,13 +7,15 @@ temporary folder and prints::
 
     RESULT <case> plan_s=<run_plan seconds> paths_s=<paths stage> status=<...> verdict=<...> nc=<hash>
            cpu_s=<this process's CPU seconds in run_plan> worker_cpu_s=<its child processes' (the finishing worker)>
+           main_cpu_s=<the CPU seconds of the thread that called run_plan, in it>
 
 ``cpu_s`` and ``worker_cpu_s`` (user + system, the operating system's accounting) say how much work
-the plan was: on two cores it cannot take less wall time than their sum over two. ``nc`` is the first 16
+the plan was: on two cores it cannot take less wall time than their sum over two, nor less than
+``main_cpu_s``, what its own thread computed. ``nc`` is the first 16
 hex digits of the SHA-256 of every posted program (``*.nc``, by name): two code trees that plan the
 same programs print the same hash, so a speed change can be timed and shown not to change the plan in
-the same runs. ``--threads-cpu`` adds each live thread's CPU seconds (the plan's own thread is the
-floor of its wall time). ``--root DIR`` plans with the code of another checkout (e.g. a ``git
+the same runs. ``--threads-cpu`` adds each live thread's CPU seconds since the process started.
+``--root DIR`` plans with the code of another checkout (e.g. a ``git
 worktree`` of the commit before), so a before/after pair runs from one command line:
 
     git worktree add /tmp/before HEAD~1
@@ -77,9 +79,11 @@ def main() -> int:
     sample = make_sample(args.case, n_points=n)
     c0 = resource.getrusage(resource.RUSAGE_SELF)
     k0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    m0 = time.thread_time()
     t0 = time.perf_counter()
     out = run_plan(Cloud(points=sample.points, normals=None, source_format="generated"), cfg, name=args.case)
     plan_s = time.perf_counter() - t0
+    main_cpu_s = time.thread_time() - m0
     c1 = resource.getrusage(resource.RUSAGE_SELF)
     k1 = resource.getrusage(resource.RUSAGE_CHILDREN)       # the worker is waited for when the paths end
     cpu_s = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
@@ -95,8 +99,8 @@ def main() -> int:
     paths = [t.seconds for t in r.timings if t.stage == "paths"]
     verdict = r.verification.status if r.verification is not None else None
     print(f"RESULT {args.case} plan_s={plan_s:.2f} paths_s={paths[0] if paths else 0.0:.2f} status={r.status} "
-          f"verdict={verdict} nc={digest.hexdigest()[:16]} cpu_s={cpu_s:.1f} worker_cpu_s={worker_cpu_s:.1f}",
-          flush=True)
+          f"verdict={verdict} nc={digest.hexdigest()[:16]} cpu_s={cpu_s:.1f} worker_cpu_s={worker_cpu_s:.1f} "
+          f"main_cpu_s={main_cpu_s:.1f}", flush=True)
     if args.threads_cpu:
         print_thread_cpu()
     return 0

@@ -133,16 +133,14 @@ def _count_questions() -> dict:
                 asked[kind][1] += time.perf_counter() - t
         return run
 
-    for name in _QUESTIONS:
-        make = getattr(levels._LiveStock, name)
-        setattr(levels._LiveStock, name,
-                lambda self, *a, _make=make, _name=name, **k: timed(_name, _make(self, *a, **k)))
-    for name in _STEPS:
-        method = getattr(levels._LiveStock, name)
-        setattr(levels._LiveStock, name,
-                lambda self, *a, _m=method, _name=name, **k: timed(_name, lambda: _m(self, *a, **k))())
-    return asked
+    def question(kind, make):                  # the method returns the closure the writer calls
+        return lambda self, *a, **k: timed(kind, make(self, *a, **k))
 
+    for name in _QUESTIONS:
+        setattr(levels._LiveStock, name, question(name, getattr(levels._LiveStock, name)))
+    for name in _STEPS:
+        setattr(levels._LiveStock, name, timed(name, getattr(levels._LiveStock, name)))
+    return asked
 
 if __name__ == "__main__":
     raise SystemExit(main())

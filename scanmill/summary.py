@@ -181,6 +181,9 @@ def _operation_lines(v: dict | None) -> list[str]:
             out.append(f"  area {a.get('area')} {op.get('operation', '?'):9s} T{op.get('tool')}: feed "
                        f"{(op.get('feed_mm') or 0) / 1000:.1f} m, {op.get('air_share') or 0:.0%} in air"
                        + (f", {plunges} straight plunges into material" if plunges else "")
+                       + (f", engagement up to {op['engagement_max_deg']:.0f} deg (p95 {op.get('engagement_p95_deg') or 0:.0f}), "
+                          f"{op.get('over_engagement_moves') or 0} moves over the bound"
+                          if op.get("engagement_max_deg") is not None else "")
                        + f", removed {(op.get('removed_mm3') or 0) / 1000:.1f} cm3, "
                        f"{_minutes(op.get('machining_time_s'))} min")
     return out

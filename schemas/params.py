@@ -458,6 +458,11 @@ class SimulateParams(_Strict):
         True, description="Also measure the finish exactly from the finishing moves (verification.finish): per scan "
                           "point the distance to the surface the ball swept, lines exactly (planning/simulate/"
                           "finish.py); false: only the stock model's deviation on its rays.")
+    engagement: bool = Field(
+        True, description="Measure the roughing end mill's engagement on every level move (verification: "
+                          "engagement_max_deg, over_engagement_moves against paths.roughing.max_engagement_deg; "
+                          "planning/simulate/engagement.py), on a height field of 0.25 mm columns along the set-up's "
+                          "axis; false: not measured.")
     exact_finish_points: int = Field(
         50_000, ge=0, description="The exact finish is measured on at most this many scan points, drawn at random "
                                   "(fixed seed) from a larger scan: its figures are shares and percentiles, and "
@@ -573,6 +578,17 @@ class RoughingParams(_Strict):
     ramp_length_mm: float | None = Field(
         None, gt=0, le=1000, description="Longest leg of a ramp entry, mm (at least the cutter radius); null = twice "
                                          "the cutter diameter.")
+    max_engagement_deg: float = Field(
+        90.0, gt=0, le=180, description="Bound on the roughing end mill's radial engagement, degrees: the angle of the "
+                                        "cutter's circumference in the material (180 is a slot; acos(1 - ae / R) on a "
+                                        "straight cut of radial depth ae: 60 degrees is a quarter of the diameter, 90 "
+                                        "half). The verification measures every level move's engagement on the "
+                                        "simulated stock and counts the moves over this bound (verification."
+                                        "over_engagement_moves; simulate.engagement). Today's Z-level roughing steps "
+                                        "over 60 % of the diameter (101.5 degrees) and slots where a pass enters fresh "
+                                        "material, so it is over 90 by design; the bound is for judging a roughing "
+                                        "at the full flute length, where shops keep 10-25 % of the diameter (37-60 "
+                                        "degrees).")
 
     @model_validator(mode="after")
     def _corner(self) -> "RoughingParams":

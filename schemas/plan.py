@@ -421,6 +421,17 @@ class OperationFigures(_Out):
                                                      "post.rapid_mm_min, s.")
     plunges_into_material: int = Field(0, description="Feed moves within 10 degrees of straight down the tool "
                                                       "axis that removed material (roughing end mill only).")
+    engagement_max_deg: float | None = Field(
+        None, description="Roughing end mill only: the largest equivalent engagement angle of its level moves, degrees "
+                          "(the angle of a straight cut that removes the same area per length advanced, at the worst "
+                          "height of the flutes: 180 is a slot; planning/simulate/engagement.py); null: not measured "
+                          "(simulate.engagement false, another tool, or a tool that changes axis while it feeds).")
+    engagement_p95_deg: float | None = Field(
+        None, description="The 95th percentile of the level moves' engagement, weighted by their length, degrees.")
+    over_engagement_moves: int = Field(
+        0, description="Level feed moves of the roughing end mill whose engagement exceeds "
+                       "paths.roughing.max_engagement_deg (reported; not part of the verdict).")
+    over_engagement_mm: float = Field(0.0, description="Their feed length, mm.")
 
 
 class AreaVerification(_Out):
@@ -440,6 +451,9 @@ class AreaVerification(_Out):
     plunges_into_material: int = Field(
         0, description="Feed moves of the roughing end mill straight down (within 10 degrees of the tool axis) that "
                        "removed material: plunges into solid stock (reported; not part of the verdict).")
+    over_engagement_moves: int = Field(
+        0, description="Level feed moves of the roughing end mill over paths.roughing.max_engagement_deg (reported; "
+                       "not part of the verdict).")
     operations: list[OperationFigures] = Field(
         default_factory=list, description="The program's moves per tool (roughing first), as the simulation ran them.")
     deviation: DeviationFigures | None = None
@@ -468,6 +482,7 @@ class Verification(_Out):
     fixture_collisions: int = 0
     travel_excursions: int = 0
     plunges_into_material: int = 0
+    over_engagement_moves: int = Field(0, description="Summed over the areas (AreaVerification).")
     unreadable_programs: int = Field(0, description="Programs the reader refused (named in notes): not verified.")
     machining_time_s: float = 0.0
     worst: list[VerificationOffence] = Field(default_factory=list, description="The worst offences of each class.")

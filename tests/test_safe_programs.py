@@ -216,6 +216,13 @@ def test_the_single_pass_verification_equals_the_independent_one(light_plan):
             # the program's rounding (1e-4 mm) and its own arc chords move its share by a few points
             assert oa.air_share == pytest.approx(ob.air_share, abs=0.02 if oa.operation == "roughing" else 0.05), \
                 (name, a.program, oa.operation)
+            # issue 31 item 5: the roughing's engagement, measured on the stock the roughing met (the carried
+            # one, or the one the programs before left), agrees; it is measured where there is a roughing
+            if oa.operation == "roughing":
+                assert oa.engagement_max_deg is not None and ob.engagement_max_deg is not None, (name, a.program)
+                assert oa.engagement_p95_deg == pytest.approx(ob.engagement_p95_deg, abs=1.0), (name, a.program)
+                assert oa.over_engagement_moves == pytest.approx(ob.over_engagement_moves, rel=0.01, abs=2), \
+                    (name, a.program)
 
 
 def test_a_program_changed_after_posting_is_run_again_not_taken_from_the_plan(light_plan):

@@ -189,10 +189,29 @@ def _plunges(motion: ProgramMotion, removed_mm3: np.ndarray, roughing_tool: int)
 AIR_MM3 = 1e-6
 
 
-def operation_figures(motion: ProgramMotion, removed_mm3: np.ndarray, config) -> list[OperationFigures]:
+def engagement_figures(motion: ProgramMotion, engagement, bound_deg: float) -> dict:
+    """The roughing figures of :class:`~schemas.plan.OperationFigures` from the per-move engagement
+    (:class:`planning.simulate.engagement.Engagement`; None: not measured): the largest, the 95th
+    percentile weighted by length, and the moves over ``bound_deg`` with their length (mm)."""
+    if engagement is None or not engagement.level.any():
+        return {}
+    lv = engagement.level
+    deg = engagement.deg[lv]
+    length = np.linalg.norm(motion.end_mm[lv] - motion.start_mm[lv], axis=1)
+    order = np.argsort(deg)
+    cum = np.cumsum(length[order])
+    p95 = float(deg[order][min(order.size - 1, int(np.searchsorted(cum, 0.95 * cum[-1])))])
+    over = deg > bound_deg
+    return dict(engagement_max_deg=round(float(deg.max()), 1), engagement_p95_deg=round(p95, 1),
+                over_engagement_moves=int(over.sum()), over_engagement_mm=round(float(length[over].sum()), 1))
+
+
+def operation_figures(motion: ProgramMotion, removed_mm3: np.ndarray, config, engagement=None) -> list[OperationFigures]:
     """Per tool of ``motion`` (roughing first, then by T number): feed length, the part of it that removed no
     material (``removed_mm3`` per move below :data:`AIR_MM3`), rapid length, removed volume, machining time
-    (as :func:`move_minutes`: as the control runs them) and straight plunges into material. Lengths mm, volumes mm^3, times s."""
+    (as :func:`move_minutes`: as the control runs them), straight plunges into material and, for the roughing
+    end mill, its engagement (``engagement``: :class:`planning.simulate.engagement.Engagement` of its moves,
+    :func:`engagement_figures`). Lengths mm, volumes mm^3, times s."""
     out = []
     if motion.n_moves == 0:
         return out
@@ -218,8 +237,20 @@ def operation_figures(motion: ProgramMotion, removed_mm3: np.ndarray, config) ->
             air_feed_mm=round(air_mm, 1), air_share=round(air_mm / feed_mm, 4) if feed_mm > 0 else 0.0,
             rapid_mm=round(rapid_mm, 1), removed_mm3=round(float(removed_mm3[mine].sum()), 1),
             machining_time_s=round(time_s, 1),
-            plunges_into_material=_plunges(motion, removed_mm3, rough) if t == rough else 0))
+            plunges_into_material=_plunges(motion, removed_mm3, rough) if t == rough else 0,
+            **(engagement_figures(motion, engagement, config.paths.roughing.max_engagement_deg) if t == rough else {})))
     return out
+
+
+def measure_engagement(motion: ProgramMotion, stock, tools: dict, config):
+    """The roughing end mill's engagement on the moves of ``motion`` (:mod:`planning.simulate.engagement`), on
+    ``stock`` as it was before them; None when ``simulate.engagement`` is off or the program has no roughing."""
+    rough = int(config.post.roughing_tool_number)
+    if not config.simulate.engagement or stock is None or rough not in tools or not np.any(motion.tool == rough):
+        return None
+    from planning.simulate.engagement import measure
+
+    return measure(stock, motion.start_mm, motion.end_mm, motion.axis, motion.kind, motion.tool, tools[rough])
 
 
 def _offences(kind: str, motion: ProgramMotion, amount: np.ndarray, detail: str) -> list[VerificationOffence]:
@@ -414,11 +445,21 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
                                          (lambda k, m: progress(READ_SHARE * (0.5 + 0.5 * k / len(read)), m)))
         if runs is not None:
             v.mode, stock = "single_pass", stock_after
+    engagement_of = {}
+    if runs is not None:
+        # each program's roughing on the stock it met while the paths were planned: the programs at once
+        if progress is not None:
+            progress(READ_SHARE, f"the roughing's engagement in {len(read)} programs")
+        engagement_of = _engagements(read, simulated, tools, config)
     for n_done, name, area, motion in read:
         travel = check_travel(motion, profile)
         if runs is not None:
             run = runs[name]
+            engaged = engagement_of[name]
         else:
+            # the roughing runs first in its program: the stock now is the one it meets
+            say(n_done, 0.0, f"{name}: the roughing's engagement ({n_done + 1}/{len(names)})")
+            engaged = measure_engagement(motion, models.stock, tools, config)
             say(n_done, 0.05, f"{name}: simulating {motion.n_moves} moves ({n_done + 1}/{len(names)})")
             run = run_moves(models.stock, models.obstacles, motion, tools, rapid_clearance_mm=sim.rapid_clearance_mm,
                             progress=None if progress is None else
@@ -432,7 +473,10 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
                               travel_excursions=len(travel),
                               plunges_into_material=_plunges(motion, run.removed_mm3,
                                                              config.post.roughing_tool_number),
-                              operations=operation_figures(motion, run.removed_mm3, config))
+                              operations=operation_figures(motion, run.removed_mm3, config, engaged))
+        av.over_engagement_moves = sum(op.over_engagement_moves for op in av.operations)
+        if engaged is not None and engaged.note:
+            v.notes.append(f"{name}: {engaged.note}")
         v.areas.append(av)
         worst += _offences("rapid_into_material", motion, run.rapid_depth_mm, "tool in stock at rapid")
         worst += _offences("holder_collision", motion, run.holder_depth_mm, "shank or holder in stock")
@@ -482,7 +526,7 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
         for av in v.areas:
             av.finish = finish_figures(left[input_labels[idx] == av.area], fp.scallop_mm, fp.tolerance_mm, exact_limit)
     for field in ("rapids_into_material", "holder_collisions", "fixture_collisions", "travel_excursions",
-                  "plunges_into_material"):
+                  "plunges_into_material", "over_engagement_moves"):
         setattr(v, field, sum(getattr(a, field) for a in v.areas))
     v.machining_time_s = round(sum(a.machining_time_s for a in v.areas), 1)
     v.worst = worst
@@ -491,6 +535,26 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
     v.seconds = round(time.perf_counter() - t0, 3)
     return SimulationOutcome(verification=v, deviation_mm=dev, stock=stock,
                              finish_left_mm=finish_left)
+
+
+def _engagements(read, simulated, tools, config) -> dict:
+    """``{program name: Engagement or None}``: :func:`measure_engagement` of every program read, on the stock
+    its roughing met in the paths stage (the roughing operation's ``stock_before``), on the kernels' threads."""
+    import numba
+
+    rough = int(config.post.roughing_tool_number)
+    jobs = []
+    for _, name, area, motion in read:
+        before = next((op.stock_before for op in simulated.get(area, []) if op.tool == rough and op.n_moves), None)
+        jobs.append((name, motion, before))
+    workers = min(len(jobs), max(1, numba.get_num_threads()))
+    if workers <= 1:
+        return {name: measure_engagement(motion, before, tools, config) for name, motion, before in jobs}
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="engagement") as pool:
+        futures = {name: pool.submit(measure_engagement, motion, before, tools, config) for name, motion, before in jobs}
+        return {name: f.result() for name, f in futures.items()}
 
 
 def _single_pass(read, simulated, stock_after, models, tools, config, say):

@@ -5,8 +5,9 @@ kept in numba's cache directory (:mod:`planning.kernel_cache`), from where later
 in milliseconds. :func:`warm` plans a small reference scan in-process, through the same path as
 ``scanmill plan`` and the service (a binary PLY read by :func:`~planning.inputs.cloud.read_input`, the
 default configuration: sphere-throwing normals, global visibility and travel, roughing, finishing,
-both posts and the simulation), so the kernels are compiled for the argument types of a real plan;
-the plan itself is discarded. The exact gouge confirmation runs in a plan only where the deviation
+both posts and the simulation), then a small simultaneous 5-axis plan of the deep slot (the kernels only
+``paths.finishing.mode = 5axis`` calls), so the kernels are compiled for the argument types of a real
+plan; the plans themselves are discarded. The exact gouge confirmation runs in a plan only where the deviation
 suspects a gouge, which the warm-up plan may not: its kernels are compiled apart, on a tiny input
 (:func:`planning.simulate.gouge.warm_kernels`; the kernels see arrays of fixed types whatever the
 input). :class:`CompileCounter` counts the compilations (numba's
@@ -46,6 +47,18 @@ WARMUP_SAMPLE_ARGS: dict = {}
 #: Configuration overrides of the warm-up plan.
 WARMUP_CONFIG: dict = {"simulate": {"resolution_mm": 2.0},
                        "paths": {"finishing": {"scallop_mm": 0.2}, "roughing": {"step_down_mm": 5.0}}}
+
+#: The simultaneous 5-axis warm-up (issue 33 item 4): ``paths.finishing.mode = 5axis`` runs kernels no 3+2
+#: plan calls (the axis search per position, the 5-axis holder and fixture checks, the 5-axis posts and
+#: the verification of their programs), so the warm-up also plans the deep slot of issue 19 (the reference
+#: 5-axis case, a scan of its top) that way, from one pass direction, with coarse values of the same types.
+#: tests/test_warmup.py (slow) checks that a 5-axis plan of the slot compiles nothing after the warm-up.
+WARMUP_FIVE_AXIS_SAMPLE = "draft_slot"
+WARMUP_FIVE_AXIS_SAMPLE_ARGS: dict = {"density_per_mm2": 0.5, "seed": 1, "include_sides": False}
+WARMUP_FIVE_AXIS_CONFIG: dict = {"normals": {"method": "input"}, "visibility": {"cone_deg": [10.0, 45.0]},
+                                 "setups": {"max_setups": 1}, "simulate": {"resolution_mm": 2.0},
+                                 "paths": {"finishing": {"scallop_mm": 0.3, "mode": "5axis"},
+                                           "roughing": {"step_down_mm": 5.0}}}
 
 
 class CompileCounter:
@@ -94,8 +107,9 @@ class WarmupReport:
         return len(self.compiled)
 
 
-def warm_plan(progress=None):
-    """Plan the warm-up scan (:data:`WARMUP_SAMPLE`) with :data:`WARMUP_CONFIG` and write its files into a
+def warm_plan(progress=None, five_axis: bool = False):
+    """Plan the warm-up scan (:data:`WARMUP_SAMPLE` with :data:`WARMUP_CONFIG`; ``five_axis``:
+    :data:`WARMUP_FIVE_AXIS_SAMPLE` with :data:`WARMUP_FIVE_AXIS_CONFIG`) and write its files into a
     temporary directory, as ``scanmill plan`` and a job do; return the plan outcome."""
     from planning.inputs.cloud import read_input
     from planning.inputs.samples import make_sample
@@ -104,14 +118,20 @@ def warm_plan(progress=None):
     from planning.report.plan_files import write_plan
     from schemas.params import parse_config
 
-    config = parse_config(WARMUP_CONFIG)
-    sample = make_sample(WARMUP_SAMPLE, n_points=WARMUP_POINTS, **WARMUP_SAMPLE_ARGS)
+    if five_axis:
+        name = WARMUP_FIVE_AXIS_SAMPLE
+        config = parse_config(WARMUP_FIVE_AXIS_CONFIG)
+        sample = make_sample(name, **WARMUP_FIVE_AXIS_SAMPLE_ARGS)
+    else:
+        name = WARMUP_SAMPLE
+        config = parse_config(WARMUP_CONFIG)
+        sample = make_sample(name, n_points=WARMUP_POINTS, **WARMUP_SAMPLE_ARGS)
     with tempfile.TemporaryDirectory(prefix="scanmill-warmup-") as tmp:
-        path = Path(tmp) / f"{WARMUP_SAMPLE}.ply"
+        path = Path(tmp) / f"{name}.ply"
         # written and read back as a user's file is: the same dtypes and layout reach the kernels
         write_ply(path, sample.points, normals=sample.normals, binary=True)
         cloud = read_input(path, config.input)
-        outcome = run_plan(cloud, config, name=f"warmup-{WARMUP_SAMPLE}", progress=progress)
+        outcome = run_plan(cloud, config, name=f"warmup-{name}", progress=progress)
         write_plan(outcome, Path(tmp) / "plan")      # the artifacts run kernels too (the stock mesh)
     return outcome
 
@@ -155,6 +175,7 @@ def warm(progress=None) -> WarmupReport:
     t0 = time.perf_counter()
     with CompileCounter() as counter:
         outcome = warm_plan(progress)
+        warm_plan(progress, five_axis=True)          # the simultaneous 5-axis kernels (issue 33 item 4)
         from planning.simulate.gouge import warm_kernels
         warm_kernels()                       # the gouge confirmation: the warm-up plan may suspect none
     seconds = time.perf_counter() - t0

@@ -119,8 +119,9 @@ def test_a_second_process_loads_every_kernel_from_the_cache(src, tmp_path, half_
 
 @pytest.mark.slow
 def test_warmup_compiles_what_a_default_plan_needs(src, tmp_path):
-    """``scanmill warmup`` into an empty cache, then: a second warm-up and a default plan of the full-size
-    slot compile nothing (the warm-up plan passes the kernels the argument types of a real plan)."""
+    """``scanmill warmup`` into an empty cache, then: a second warm-up, a default plan of the full-size
+    slot and a simultaneous 5-axis plan of the deep slot compile nothing (the warm-up plans pass the
+    kernels the argument types of real plans)."""
     from planning.inputs.samples import slot
     from planning.report.files import write_ply
     cache = tmp_path / "kernels"
@@ -141,6 +142,17 @@ def test_warmup_compiles_what_a_default_plan_needs(src, tmp_path):
     assert again["compiled"] == [], f"a second warm-up compiled {again['compiled']}"
     plan = _child(src, cache, "plan", str(ply), "{}")
     assert plan["compiled"] == [], f"a default plan after the warm-up compiled {plan['compiled']}"
+    # issue 33 item 4: the simultaneous 5-axis plan of the reference deep slot (tests/test_fiveaxis_plan.py's)
+    from planning.inputs.samples import draft_slot
+    d = draft_slot(density_per_mm2=1.0, seed=1, include_sides=False)
+    ply5 = tmp_path / "draft_slot.ply"
+    write_ply(ply5, d.points, normals=d.normals, binary=True)
+    five = {"normals": {"method": "input"}, "visibility": {"cone_deg": [10.0, 45.0]}, "setups": {"max_setups": 1},
+            "paths": {"finishing": {"mode": "5axis", "scallop_mm": 0.2}, "roughing": {"step_down_mm": 5.0}},
+            "simulate": {"resolution_mm": 1.0}}
+    plan5 = _child(src, cache, "plan", str(ply5), json.dumps(five))
+    assert plan5["status"] in ("planned", "unfinished")          # it ran to the end (the share is not the point)
+    assert plan5["compiled"] == [], f"a 5-axis plan after the warm-up compiled {plan5['compiled']}"
     assert not _source_tree_caches(src)
 
 

@@ -367,7 +367,11 @@ def _windowed(ds: np.ndarray, area: np.ndarray, run: np.ndarray, window_mm: floa
         return out
     r = run[keep]
     L = np.cumsum(ds[keep])
-    A = np.cumsum(area[keep].astype(np.float64), axis=0)
+    used = np.flatnonzero(area.any(axis=0))          # the slices some step cut in (a few of them)
+    if used.size == 0:
+        out[keep] = 0.0
+        return out
+    A = np.cumsum(area[np.ix_(keep, used)].astype(np.float64), axis=0)
     first = np.r_[True, r[1:] != r[:-1]]
     rs = np.flatnonzero(first)                       # each run's first step (in keep)
     re = np.r_[rs[1:], keep.size] - 1                # and its last

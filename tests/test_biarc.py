@@ -319,3 +319,26 @@ def test_a_refit_with_more_corners_through_the_memo_is_the_fresh_fit():
     # another tolerance is another fit, never one taken from the memo
     other = fit_biarcs(P, 0.05, breaks=[300], memo=memo)
     assert other.n_biarcs < got.n_biarcs - 2 and other.n_biarcs == fit_biarcs(P, 0.05, breaks=[300]).n_biarcs
+
+
+def test_the_compiled_span_search_finds_the_spans_of_the_numpy_reference():
+    """``fit_biarcs`` runs the greedy span search compiled (``_fit_piece_equal``); on noisy 3-D curves (a
+    helix, a wavy line, a random walk) at several tolerances it must choose exactly the spans of the numpy
+    reference ``_fit_piece`` (the same formulas, one span at a time)."""
+    from planning.toolpath.fiveaxis.biarc import _fit_piece, _fit_piece_equal, path_tangents
+
+    rng = np.random.default_rng(7)
+    t = np.linspace(0.0, 6.0 * np.pi, 400)
+    curves = [np.c_[20 * np.cos(t), 20 * np.sin(t), 2.0 * t],
+              np.c_[np.linspace(0, 80, 300), 3.0 * np.sin(np.linspace(0, 9, 300)), np.zeros(300)],
+              np.cumsum(rng.normal(size=(250, 3)) * [0.3, 0.3, 0.05] + [0.4, 0.0, 0.0], axis=0)]
+    n_spans = 0
+    for P in curves:
+        P = P + rng.normal(scale=0.002, size=P.shape)
+        T = path_tangents(P)
+        for tol in (0.001, 0.005, 0.02):
+            ref = _fit_piece(P, T, tol, "equal")
+            fast = [(int(a), int(b)) for a, b in _fit_piece_equal(P, T, tol)]
+            assert fast == ref, (tol, len(fast), len(ref))
+            n_spans += len(ref)
+    assert n_spans > 100              # the curves are not fitted by a handful of spans

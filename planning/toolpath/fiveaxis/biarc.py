@@ -43,9 +43,11 @@ from the curve itself, the circle through each point and its neighbours (exact o
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 __all__ = [
     "Biarc",
@@ -469,8 +471,176 @@ def _span_ok(P, T, i, j, tol_mm, method) -> bool:
     return bool(np.all(np.diff(s) >= -2.0 * tol_mm))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _u3(x, y, z):
+    """A unit vector and the norm (a zero vector stays zero), as :func:`_unit`."""
+    n = math.sqrt(x * x + y * y + z * z)
+    if n > 0.0:
+        return x / n, y / n, z / n, n
+    return x, y, z, n
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sinc(x):
+    """``numpy.sinc``: sin(pi x) / (pi x)."""
+    y = math.pi * (x if x != 0.0 else 1.0e-20)
+    return math.sin(y) / y
+
+
+@njit(cache=True, nogil=True)
+def _arc1(p0, t0, p1, out):
+    """:func:`_arc_from_chord` of one arc into ``out``: [inward (3), kappa, length]."""
+    cx, cy, cz, lc = _u3(p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2])
+    cos_h = t0[0] * cx + t0[1] * cy + t0[2] * cz
+    ix, iy, iz, sin_h = _u3(cx - cos_h * t0[0], cy - cos_h * t0[1], cz - cos_h * t0[2])
+    half = math.atan2(sin_h, cos_h)
+    straight = sin_h < _STRAIGHT_SIN
+    if straight:
+        ix = iy = iz = 0.0
+    kappa = 0.0 if (straight or lc <= 0.0) else 2.0 * sin_h / (lc if lc > 0.0 else 1.0)
+    sc = _sinc((0.0 if straight else half) / math.pi)
+    out[0], out[1], out[2] = ix, iy, iz
+    out[3] = kappa
+    out[4] = lc / sc if sc > 1e-12 else lc
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _dist1(px, py, pz, st, tg, iw, k, length):
+    """:func:`_piece_distance` of one point to one piece: (distance, arc length of the closest point)."""
+    dx, dy, dz = px - st[0], py - st[1], pz - st[2]
+    x = dx * tg[0] + dy * tg[1] + dz * tg[2]
+    y = dx * iw[0] + dy * iw[1] + dz * iw[2]
+    rx, ry, rz = dx - x * tg[0] - y * iw[0], dy - x * tg[1] - y * iw[1], dz - x * tg[2] - y * iw[2]
+    z2 = rx * rx + ry * ry + rz * rz
+    th = math.atan2(k * x, 1.0 - k * y)
+    th = th - 2.0 * math.pi * math.floor(th / (2.0 * math.pi))
+    radial = (k * (x * x + y * y) - 2.0 * y) / (math.sqrt((k * x) ** 2 + (1.0 - k * y) ** 2) + 1.0)
+    if k > 0.0:
+        s_arc = th / k
+        inside = th <= k * length
+    else:
+        s_arc = x
+        inside = (x >= 0.0) and (x <= length)
+    if inside:
+        return math.sqrt(radial * radial + z2), s_arc
+    t2 = k * length
+    along = length * _sinc(t2 / math.pi)
+    across = length * (t2 / 2.0) * _sinc(t2 / (2.0 * math.pi)) ** 2
+    ex = st[0] + along * tg[0] + across * iw[0]
+    ey = st[1] + along * tg[1] + across * iw[1]
+    ez = st[2] + along * tg[2] + across * iw[2]
+    d0 = math.sqrt(dx * dx + dy * dy + dz * dz)
+    d1 = math.sqrt((px - ex) ** 2 + (py - ey) ** 2 + (pz - ez) ** 2)
+    if d0 <= d1:
+        return d0, 0.0
+    return d1, length
+
+
+@njit(cache=True, nogil=True)
+def _span_ok_equal(P, T, i, j, tol_mm, scratch):
+    """:func:`_span_ok` for ``method="equal"``, compiled (the same formulas as :func:`biarc` for one span)."""
+    if j - i < 2:
+        return True
+    A = P[i]
+    C = P[j]
+    t1x, t1y, t1z, _ = _u3(T[i, 0], T[i, 1], T[i, 2])
+    t3x, t3y, t3z, _ = _u3(T[j, 0], T[j, 1], T[j, 2])
+    sx, sy, sz = C[0] - A[0], C[1] - A[1], C[2] - A[2]
+    ss = sx * sx + sy * sy + sz * sz
+    p = sx * t1x + sy * t1y + sz * t1z
+    q = sx * t3x + sy * t3y + sz * t3z
+    dtx, dty, dtz = t1x - t3x, t1y - t3y, t1z - t3z
+    w = 0.5 * (dtx * dtx + dty * dty + dtz * dtz)
+    S = p + q
+    parallel = w <= _W_PARALLEL
+    wq = 1.0 if parallel else w
+    root = math.sqrt(S * S + 2.0 * wq * ss)
+    den = S + root
+    if S >= 0:
+        a = ss / (den if den > 0 else 1.0)
+    else:
+        a = (root - S) / (2.0 * wq)
+    if not ss > 0:
+        a = 0.0
+    if parallel:
+        a = ss / (2.0 * S) if S > 0 else np.inf
+    b = a
+    fin = math.isfinite(a) and (a + b > 0)
+    if not (fin and a > 0 and ss > 0):
+        return False                      # not proper
+    ab = a + b
+    wa = a / ab
+    wab = 0.0 if parallel else a * b / ab
+    Bx, By, Bz = A[0] + wa * sx + wab * dtx, A[1] + wa * sy + wab * dty, A[2] + wa * sz + wab * dtz
+    c1x, c1y, c1z, l1 = _u3(Bx - A[0], By - A[1], Bz - A[2])
+    if l1 > 0:
+        d = t1x * c1x + t1y * c1y + t1z * c1z
+        t2x, t2y, t2z = 2.0 * d * c1x - t1x, 2.0 * d * c1y - t1y, 2.0 * d * c1z - t1z
+    else:
+        t2x, t2y, t2z = t1x, t1y, t1z
+    t1 = scratch[0]
+    t2 = scratch[1]
+    B = scratch[2]
+    a1 = scratch[3]
+    a2 = scratch[4]
+    t1[0], t1[1], t1[2] = t1x, t1y, t1z
+    t2[0], t2[1], t2[2] = t2x, t2y, t2z
+    B[0], B[1], B[2] = Bx, By, Bz
+    _arc1(A, t1, B, a1)
+    _arc1(B, t2, C, a2)
+    L1 = a1[4]
+    prev = -np.inf
+    for m in range(i + 1, j):
+        d1, s1 = _dist1(P[m, 0], P[m, 1], P[m, 2], A, t1, a1[:3], a1[3], a1[4])
+        d2, s2 = _dist1(P[m, 0], P[m, 1], P[m, 2], B, t2, a2[:3], a2[3], a2[4])
+        if d2 < d1:
+            d1, s1 = d2, s2 + L1
+        if not d1 <= tol_mm:
+            return False
+        # the curve must pass the points in their order (not merely near each of them)
+        if m > i + 1 and s1 - prev < -2.0 * tol_mm:
+            return False
+        prev = s1
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _fit_piece_equal(P, T, tol_mm):
+    """:func:`_fit_piece` for ``method="equal"``, compiled: (k, 2) span ends (local indices)."""
+    n = P.shape[0]
+    out = np.empty((max(n - 1, 0), 2), np.int64)
+    scratch = np.zeros((5, 5))
+    k = 0
+    i = 0
+    while i < n - 1:
+        good = i + 1
+        bad = -1
+        step = 2
+        while good < n - 1:
+            j = min(i + step, n - 1)
+            if _span_ok_equal(P, T, i, j, tol_mm, scratch):
+                good = j
+                step *= 2
+            else:
+                bad = j
+                break
+        if bad >= 0:
+            while bad - good > 1:
+                mid = (good + bad) // 2
+                if _span_ok_equal(P, T, i, mid, tol_mm, scratch):
+                    good = mid
+                else:
+                    bad = mid
+        out[k, 0] = i
+        out[k, 1] = good
+        k += 1
+        i = good
+    return out[:k]
+
+
 def _fit_piece(P, T, tol_mm, method) -> list[tuple[int, int]]:
-    """Greedy longest spans over one G1 piece (local indices): doubling, then bisection."""
+    """Greedy longest spans over one G1 piece (local indices): doubling, then bisection. The reference
+    (numpy, one span at a time); ``fit_biarcs`` runs :func:`_fit_piece_equal` for ``method="equal"``."""
     n = len(P)
     spans = []
     i = 0
@@ -550,7 +720,11 @@ def fit_biarcs(points: np.ndarray, tol_mm: float, tangents: np.ndarray | None = 
         key = (Pp.tobytes(), float(tol_mm), method) if memo is not None and user_T is None else None
         spans = None if key is None else memo.get(key)
         if spans is None:
-            spans = _fit_piece(Pp, Tp, tol_mm, method)
+            if method == "equal":
+                spans = [(int(a), int(b)) for a, b in _fit_piece_equal(np.ascontiguousarray(Pp),
+                                                                        np.ascontiguousarray(Tp), float(tol_mm))]
+            else:
+                spans = _fit_piece(Pp, Tp, tol_mm, method)
             if key is not None:
                 memo[key] = spans
         for a, b in spans:

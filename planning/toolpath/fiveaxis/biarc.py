@@ -694,12 +694,14 @@ def fit_biarcs(points: np.ndarray, tol_mm: float, tangents: np.ndarray | None = 
     if user_T is not None and len(user_T) != n:
         raise ValueError("tangents must have one row per point")
     brk = sorted({int(b) for b in breaks if 0 < int(b) < n})
-    extra = {int(c) for c in corners if 0 < int(c) < n - 1}
+    extra = np.array(sorted({int(c) for c in corners if 0 < int(c) < n - 1}), dtype=np.int64)
     pieces, cor = [], set()
     for lo, hi in zip([0] + brk, [b - 1 for b in brk] + [n - 1]):
-        # corners are looked for inside each run between breaks (the link move is not the path)
+        # corners are looked for inside each run between breaks (the link move is not the path); the
+        # given ones inside it by bisection (a path has thousands of runs and of corners)
         found = {lo + int(c) for c in _find_corners(P[lo:hi + 1], corner_rad)}
-        here = sorted(found | {c for c in extra if lo < c < hi})
+        inside = extra[np.searchsorted(extra, lo, side="right"):np.searchsorted(extra, hi, side="left")]
+        here = sorted(found | {int(c) for c in inside})
         cor.update(here)
         for a, b in zip([lo] + here, here + [hi]):
             pieces.append((a, b))

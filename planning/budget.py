@@ -107,6 +107,11 @@ FINISHING_BYTES_PER_CL = 1_600
 ROUGHING_BYTES_PER_CELL = 60
 ROUGHING_MAX_CELLS = 16_000_000     # planning.toolpath.roughing.maps.MAX_CELLS
 POST_BYTES_PER_CL = 110
+#: The verification's measure of the roughing's engagement (``simulate.engagement``,
+#: planning/simulate/engagement.py): its kernels loaded from the cache, its height fields and per-step
+#: areas. The half sphere's job grew by 22-52 MiB of address space with it on (157 MiB off; 179, 184 and
+#: 209 MiB on, three runs of bench/bench_admission.py --one).
+ENGAGEMENT_BYTES = 56 * MIB
 #: Artifacts on disk: plan.npz, segmentation.ply, preview; NC programs and moves JSON per CL point.
 ARTIFACT_BASE_BYTES = 8 * MIB
 ARTIFACT_BYTES_PER_POINT = 40
@@ -433,6 +438,11 @@ def estimate_job_memory(n_points: int, config: PlanConfig, *,
                        "Use a larger paths.finishing.scallop_mm, or fewer post.dialects.",
                        int(POST_BYTES_PER_CL * cl * areas * max(1, len(config.post.dialects)))),
         ]
+        if pp.roughing.enabled and config.simulate.enabled and config.simulate.engagement:
+            stages["paths"].append(MemoryTerm(
+                "the roughing's engagement measure", "simulate.engagement",
+                "simulate.engagement = true (the verification measures every roughing move's engagement)",
+                "Set simulate.engagement to false.", ENGAGEMENT_BYTES))
 
     peak_stage, peak_terms = max(stages.items(), key=lambda kv: sum(t.bytes for t in kv[1]))
     terms = sorted((t for t in always + peak_terms if t.bytes > 0), key=lambda t: -t.bytes)

@@ -547,14 +547,20 @@ def _engagements(read, simulated, tools, config) -> dict:
     for _, name, area, motion in read:
         before = next((op.stock_before for op in simulated.get(area, []) if op.tool == rough and op.n_moves), None)
         jobs.append((name, motion, before))
-    workers = min(len(jobs), max(1, numba.get_num_threads()))
-    if workers <= 1:
-        return {name: measure_engagement(motion, before, tools, config) for name, motion, before in jobs}
-    from concurrent.futures import ThreadPoolExecutor
+    out: dict = {}
+    if len(jobs) <= 1 or numba.get_num_threads() <= 1:
+        for name, motion, before in jobs:
+            out[name] = measure_engagement(motion, before, tools, config)
+        return out
+    from planning.simulate.dexel import _map
 
-    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="engagement") as pool:
-        futures = {name: pool.submit(measure_engagement, motion, before, tools, config) for name, motion, before in jobs}
-        return {name: f.result() for name, f in futures.items()}
+    # on the simulation's own pool (its threads exist already: no new thread stacks or malloc arenas)
+    def one(job):
+        name, motion, before = job
+        out[name] = measure_engagement(motion, before, tools, config)
+
+    _map(one, jobs)
+    return {name: out[name] for name, _, _ in jobs}
 
 
 def _single_pass(read, simulated, stock_after, models, tools, config, say):

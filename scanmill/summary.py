@@ -92,7 +92,7 @@ def summary_lines(plan: dict) -> list[str]:
     t = f.get("machining_time_s") or 0.0
     lines.append(f"machining time {_hmm(t)} ({t / 60.0:.1f} min, {source})")
     v = plan.get("verification") if isinstance(plan.get("verification"), dict) else None
-    lines += _operation_lines(v)
+    lines += _operation_lines(v, _bound_deg(plan))
     lines += _verdict_lines(v)
     lines.append(figures_line(f))
     return lines
@@ -151,7 +151,7 @@ def _legacy_lines(plan: dict) -> list[str]:
     lines += _table(head, rows)
     v = plan.get("verification") if isinstance(plan.get("verification"), dict) else None
     lines.append(f"machining time (estimate) {_hmm(total_s)} ({total_s / 60.0:.1f} min)")
-    lines += _operation_lines(v)
+    lines += _operation_lines(v, _bound_deg(plan))
     lines += _verdict_lines(v)
     un = plan.get("unmachined") if isinstance(plan.get("unmachined"), dict) else None
     finished = _get(v or {}, "deviation", "finished_share")
@@ -168,7 +168,14 @@ def _legacy_lines(plan: dict) -> list[str]:
     return lines
 
 
-def _operation_lines(v: dict | None) -> list[str]:
+def _bound_deg(plan: dict):
+    """``paths.roughing.max_engagement_deg`` of the plan's parameters, or None."""
+    p = plan.get("parameters")
+    r = (p.get("paths") or {}).get("roughing") if isinstance(p, dict) else None
+    return r.get("max_engagement_deg") if isinstance(r, dict) else None
+
+
+def _operation_lines(v: dict | None, bound_deg=None) -> list[str]:
     """Per area (machining order) and tool, what the simulated machine does: feed length and its share in
     air, straight plunges into material, volume removed, time (``verification.areas[].operations``)."""
     areas = [a for a in (v or {}).get("areas") or [] if isinstance(a, dict) and a.get("operations")]
@@ -182,7 +189,8 @@ def _operation_lines(v: dict | None) -> list[str]:
                        f"{(op.get('feed_mm') or 0) / 1000:.1f} m, {op.get('air_share') or 0:.0%} in air"
                        + (f", {plunges} straight plunges into material" if plunges else "")
                        + (f", engagement up to {op['engagement_max_deg']:.0f} deg (p95 {op.get('engagement_p95_deg') or 0:.0f}), "
-                          f"{op.get('over_engagement_moves') or 0} moves over the bound"
+                          f"{op.get('over_engagement_moves') or 0} moves over "
+                          + (f"{bound_deg:g} deg" if bound_deg is not None else "the bound")
                           if op.get("engagement_max_deg") is not None else "")
                        + f", removed {(op.get('removed_mm3') or 0) / 1000:.1f} cm3, "
                        f"{_minutes(op.get('machining_time_s'))} min")

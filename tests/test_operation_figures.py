@@ -60,3 +60,21 @@ def test_the_summary_shows_each_operation_of_each_area_in_machining_order():
                              "removed 150.0 cm3, 10.0 min")
     assert lines[at + 2] == "  area 1 finishing T1: feed 50.0 m, 0% in air, removed 9.0 cm3, 40.0 min"
     assert lines[at + 3].startswith("  area 0 finishing T1:")
+
+
+def test_the_summary_shows_the_roughing_engagement_against_its_bound():
+    """Issue 31 item 5: the roughing's line carries the largest engagement, its p95 and the moves over
+    ``paths.roughing.max_engagement_deg`` (the plan's own parameter); without a measure, nothing."""
+    rough = {"tool": 2, "operation": "roughing", "feed_mm": 12000.0, "air_feed_mm": 1200.0, "air_share": 0.1,
+             "rapid_mm": 0.0, "removed_mm3": 150000.0, "machining_time_s": 600.0, "plunges_into_material": 0,
+             "engagement_max_deg": 180.0, "engagement_p95_deg": 121.4, "over_engagement_moves": 42,
+             "over_engagement_mm": 830.0}
+    plan = {"setups": [{"id": 0}], "machining_order": [0], "parameters": {"paths": {"roughing": {"max_engagement_deg": 75.0}}},
+            "verification": {"status": "passed", "message": "clean", "machining_time_s": 600.0,
+                             "areas": [{"area": 0, "operations": [rough]}]}}
+    line = next(x for x in summary_lines(plan) if x.startswith("  area 0 roughing"))
+    assert line == ("  area 0 roughing  T2: feed 12.0 m, 10% in air, engagement up to 180 deg (p95 121), "
+                    "42 moves over 75 deg, removed 150.0 cm3, 10.0 min")
+    rough.pop("engagement_max_deg")
+    line = next(x for x in summary_lines(plan) if x.startswith("  area 0 roughing"))
+    assert "engagement" not in line

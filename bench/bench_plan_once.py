@@ -16,9 +16,12 @@ hex digits of the SHA-256 of every posted program (``*.nc``, by name): two code 
 same programs print the same hash, so a speed change can be timed and shown not to change the plan in
 the same runs. ``--threads-cpu`` adds each live thread's CPU seconds since the process started.
 ``--root DIR`` plans with the code of another checkout (e.g. a ``git
-worktree`` of the commit before), so a before/after pair runs from one command line:
+worktree`` of the commit before), so a before/after pair runs from one command line. A fresh worktree
+compiles every numba kernel of the planner in its first plan (about two minutes: numba's cache knows a
+source file by its path), so plan once with it before timing it:
 
     git worktree add /tmp/before HEAD~1
+    .venv/bin/python bench/bench_plan_once.py range_femur --root /tmp/before    # compiles its kernels
     farm-bench -n 4 --timeout 900 \\
       --vs "sh -c 'exec .venv/bin/python bench/bench_plan_once.py range_femur --root /tmp/before >>/tmp/B.txt'" \\
       -- sh -c 'exec .venv/bin/python bench/bench_plan_once.py range_femur >>/tmp/A.txt'

@@ -48,7 +48,7 @@ the boundary is that coarse.
 
 **Cost.** The columns under each move are visited once (a move that continues a level move skips those
 its start already cleared): about ``2 R / cell^2`` visits per mm of level feed, 60-100 ns each; the
-femur-like make-run plan's five programs take about 4 s of CPU, run on the kernels' threads
+femur-like make-run plan's five programs take about 2.6 s of CPU, run on the simulation's threads
 (BENCHMARKS.md, "The roughing's engagement").
 """
 

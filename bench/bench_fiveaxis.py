@@ -19,7 +19,8 @@ Printed per plan:
 * ``unmachined``: scan points no kept finishing move reaches (plan.json unmachined);
 * ``seam_pts``: scan points with a neighbour (8 nearest) in another area: where re-positioning
   errors show (Makki); ``seam_mm``: the areas stage's seam length;
-* ``offences``: rapids into material, holder, fixture, travel, gouged points (all 0 to pass);
+* ``offences``: rapids into material, holder, fixture, travel, rotary feed, gouged points (all 0 to
+  pass); the C words' range of the LinuxCNC programs (the register, issue 33 item 3);
 * ``machine_s``: the verification's machining time of every program (feeds, rapids, no
   acceleration); ``finish_s``: the finishing paths' time alone (plan.json setups[].path.finishing);
 * ``plan_s``: wall time of the plan, and the paths stage's seconds.
@@ -28,6 +29,7 @@ Printed per plan:
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import time
 from pathlib import Path
@@ -37,9 +39,9 @@ from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from planning.inputs import Cloud, samples  # noqa: E402
-from planning.pipeline import run_plan  # noqa: E402
-from schemas.params import parse_config  # noqa: E402
+from planning.inputs import Cloud, samples
+from planning.pipeline import run_plan
+from schemas.params import parse_config
 
 FEMUR = {"normals": {"method": "sphere_throwing", "sphere_diameter_mm": 7.0},
          "tool": {"diameter_mm": 6.0}, "fixtures": {"fixture_height_mm": 150.0},
@@ -57,6 +59,13 @@ SLOT = {"normals": {"method": "input"}, "visibility": {"cone_deg": [10, 45]},
         "paths": {"finishing": {"scallop_mm": 0.2}, "roughing": {"step_down_mm": 5}}, "simulate": {"resolution_mm": 1.0}}
 
 
+def rotary_word_range(programs: dict, letter: str = "C") -> tuple[float, float]:
+    """``(min, max)`` of the ``letter`` words over the LinuxCNC programs (the C register, issue 33)."""
+    vals = [float(m) for name, text in programs.items() if name.endswith(".linuxcnc.nc")
+            for m in re.findall(rf"\b{letter}(-?\d+(?:\.\d*)?)", text)]
+    return (min(vals), max(vals)) if vals else (float("nan"), float("nan"))
+
+
 def one(cloud: Cloud, mode: str, max_setups: int, base: dict = FEMUR) -> dict:
     cfg = {**base, "setups": {**base.get("setups", {}), "max_setups": max_setups},
            "paths": {**base.get("paths", {}), "finishing": {**base.get("paths", {}).get("finishing", {}), "mode": mode}}}
@@ -72,7 +81,8 @@ def one(cloud: Cloud, mode: str, max_setups: int, base: dict = FEMUR) -> dict:
         "unmachined": r.unmachined.n_points if r.unmachined else 0,
         "seam_pts": seam_points(out.points, out.input_labels), "seam_mm": r.areas.seam_mm,
         "offences": (v.rapids_into_material, v.holder_collisions, v.fixture_collisions, v.travel_excursions,
-                     v.deviation.n_gouged if v.deviation else -1) if v else None,
+                     getattr(v, "rotary_feed_excesses", -1), v.deviation.n_gouged if v.deviation else -1) if v else None,
+        "c_range": rotary_word_range(out.extra.get("programs", {})),
         "verification": v.status if v else None, "machine_s": v.machining_time_s if v else float("nan"),
         "finish_s": sum(f.machining_time_s for f in fin), "plan_s": wall, "paths_s": paths_s,
         "five": [f.five_axis for f in fin if f.five_axis is not None],
@@ -103,7 +113,7 @@ def main(argv=None) -> int:
     for r in rows:
         print(f"{r['mode']:6} {r['max_setups']:>3} {r['k']:>2} {r['status']:10} {r['coverage']:6.3f} "
               f"{r['finished']:8.3f} {r['unmachined']:7d} {r['seam_pts']:8d} {r['seam_mm']:8.0f} "
-              f"{str(r['verification']):8} {str(r['offences']):18} {r['machine_s']:9.1f} {r['finish_s']:8.1f} "
+              f"{r['verification']!s:8} {r['offences']!s:18} {r['machine_s']:9.1f} {r['finish_s']:8.1f} "
               f"{r['plan_s']:7.1f} {r['paths_s']:7.1f}")
     base = rows[0]
     for r in rows[1:]:
@@ -111,6 +121,7 @@ def main(argv=None) -> int:
             print(f"5axis max_setups {r['max_setups']}: finishing path time {r['finish_s'] / base['finish_s']:.2f}x "
                   f"the 3+2 plan's, machining time {r['machine_s'] / max(base['machine_s'], 1e-9):.2f}x")
         print(f"  finishing guard per set-up (found, dropped, truncated): {r['guards']}")
+        print(f"  C words of the LinuxCNC programs: {r['c_range'][0]:.3f} .. {r['c_range'][1]:.3f} deg")
         for f in r["five"]:
             print(f"  positions {f.n_positions}, alternatives {f.n_alternatives}, blocked {f.blocked}, cone "
                   f"{f.cone_deg}, swing {f.swing_deg}, rate {f.max_rate_deg_per_mm} deg/mm, biarcs {f.n_biarcs} "

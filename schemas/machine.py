@@ -34,6 +34,16 @@ before they existed stay valid and keep their behaviour:
   80 mm below the table top is ``[0, 0, -80]``. The C axis is the table frame's Z axis.
 * ``head_pivot_length_mm`` (head-head only): distance along the tool axis from the spindle gauge
   line up to the head's rotation centre; default 0. The spindle axis passes through that centre.
+
+Rotary speeds and the C register (simultaneous 5-axis, issue 33). Optional as well:
+
+* ``tilt_feed_max_deg_min`` / ``rotary_feed_max_deg_min``: the fastest the tilt and the rotary axis
+  turn during a feed move (deg/min; default :data:`DEFAULT_ROTARY_FEED_DEG_MIN`, 20 rev/min). The
+  5-axis posts make each feed move last at least its turn over this; the verification reads the
+  programs back and counts a feed move whose axes turn faster (``rotary_feed_excesses``).
+* ``rotary_register_deg`` (continuous C only): the programs keep C within +- this (default
+  :data:`DEFAULT_ROTARY_REGISTER_DEG`, ten turns); beyond it is a travel excursion. The planner and
+  the posts turn C back well before (between passes, where it has left [-360, 360]).
 """
 
 from __future__ import annotations
@@ -41,14 +51,23 @@ from __future__ import annotations
 import json
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Literal, Optional
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from planning.errors import ParameterError
 
-__all__ = ["DEFAULT_MIN_GAUGE_HEIGHT_MM", "Kinematics", "KINEMATICS", "LIMIT_SPAN_TOL_MM", "MachineProfile",
-           "available_profiles", "load_profile"]
+__all__ = [
+    "DEFAULT_MIN_GAUGE_HEIGHT_MM",
+    "DEFAULT_ROTARY_FEED_DEG_MIN",
+    "DEFAULT_ROTARY_REGISTER_DEG",
+    "KINEMATICS",
+    "LIMIT_SPAN_TOL_MM",
+    "Kinematics",
+    "MachineProfile",
+    "available_profiles",
+    "load_profile",
+]
 
 Kinematics = Literal["table_table_ac", "table_table_bc", "head_head_ac", "head_head_bc"]
 KINEMATICS: tuple[str, ...] = ("table_table_ac", "table_table_bc", "head_head_ac", "head_head_bc")
@@ -56,6 +75,13 @@ KINEMATICS: tuple[str, ...] = ("table_table_ac", "table_table_bc", "head_head_ac
 #: Default lowest height of the spindle gauge line above the table top (rotary axes at 0, Z at the
 #: bottom of its travel), mm; used when a profile gives no ``z_limits_mm``.
 DEFAULT_MIN_GAUGE_HEIGHT_MM = 100.0
+
+#: Default fastest turn of a rotary or tilt axis in a feed move, deg/min (20 rev/min).
+DEFAULT_ROTARY_FEED_DEG_MIN = 7200.0
+
+#: Default range of a continuous C in the programs, +- degrees (ten turns: within the soft limits controls
+#: commonly give an unwrapped rotary axis, and the program's closing return to C0 stays under 30 s at 20 rev/min).
+DEFAULT_ROTARY_REGISTER_DEG = 3600.0
 
 #: Largest accepted difference between the span of ``*_limits_mm`` and ``*_travel_mm``, mm.
 LIMIT_SPAN_TOL_MM = 1e-3
@@ -100,6 +126,24 @@ class MachineProfile(BaseModel):
     rotary_max_deg: float | None = Field(
         None, ge=-720, le=720,
         description="Upper travel limit of the rotary axis (C), degrees; required unless rotary_continuous.")
+    tilt_feed_max_deg_min: float | None = Field(
+        None, gt=0, le=1_000_000, allow_inf_nan=False,
+        description="Fastest the tilt axis (A or B) may turn during a feed move, deg/min. The simultaneous "
+                    "5-axis posts give every feed move at least its tilt turn / this (LinuxCNC G93 inverse-time "
+                    "F, ISO the tip feed lowered), and the verification counts a feed move that turns the tilt "
+                    "faster as a rotary-speed offence. Default (null): 7200 deg/min (20 rev/min).")
+    rotary_feed_max_deg_min: float | None = Field(
+        None, gt=0, le=1_000_000, allow_inf_nan=False,
+        description="Fastest the rotary axis (C) may turn during a feed move, deg/min; as "
+                    "tilt_feed_max_deg_min. Default (null): 7200 deg/min (20 rev/min).")
+    rotary_register_deg: float | None = Field(
+        None, ge=360, le=100_000, allow_inf_nan=False,
+        description="Continuous rotary axis only: the programs keep C within +-this, degrees (what the "
+                    "control's soft limits of the unwrapped axis allow, and what the return to C0 at the end "
+                    "has to unwind). The 5-axis posts turn C back to its twin in [-180, 180] in the air between "
+                    "passes where it has left that range; a C beyond +-this is a travel excursion in the "
+                    "verification. Default (null): 3600 (ten turns). Must be null when rotary_continuous is "
+                    "false (the rotary travel limits apply).")
     x_travel_mm: float = Field(
         ..., gt=0, le=100_000,
         description="Travel of the X linear axis, mm (stroke, end to end). Used by the translational travel "
@@ -108,37 +152,37 @@ class MachineProfile(BaseModel):
         ..., gt=0, le=100_000, description="Travel of the Y linear axis, mm (stroke, end to end).")
     z_travel_mm: float = Field(
         ..., gt=0, le=100_000, description="Travel of the Z linear axis, mm (stroke, end to end).")
-    x_limits_mm: Optional[_Range] = Field(
+    x_limits_mm: _Range | None = Field(
         None,
         description="[min, max] machine X of the controlled point (table-table: spindle gauge point; "
                     "head-head: head rotation centre), mm, in the machine frame (origin at the table-top "
                     "centre with every rotary axis at 0, Z up; see the module docstring). Must span "
                     "x_travel_mm (within 0.001 mm). Default (null): [-x_travel_mm/2, +x_travel_mm/2], centred "
                     "on the table. Used by the translational travel check (Makki §2.2.2, Fig. 4c).")
-    y_limits_mm: Optional[_Range] = Field(
+    y_limits_mm: _Range | None = Field(
         None,
         description="[min, max] machine Y of the controlled point, mm; must span y_travel_mm. "
                     "Default (null): [-y_travel_mm/2, +y_travel_mm/2].")
-    z_limits_mm: Optional[_Range] = Field(
+    z_limits_mm: _Range | None = Field(
         None,
         description="[min, max] machine Z of the controlled point, mm (0 = table top with the rotary axes "
                     "at 0); must span z_travel_mm. Default (null): min = 100 mm (lowest gauge-line height "
                     "above the table top) plus head_pivot_length_mm for head-head, max = min + z_travel_mm.")
-    table_pivot_mm: Optional[tuple[_Coord, _Coord, _Coord]] = Field(
+    table_pivot_mm: tuple[_Coord, _Coord, _Coord] | None = Field(
         None,
         description="Table-table only: [x, y, z] of a point of the tilt (A/B) axis in the table frame "
                     "(origin at the table-top centre on the C axis, Z up, rotary axes at 0), mm; the "
                     "component along the tilt axis is irrelevant. E.g. [0, 0, -80]: tilt axis 80 mm below "
                     "the table top. Default (null): [0, 0, 0], the tilt axis passes through the table-top "
                     "centre. Must be null for head-head kinematics.")
-    head_pivot_length_mm: Optional[float] = Field(
+    head_pivot_length_mm: float | None = Field(
         None, ge=0, le=10_000, allow_inf_nan=False,
         description="Head-head only: distance along the tool axis from the spindle gauge line up to the "
                     "head's rotation centre (where the C and A/B axes meet, on the spindle axis), mm. "
                     "Default (null): 0. Must be null for table-table kinematics.")
 
     @model_validator(mode="after")
-    def _consistent(self) -> "MachineProfile":
+    def _consistent(self) -> MachineProfile:
         if not self.tilt_min_deg < self.tilt_max_deg:
             raise ValueError(f"tilt_min_deg ({self.tilt_min_deg:g}) must be below tilt_max_deg "
                              f"({self.tilt_max_deg:g})")
@@ -146,6 +190,9 @@ class MachineProfile(BaseModel):
             if self.rotary_min_deg is not None or self.rotary_max_deg is not None:
                 raise ValueError("rotary_continuous is true: rotary_min_deg and rotary_max_deg must be null")
         else:
+            if self.rotary_register_deg is not None:
+                raise ValueError("rotary_register_deg applies to a continuous rotary axis only (rotary_continuous "
+                                 "is false: rotary_min_deg / rotary_max_deg bound C); leave it null")
             if self.rotary_min_deg is None or self.rotary_max_deg is None:
                 raise ValueError("rotary_min_deg and rotary_max_deg are required when rotary_continuous is false")
             if not self.rotary_min_deg < self.rotary_max_deg:
@@ -179,6 +226,29 @@ class MachineProfile(BaseModel):
     def axis_names(self) -> tuple[str, str]:
         """Machine names of the (tilt, rotary) axes, e.g. ``('B', 'C')``."""
         return (self.kinematics[-2].upper(), self.kinematics[-1].upper())
+
+    @property
+    def tilt_feed_limit_deg_min(self) -> float:
+        """Fastest tilt turn in a feed move, deg/min (``tilt_feed_max_deg_min``, default
+        :data:`DEFAULT_ROTARY_FEED_DEG_MIN`)."""
+        v = self.tilt_feed_max_deg_min
+        return float(DEFAULT_ROTARY_FEED_DEG_MIN if v is None else v)
+
+    @property
+    def rotary_feed_limit_deg_min(self) -> float:
+        """Fastest rotary (C) turn in a feed move, deg/min (``rotary_feed_max_deg_min``, default
+        :data:`DEFAULT_ROTARY_FEED_DEG_MIN`)."""
+        v = self.rotary_feed_max_deg_min
+        return float(DEFAULT_ROTARY_FEED_DEG_MIN if v is None else v)
+
+    @property
+    def rotary_limits_deg(self) -> tuple[float, float]:
+        """``(min, max)`` of the C a program may command, degrees: the rotary travel, or for a continuous
+        axis +-``rotary_register_deg`` (default :data:`DEFAULT_ROTARY_REGISTER_DEG`)."""
+        if not self.rotary_continuous:
+            return (float(self.rotary_min_deg), float(self.rotary_max_deg))
+        r = float(DEFAULT_ROTARY_REGISTER_DEG if self.rotary_register_deg is None else self.rotary_register_deg)
+        return (-r, r)
 
     @property
     def pivot_length_mm(self) -> float:
@@ -242,7 +312,7 @@ def _validate(data, source: str) -> MachineProfile:
                              parameter="machine.profile", problems=problems) from None
 
 
-def load_profile(name_or_path: "str | Path | MachineProfile") -> MachineProfile:
+def load_profile(name_or_path: str | Path | MachineProfile) -> MachineProfile:
     """Load a machine profile (Makki §2.2.2 machine model) by bundled name or from a JSON file path.
 
     A string equal to a bundled profile name (see :func:`available_profiles`) loads that profile;

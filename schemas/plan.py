@@ -132,6 +132,9 @@ class FiveAxisSummary(_Out):
     n_biarcs: int = Field(..., description="3D biarcs fitted to the ball-centre path within tolerance_mm (Chui App. A).")
     n_arcs: int = Field(..., description="Arcs (and straight pieces) of those biarcs: the moves after fitting.")
     biarc_max_error_mm: float = Field(..., description="Largest distance of a ball-centre position from its biarc, mm.")
+    n_unwinding_links: int = Field(
+        0, description="Short links routed through the safe height so that the post turns a continuous C back "
+                       "there (the C register: machine profile rotary_register_deg).")
     biarc_min_clearance_mm: float = Field(
         ..., description="Smallest distance between the biarc curve (as chords within 0.002 mm) and any cloud point, "
                          "mm; the programs are G1 through the positions, the biarcs are the fitted curve reported "
@@ -344,14 +347,16 @@ class Artifacts(_Out):
 class VerificationOffence(_Out):
     """One move of one program that would harm the machine, the tool or the part."""
 
-    kind: Literal["travel", "rapid_into_material", "holder_collision", "fixture_collision"] = Field(
-        ..., description="'travel': an axis beyond its limit; 'rapid_into_material': a G0 whose tool meets stock; "
+    kind: Literal["travel", "rapid_into_material", "holder_collision", "fixture_collision", "rotary_speed"] = Field(
+        ..., description="'travel': an axis beyond its limit (a continuous C beyond its register); 'rotary_speed': a "
+                         "feed move that turns a rotary axis faster than the profile's *_feed_max_deg_min; 'rapid_into_material': a G0 whose tool meets stock; "
                          "'holder_collision': the shank or holder meets stock or part; 'fixture_collision': any part "
                          "of the tool meets a fixture, the riser or the table.")
     program: str = Field(..., description="Program artifact.")
     line: int = Field(..., ge=1, description="1-based line of the program text.")
     position_mm: tuple[float, float, float] = Field(..., description="Tool tip at the end of the move, part frame, mm.")
-    amount: float = Field(..., description="Depth of the contact (mm) or excess beyond the limit (mm or deg).")
+    amount: float = Field(..., description="Depth of the contact (mm), excess beyond the limit (mm or deg), or "
+                                           "for 'rotary_speed' the rate over the limit (ratio - 1).")
     detail: str = Field("", description="Which axis or solid.")
 
 
@@ -448,6 +453,10 @@ class AreaVerification(_Out):
     holder_collisions: int
     fixture_collisions: int
     travel_excursions: int
+    rotary_feed_excesses: int = Field(
+        0, description="Feed moves (program lines) whose tilt or rotary axis turns faster than the machine "
+                       "profile's tilt_feed_max_deg_min / rotary_feed_max_deg_min at the line's F word (part of the "
+                       "verdict).")
     plunges_into_material: int = Field(
         0, description="Feed moves of the roughing end mill straight down (within 10 degrees of the tool axis) that "
                        "removed material: plunges into solid stock (reported; not part of the verdict).")
@@ -465,8 +474,8 @@ class Verification(_Out):
     """The posted programs run on a simulated machine and stock (planning/simulate/, docs/programs.md)."""
 
     status: Literal["passed", "failed", "skipped"] = Field(
-        ..., description="'passed' only when collisions, rapids into material, travel excursions and gouges beyond "
-                         "the tolerance are all zero; 'skipped' when simulate.enabled is false or nothing was posted.")
+        ..., description="'passed' only when collisions, rapids into material, travel excursions, rotary feed "
+                         "excesses and gouges beyond the tolerance are all zero; 'skipped' when simulate.enabled is false or nothing was posted.")
     message: str = Field(..., description="One line per class of offence, or why it passed or was skipped.")
     dialect: str | None = None
     resolution_mm: float | None = None
@@ -481,6 +490,7 @@ class Verification(_Out):
     holder_collisions: int = 0
     fixture_collisions: int = 0
     travel_excursions: int = 0
+    rotary_feed_excesses: int = Field(0, description="Summed over the areas (AreaVerification).")
     plunges_into_material: int = 0
     over_engagement_moves: int = Field(0, description="Summed over the areas (AreaVerification).")
     unreadable_programs: int = Field(0, description="Programs the reader refused (named in notes): not verified.")

@@ -75,19 +75,40 @@ is still measured and reported).
 
 Feeds
 -----
-* LinuxCNC: feed moves (``G1``) in INVERSE-TIME mode ``G93``: ``F`` = 1 / (the move's time in
-  minutes), with ``time = max(L / feed, turn / rotary_feed_deg_min, MIN_MOVE_TIME_MIN)``: ``L`` the
-  length of the straight TIP segment of the move in the part frame (mm), ``feed`` the operation's
-  ``feed_mm_min`` (``plunge_mm_min`` for :data:`~planning.toolpath.moves.USE_PLUNGE` moves),
-  ``turn`` the larger rotary turn of the move (deg). So a move that only turns the rotary axes (no
-  tip travel) takes ``turn / rotary_feed_deg_min`` (default :data:`ROTARY_FEED_DEG_MIN` = 7200
-  deg/min, 20 rev/min), and a move that neither travels nor turns :data:`MIN_MOVE_TIME_MIN`; the
-  same bound keeps the rotary axes of every feed move at or below that rate (the tip then moves
-  slower than ``feed``). ``G93``
+Every feed move lasts ``time = max(L / feed, tilt turn / tilt limit, rotary turn / rotary limit,
+MIN_MOVE_TIME_MIN)`` minutes: ``L`` the length of the straight TIP segment of the move in the part
+frame (mm), ``feed`` the operation's ``feed_mm_min`` (``plunge_mm_min`` for
+:data:`~planning.toolpath.moves.USE_PLUNGE` moves), the turns those of the printed angles (deg), the
+limits the profile's ``tilt_feed_max_deg_min`` and ``rotary_feed_max_deg_min`` (default
+:data:`ROTARY_FEED_DEG_MIN` = 7200 deg/min, 20 rev/min; ``rotary_feed_deg_min`` given to the
+LinuxCNC post overrides both). So no feed move turns an axis faster than the machine allows (the tip
+then moves slower than ``feed``), a move that only turns takes its turn over the limit, and one that
+neither travels nor turns :data:`MIN_MOVE_TIME_MIN`. F words are rounded DOWN to ``decimals`` (at
+least one unit of the last), so the printed feed never makes a move faster than this. The
+verification reads the programs back and counts a feed move that still turns an axis faster than
+the profile's limit (:func:`planning.simulate.rotary_speed.rotary_feed_excesses`).
+
+* LinuxCNC: feed moves (``G1``) in INVERSE-TIME mode ``G93``: ``F`` = 1 / time. ``G93``
   is printed on the first feed block of a run of feed moves, ``G94`` on the first rapid after it and
   at the end of the operation (``G93`` needs an ``F`` on every feed block: every one has it).
-* ISO: ``G94`` ``F`` in mm/min of the TIP (TCP feed), ``plunge_mm_min`` on plunges; printed where it
-  changes.
+* ISO: ``G94`` ``F`` in mm/min of the TIP (TCP feed): ``L / time``, i.e. ``feed`` (``plunge_mm_min``
+  on plunges) unless an axis limit makes the move slower; printed where it changes. A move that turns
+  without moving the tip keeps ``feed`` (TCP has no way to time it; the control's own axis limits
+  apply).
+
+The C register
+--------------
+A continuous C is unwrapped along a path (above), so passes that keep turning the same way
+accumulate whole turns (the 200k-point femur-like plan reached C-22,668, 63 turns, which the end of
+the program then turns back). The posts keep it in a register range: on a rapid between two rapids
+(in the air between passes, where the axis turns anyway) whose start has C outside [-180, 180], C
+is turned back to the twin in that range (:func:`rotary_path` ``unwind``), unless the table's turn
+would take the controlled point beyond the linear travel (sampled every 5 degrees; the move then
+keeps its C and the next such rapid is tried). Within a pass C runs on continuously. The programs'
+C must stay within +-``rotary_register_deg`` of the profile (default
+:data:`~schemas.machine.DEFAULT_ROTARY_REGISTER_DEG`, ten turns): the verification's travel check
+(:func:`planning.simulate.program.check_travel`) counts a C beyond it as a travel excursion.
+Figures: ``rotary_range_deg``, ``n_unwound``.
 * Rapids are ``G0``, also linearised (the control moves every axis together on them too; Fanuc:
   linear-interpolation-type positioning assumed, below).
 
@@ -151,6 +172,7 @@ from planning.toolpath.moves import (
     USE_RAPID,
     USE_RETRACT,
 )
+from schemas.machine import DEFAULT_ROTARY_FEED_DEG_MIN
 
 from .blocks import BlockWriter, comment, fmt, scanmill_version, spindle_word
 from .options import PostOptions, check_options, check_placement
@@ -172,10 +194,13 @@ __all__ = [
 POLE_DEG = 0.5
 #: Largest number of halvings of one move by the linearisation.
 MAX_DEPTH = 16
-#: Rotary feed that sets the shortest time of a LinuxCNC inverse-time move, deg/min.
-ROTARY_FEED_DEG_MIN = 7200.0
+#: Default fastest turn of the tilt and the rotary axis in a feed move (the profile's limits when it
+#: gives none), deg/min.
+ROTARY_FEED_DEG_MIN = DEFAULT_ROTARY_FEED_DEG_MIN
 #: Shortest time of a LinuxCNC inverse-time move that neither travels nor turns, min.
 MIN_MOVE_TIME_MIN = 1e-5
+#: Rounds of the C register walk that drop an unwinding move beyond the linear travel.
+UNWIND_ROUNDS = 4
 
 _UNIT_TOL = 1e-6
 _ANGLE_TOL = 1e-9
@@ -382,14 +407,18 @@ def _unit_axes(axes) -> np.ndarray:
     return a / n[:, None]
 
 
-def rotary_path(axes, profile, *, start_deg=None, pole_deg: float = POLE_DEG) -> tuple[np.ndarray, np.ndarray]:
+def rotary_path(axes, profile, *, start_deg=None, pole_deg: float = POLE_DEG,
+                unwind=None) -> tuple[np.ndarray, np.ndarray]:
     """Rotary angles along a path of tool axes: inverse kinematics with continuity (module docstring).
 
     ``axes`` (n,3): unit tool axes in the part frame, in path order; ``profile``: MachineProfile,
     bundled name or JSON path; ``start_deg`` ``(tilt, rotary)`` (deg, planner signs) or None: the
     first point takes the solution closest to it, else the one
     :func:`~planning.orientations.kinematics.choose_rotary` takes; ``pole_deg``: half-angle of the
-    cone about the pole inside which the rotary angle is held (deg).
+    cone about the pole inside which the rotary angle is held (deg); ``unwind`` (n,) bool or None:
+    the points where a continuous C may be turned back (module docstring, "The C register"): at such
+    a point whose predecessor's C lies outside [-180, 180] the solution is chosen as if the
+    predecessor's C were its twin in that range, so the move into it unwinds whole turns.
 
     Returns ``(angles_deg (n,2), feasible (n,))``: ``(tilt, rotary)`` per point in the signs of
     :mod:`planning.orientations.kinematics` (continuous rotary axis unwrapped: consecutive values
@@ -419,20 +448,29 @@ def rotary_path(axes, profile, *, start_deg=None, pole_deg: float = POLE_DEG) ->
             ref = chosen[0] if bool(ok[0]) else sols.angles_deg[f, 0].copy()
         else:
             ref = sols.angles_deg[0, 0].copy()
+    if unwind is None:
+        uw = np.zeros(n, dtype=np.bool_)
+    else:
+        uw = np.asarray(unwind, dtype=np.bool_).reshape(-1)
+        if uw.shape != (n,):
+            raise ParameterError(f"unwind must have one entry per axis ({n}), got {uw.shape}", parameter="unwind")
     return _rotary_walk(sols.angles_deg[:, :, 0], sols.angles_deg[:, :, 1], a, pole, kin.u0, kin.u90,
                         kin.tmin - _ANGLE_TOL, kin.tmax + _ANGLE_TOL, kin.rmin - _ANGLE_TOL, kin.rmax + _ANGLE_TOL,
-                        kin.cont, _WRAPS, kin.pole_deg, float(ref[0]), float(ref[1]))
+                        kin.cont, _WRAPS, kin.pole_deg, float(ref[0]), float(ref[1]), uw)
 
 
 @njit(cache=True, nogil=True)
-def _rotary_walk(T, Cw, axes, pole, u0, u90, tmin, tmax, rmin, rmax, cont, wraps, pole_deg, pt, pc):
+def _rotary_walk(T, Cw, axes, pole, u0, u90, tmin, tmax, rmin, rmax, cont, wraps, pole_deg, pt, pc, unwind):
     """The point-by-point choice of :func:`rotary_path` (compiled: each point depends on the last).
     ``T``/``Cw`` (n,2): the solver's tilts and unwrapped rotary angles; ``pole`` (n,): in the pole
-    cone; ``tmin``..``rmax``: the travel with its tolerance; ``(pt, pc)``: the reference angles."""
+    cone; ``tmin``..``rmax``: the travel with its tolerance; ``(pt, pc)``: the reference angles;
+    ``unwind`` (n,): where a continuous C outside [-180, 180] is referred to its twin inside."""
     n = axes.shape[0]
     out = np.empty((n, 2))
     feas = np.empty(n, dtype=np.bool_)
     for i in range(n):
+        if cont and unwind[i] and not pole[i] and abs(pc) > 180.0:
+            pc = pc - 360.0 * np.rint(pc / 360.0)
         if pole[i]:
             cr = math.radians(pc)
             cc, sc = math.cos(cr), math.sin(cr)
@@ -535,7 +573,12 @@ class _Path:
                 raise ParameterError(f"rotary_sign = {rs!r}: must be two signs (tilt, rotary), each 1 or -1",
                                      parameter="rotary_sign", value=rs)
             self.sign = (float(rs[0]), float(rs[1]))
-        self.ang, feas = rotary_path(self.a, p, start_deg=start_deg, pole_deg=pole_deg)
+        self.ang, feas, self.n_unwound = self._walk(start_deg, pole_deg)
+        #: (P,) the moves INTO each point that unwind C (module docstring, "The C register")
+        self.unwinding = np.zeros(self.c.shape[0], dtype=bool)
+        if self.c.shape[0] > 1 and self.p.rotary_continuous:
+            self.unwinding[1:] = (self.kind[1:] == RAPID) & (self.kind[:-1] == RAPID) \
+                & (np.abs(np.diff(self.ang[:, 1])) >= 180.0)
         if not feas.all():
             i = int(np.flatnonzero(~feas)[0])
             raise ParameterError(
@@ -544,6 +587,37 @@ class _Path:
                 f"{p.axis_names[1]}{self.ang[i, 1]:.4f}; tilt {p.tilt_min_deg:g}..{p.tilt_max_deg:g})",
                 parameter="axis")
         self.n_pole = int(self.kin.is_pole(self.a).sum())
+
+    def _walk(self, start_deg, pole_deg) -> tuple[np.ndarray, np.ndarray, int]:
+        """``(angles (P,2), feasible (P,), unwound)``: :func:`rotary_path` along the planned points with
+        the C register kept (module docstring, "The C register"): a continuous C may be unwound on a
+        rapid between two rapids (in the air, between passes); an unwinding move whose table turn
+        would take the controlled point beyond the linear travel (sampled every 5 degrees) is not
+        unwound there (the walk is run again without it, at most :data:`UNWIND_ROUNDS` times)."""
+        P = self.c.shape[0]
+        cand = np.zeros(P, dtype=bool)
+        if self.p.rotary_continuous and P > 1:
+            cand[1:] = (self.kind[1:] == RAPID) & (self.kind[:-1] == RAPID)
+        (x0, x1), (y0, y1), (z0, z1) = self.p.linear_limits_mm
+        lo, hi = np.array([x0, y0, z0]) - 1e-6, np.array([x1, y1, z1]) + 1e-6
+        g = float(self.op.gauge_length_mm)
+        for _ in range(UNWIND_ROUNDS):
+            ang, feas = rotary_path(self.a, self.p, start_deg=start_deg, pole_deg=pole_deg, unwind=cand)
+            jumps = np.flatnonzero(cand[1:] & (np.abs(np.diff(ang[:, 1])) >= 180.0)) + 1
+            bad = []
+            for j in jumps.tolist():
+                steps = int(np.ceil(abs(ang[j, 1] - ang[j - 1, 1]) / 5.0)) + 1
+                u = np.linspace(0.0, 1.0, steps + 1)[:, None]
+                a_u = ang[j - 1] + u * (ang[j] - ang[j - 1])
+                tip = (self.c[j - 1] + u * (self.c[j] - self.c[j - 1])) - self.R * self.fk(a_u)
+                pos = self.model.machine_from_tip(tip, a_u, g)
+                if not np.all((pos >= lo) & (pos <= hi)):
+                    bad.append(j)
+            if not bad:
+                return ang, feas, int(jumps.size)
+            cand[bad] = False
+        ang, feas = rotary_path(self.a, self.p, start_deg=start_deg, pole_deg=pole_deg, unwind=cand)
+        return ang, feas, int((cand[1:] & (np.abs(np.diff(ang[:, 1])) >= 180.0)).sum())
 
     # ---- posted points
 
@@ -576,6 +650,13 @@ class _Path:
             # the inserted points take C linearly (pole rule) so that the angles stay continuous in u
             held = self.kin.is_pole(a[ji - 1]) | self.kin.is_pole(a[ji])
             got, ok = self.kin.near(axis[inner], ref, held)
+            # an unwinding rapid turns C the long way round: its points are the joints' own linear
+            # interpolation (the tool axis follows the table, not the great circle)
+            uw = self.unwinding[ji]
+            if uw.any():
+                got[uw], ok[uw] = ref[uw], True
+                ii = np.flatnonzero(inner)[uw]
+                axis[ii] = self.fk(ref[uw])
             if not ok.all():
                 b = int(np.flatnonzero(~ok)[0])
                 raise ParameterError(
@@ -683,18 +764,45 @@ def _cat(*ds: dict) -> dict:
 # the programs
 
 
-def _feeds(path: _Path, posted: dict, approach_tip: np.ndarray, rotary_feed: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(tip length (n,), inverse-time F (n,))`` of the moves ending at the posted points (from the
-    approach point for the first)."""
+def _rate_limits(p, rotary_feed_deg_min) -> tuple[float, float]:
+    """``(tilt, rotary)`` fastest turns in a feed move, deg/min: the profile's
+    (``tilt_feed_limit_deg_min``, ``rotary_feed_limit_deg_min``), or ``rotary_feed_deg_min`` for both
+    where given."""
+    if rotary_feed_deg_min is None:
+        return p.tilt_feed_limit_deg_min, p.rotary_feed_limit_deg_min
+    v = _positive(rotary_feed_deg_min, "rotary_feed_deg_min", "rotary_feed_deg_min")
+    return v, v
+
+
+def _floor_dec(v: np.ndarray, d: int) -> np.ndarray:
+    """``v`` rounded DOWN to ``d`` decimals, at least one unit of the last (a feed word printed this
+    way never makes a move faster than computed)."""
+    s = 10.0 ** int(d)
+    return np.maximum(np.floor(v * s) / s, 1.0 / s)
+
+
+def _feeds(path: _Path, posted: dict, approach_tip: np.ndarray, limits: tuple[float, float],
+           decimals: int, printed_tips: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(tip length (n,), inverse-time F (n,), tip feed F (n,))`` of the moves ending at the posted
+    points (from the approach point for the first), mm, 1/min and mm/min: each feed move lasts
+    ``max(L / feed, tilt turn / tilt limit, rotary turn / rotary limit, MIN_MOVE_TIME_MIN)``
+    (printed angles); both F words rounded down to ``decimals`` (:func:`_floor_dec`). The tip feed
+    of a move that turns without moving the tip is the operation's feed. ``printed_tips``: the tips
+    are the program's X Y Z (ISO): the lengths are taken between the printed (rounded) tips, as the
+    control measures them."""
     tip = posted["tip"]
+    if printed_tips:
+        tip, approach_tip = np.round(tip, int(decimals)), np.round(approach_tip, int(decimals))
     prev_tip = np.vstack([approach_tip[None, :], tip[:-1]])
     L = np.linalg.norm(tip - prev_tip, axis=1)
     ang = posted["printed"]
-    turn = np.r_[0.0, np.abs(np.diff(ang, axis=0)).max(axis=1)] if len(ang) else np.zeros(0)
+    turn = np.vstack([np.zeros((1, 2)), np.abs(np.diff(ang, axis=0))]) if len(ang) else np.zeros((0, 2))
     use = path.use[posted["j"]]
     feed = np.where(use == USE_PLUNGE, float(path.op.plunge_mm_min), float(path.op.feed_mm_min))
-    time = np.maximum(np.maximum(L / feed, turn / rotary_feed), MIN_MOVE_TIME_MIN)
-    return L, 1.0 / time
+    time = np.maximum.reduce([L / feed, turn[:, 0] / limits[0], turn[:, 1] / limits[1],
+                              np.full(L.shape, MIN_MOVE_TIME_MIN)]) if len(L) else np.zeros(0)
+    tip_feed = np.where(L > 1e-9, np.minimum(feed, L / np.maximum(time, 1e-300)), feed)
+    return L, _floor_dec(1.0 / np.maximum(time, 1e-300), decimals), _floor_dec(tip_feed, decimals)
 
 
 def _prepare(op, k, p, place, dialect, o, rotary_sign, pole_deg, start_deg, linearise_tol_mm, linearise):
@@ -721,7 +829,8 @@ def _op_comment(k: int, op: FiveAxisOperation, n_inserted: int, tol: float, uppe
                    f"{fmt(tol, 4)} mm of the planned segments", upper=upper)
 
 
-def _figures(path: _Path, posted: dict, fig: dict, lines: list, L: np.ndarray, tol: float) -> dict:
+def _figures(path: _Path, posted: dict, fig: dict, lines: list, L: np.ndarray, tol: float,
+             limits: tuple[float, float]) -> dict:
     P = path.c.shape[0]
     ang = posted["printed"]
     turn = np.abs(np.diff(ang, axis=0)).max(axis=1) if len(ang) > 1 else np.zeros(0)
@@ -738,6 +847,8 @@ def _figures(path: _Path, posted: dict, fig: dict, lines: list, L: np.ndarray, t
         "max_turn_deg": float(turn.max()) if turn.size else 0.0,
         "tilt_range_deg": (float(ang[:, 0].min()), float(ang[:, 0].max())),
         "rotary_range_deg": (float(ang[:, 1].min()), float(ang[:, 1].max())),
+        "n_unwound": int(path.n_unwound),
+        "feed_limits_deg_min": (float(limits[0]), float(limits[1])),
         "tip_path_mm": float(L[1:].sum()),
         "line": np.asarray(lines, dtype=np.int64),
         "move": posted["j"].copy(),
@@ -751,7 +862,7 @@ def _figures(path: _Path, posted: dict, fig: dict, lines: list, L: np.ndarray, t
 def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveAxisOperation, profile, placement_mm,
                           rotary_sign=None, *, index: int = 0, start_deg=None, linearise_tol_mm: float | None = None,
                           linearise: bool = True, pole_deg: float = POLE_DEG,
-                          rotary_feed_deg_min: float = ROTARY_FEED_DEG_MIN) -> dict:
+                          rotary_feed_deg_min: float | None = None) -> dict:
     """Write one simultaneous operation for LinuxCNC (trivial kinematics) to ``w``; return its figures.
 
     ``options``: :class:`~planning.post.options.PostOptions` (None: defaults); ``op``:
@@ -773,7 +884,7 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
     o = check_options(options)
     p = _profile(profile)
     place = check_placement(placement_mm)
-    rotary_feed = _positive(rotary_feed_deg_min, "rotary_feed_deg_min", "rotary_feed_deg_min")
+    limits = _rate_limits(p, rotary_feed_deg_min)
     path, posted, fig, tol = _prepare(op, index, p, place, "linuxcnc", o, rotary_sign, pole_deg, start_deg,
                                       linearise_tol_mm, linearise)
     d = int(o.decimals)
@@ -781,7 +892,7 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
     tn, rn = p.axis_names
     tool = int(op.tool_number)
     tip_a, pos_a = _approach(path, posted, o)
-    L, F = _feeds(path, posted, tip_a, rotary_feed)
+    L, F, _ = _feeds(path, posted, tip_a, limits, d)
     words = posted["words"]
     n_ins = len(posted["j"]) - path.c.shape[0]
 
@@ -818,7 +929,7 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
     if mode == 93:
         w.block("G94")
     operation_end(w, o)
-    return _figures(path, posted, fig, lines, L, tol)
+    return _figures(path, posted, fig, lines, L, tol, limits)
 
 
 def _check_program_args(operations, profile, placement_mm, options):
@@ -831,7 +942,7 @@ def _check_program_args(operations, profile, placement_mm, options):
 
 def linuxcnc_5axis_program(operations, *, profile, placement_mm, options: PostOptions | None = None,
                            linearise_tol_mm: float | None = None, linearise: bool = True,
-                           pole_deg: float = POLE_DEG, rotary_feed_deg_min: float = ROTARY_FEED_DEG_MIN,
+                           pole_deg: float = POLE_DEG, rotary_feed_deg_min: float | None = None,
                            return_figures: bool = False):
     """A whole LinuxCNC program (str) of simultaneous 5-axis operations (module docstring).
 
@@ -859,8 +970,10 @@ def linuxcnc_5axis_program(operations, *, profile, placement_mm, options: PostOp
                   f"{rn} {'flipped' if sr < 0 else 'as planned'}, planned = planning.orientations.kinematics: "
                   f"right-hand rule, the {'table' if table else 'head'} turns, {rn} unwrapped: not wrapped by the "
                   f"control"))
+    lim_t, lim_r = _rate_limits(p, rotary_feed_deg_min)
     w.raw(comment(f"feed moves G93 inverse time: F = 1 / move time in min, time = tip path length / feed, at least "
-                  f"the rotary turn / {fmt(rotary_feed_deg_min, 1)} deg/min"))
+                  f"the {tn} turn / {fmt(lim_t, 1)} deg/min and the {rn} turn / {fmt(lim_r, 1)} deg/min, F rounded "
+                  f"down"))
     w.raw(comment(f"the program ends at home: G53 Z0, then G53 {tn}0 {rn}0, machine zero with the rotary axes at 0"))
     w.block("G21", "G90", "G94", "G17", "G40", "G49", "G80")
     w.block("G64", "P" + fmt(o.chord_tol_mm, max(d, 3)))
@@ -894,7 +1007,8 @@ def iso_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveAxisOp
     tn, rn = p.axis_names
     tool = int(op.tool_number)
     tip_a, _ = _approach(path, posted, o)
-    L, _ = _feeds(path, posted, tip_a, ROTARY_FEED_DEG_MIN)
+    limits = _rate_limits(p, None)
+    L, _, tip_feed = _feeds(path, posted, tip_a, limits, d, printed_tips=True)
     words = posted["words"]
     n_ins = len(posted["j"]) - path.c.shape[0]
 
@@ -908,7 +1022,7 @@ def iso_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveAxisOp
             f"{tn}{words[0][0]}", f"{rn}{words[0][1]}")
     pos = posted["pos"].tolist()
     kinds = path.kind[posted["j"]].tolist()
-    feeds = np.where(path.use[posted["j"]] == USE_PLUNGE, float(op.plunge_mm_min), float(op.feed_mm_min)).tolist()
+    feeds = tip_feed.tolist()
     lines = []
     f_now = None
     for i, (x, y, z) in enumerate(pos):
@@ -926,7 +1040,7 @@ def iso_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveAxisOp
     w.block("G91", "G28", "Z0.")
     w.block("G90", "G49")
     w.block("M5")
-    return _figures(path, posted, fig, lines, L, tol)
+    return _figures(path, posted, fig, lines, L, tol, limits)
 
 
 def iso_5axis_program(operations, *, profile, placement_mm, options: PostOptions | None = None,

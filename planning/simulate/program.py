@@ -789,8 +789,9 @@ def check_travel(motion: ProgramMotion, profile) -> list[dict]:
     """Every move end of ``motion`` whose machine position lies beyond the profile's travel.
 
     Linear axes: ``machine_mm`` (the controlled point) against ``x/y/z_limits_mm``
-    (``linear_limits_mm``, 1e-6 mm slack); rotary: ``rotary_deg`` against the tilt travel and,
-    unless continuous, the rotary travel (1e-6 deg slack). Straight moves between two ends within
+    (``linear_limits_mm``, 1e-6 mm slack); rotary: ``rotary_deg`` against the tilt travel and the
+    rotary travel, for a continuous C its register +-``rotary_register_deg`` (``rotary_limits_deg``;
+    1e-6 deg slack). Straight moves between two ends within
     the limits stay within them (the linear axes move linearly and the travel is a box), so the
     ends are enough. Returns one dict per (move, axis) beyond: ``program``, ``line`` (1-based),
     ``move`` (index into ``motion``), ``axis`` (``"X"``, ``"Y"``, ``"Z"`` or the profile's tilt /
@@ -804,8 +805,7 @@ def check_travel(motion: ProgramMotion, profile) -> list[dict]:
     checks = [(motion.machine_mm[:, i], lim, name, "mm", 1e-6)
               for i, (lim, name) in enumerate(zip(p.linear_limits_mm, "XYZ"))]
     checks.append((motion.rotary_deg[:, 0], (p.tilt_min_deg, p.tilt_max_deg), tilt, "deg", 1e-6))
-    if not p.rotary_continuous:
-        checks.append((motion.rotary_deg[:, 1], (p.rotary_min_deg, p.rotary_max_deg), rot, "deg", 1e-6))
+    checks.append((motion.rotary_deg[:, 1], p.rotary_limits_deg, rot, "deg", 1e-6))
     found = []
     for order, (v, (lo, hi), name, unit, slack) in enumerate(checks):
         idx = np.flatnonzero((v < lo - slack) | (v > hi + slack))

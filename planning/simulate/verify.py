@@ -11,14 +11,16 @@
    part sweeps, and its shank or holder meeting the stock is a holder collision; any part of the
    tool meeting a fixture, the riser or the table is a fixture collision; the machine's axes at
    the end of every move are checked against the profile's travel
-   (:func:`planning.simulate.program.check_travel`);
+   (:func:`planning.simulate.program.check_travel`; a continuous C against its register), and every
+   feed line's rotary turns against the profile's rotary feed limits at the line's F word
+   (:func:`planning.simulate.rotary_speed.rotary_feed_excesses`);
 4. the signed deviation of every scan point from the final surface (positive: material left); a
    point read as cut below the surface is measured again exactly against the tools of the moves
    that ran (:mod:`planning.simulate.gouge`), and only a confirmed cut counts as a gouge; and the
    finish measured exactly from the finishing moves (:mod:`planning.simulate.finish`,
    ``simulate.exact_finish``): each point's distance to the surface the ball swept;
 5. the verdict: ``passed`` only when there are no collisions, no rapids into material, no travel
-   excursions and no gouge beyond the tolerance.
+   excursions, no feed move turning a rotary axis too fast and no gouge beyond the tolerance.
 
 What it does not prove (docs/programs.md): dynamics (acceleration, the control's look-ahead, feed
 overrides), a mis-set work offset or tool length, the fixture model matching the real set-up, and
@@ -349,6 +351,8 @@ def _message(v: Verification) -> str:
         lines.append(f"{v.unreadable_programs} programs could not be read (verification notes)")
     if v.travel_excursions:
         lines.append(f"{v.travel_excursions} moves beyond the machine's travel")
+    if v.rotary_feed_excesses:
+        lines.append(f"{v.rotary_feed_excesses} feed moves that turn a rotary axis faster than the machine's limit")
     if v.rapids_into_material:
         lines.append(f"{v.rapids_into_material} rapids into material")
     if v.holder_collisions:
@@ -372,7 +376,7 @@ def _message(v: Verification) -> str:
 def verification_status(v: Verification) -> str:
     """``passed`` when every offence count is zero, else ``failed``."""
     bad = v.travel_excursions + v.rapids_into_material + v.holder_collisions + v.fixture_collisions
-    bad += v.unreadable_programs
+    bad += v.unreadable_programs + v.rotary_feed_excesses
     bad += v.deviation.n_gouged if v.deviation is not None else 0
     return "passed" if bad == 0 else "failed"
 
@@ -397,6 +401,7 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
     them, every program runs here (``verification.mode`` says which was done, and why)."""
     from planning.simulate import models as stock_models
     from planning.simulate.program import check_travel, read_program
+    from planning.simulate.rotary_speed import rotary_feed_excesses
     from planning.simulate.run import deviation_pair, run_moves
 
     t0 = time.perf_counter()
@@ -453,6 +458,8 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
         engagement_of = _engagements(read, simulated, tools, config)
     for n_done, name, area, motion in read:
         travel = check_travel(motion, profile)
+        minutes = move_minutes(motion, config)
+        too_fast = rotary_feed_excesses(motion, minutes, profile)
         if runs is not None:
             run = runs[name]
             engaged = engagement_of[name]
@@ -466,11 +473,12 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
                             (lambda f, m, n_done=n_done, name=name: say(n_done, 0.05 + 0.95 * f, f"{name}: {m}")))
         av = AreaVerification(area=area, program=name, n_moves=motion.n_moves,
                               removed_mm3=round(float(run.removed_mm3.sum()), 1),
-                              machining_time_s=round(_machining_time_s(motion, config), 1),
+                              machining_time_s=round(60.0 * float(minutes.sum()), 1),
                               rapids_into_material=int((run.rapid_depth_mm > 0).sum()),
                               holder_collisions=int((run.holder_depth_mm > 0).sum()),
                               fixture_collisions=int((run.fixture_depth_mm > 0).sum()),
                               travel_excursions=len(travel),
+                              rotary_feed_excesses=len({t["line"] for t in too_fast}),
                               plunges_into_material=_plunges(motion, run.removed_mm3,
                                                              config.post.roughing_tool_number),
                               operations=operation_figures(motion, run.removed_mm3, config, engaged))
@@ -487,6 +495,12 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
                                       amount=round(float(t["excess"]), 4),
                                       detail=f"{t['axis']} {t['value']:.3f} beyond {t['limit']:.3f}")
                   for t in sorted(travel, key=lambda t: -t["excess"])[:WORST_PER_CLASS]]
+        worst += [VerificationOffence(kind="rotary_speed", program=t["program"], line=int(t["line"]),
+                                      position_mm=tuple(round(float(c), 4) for c in motion.end_mm[t["move"]]),
+                                      amount=round(float(t["excess"]), 6),
+                                      detail=f"{t['axis']} turns at {t['rate_deg_min']:.1f} deg/min, limit "
+                                             f"{t['limit_deg_min']:.1f}")
+                  for t in sorted(too_fast, key=lambda t: -t["excess"])[:WORST_PER_CLASS]]
         say(n_done, 1.0, f"{name}: {motion.n_moves} moves " + ("proven simulated" if runs is not None else "simulated"))
     # the deviation of every scan point, in chunks so that a large scan still reports (per point: the same)
     dev, dev_high = np.empty(points.shape[0]), np.empty(points.shape[0])
@@ -526,7 +540,7 @@ def verify_plan(*, programs: dict[str, str], order, config, profile, placement_m
         for av in v.areas:
             av.finish = finish_figures(left[input_labels[idx] == av.area], fp.scallop_mm, fp.tolerance_mm, exact_limit)
     for field in ("rapids_into_material", "holder_collisions", "fixture_collisions", "travel_excursions",
-                  "plunges_into_material", "over_engagement_moves"):
+                  "rotary_feed_excesses", "plunges_into_material", "over_engagement_moves"):
         setattr(v, field, sum(getattr(a, field) for a in v.areas))
     v.machining_time_s = round(sum(a.machining_time_s for a in v.areas), 1)
     v.worst = worst

@@ -22,7 +22,9 @@ reduction) and:
    positions with no admissible axis, the ends of moves whose midpoint is not admissible and the
    positions where the turn rate could not be met (a pass broken there), and gives every other
    point of the path an axis (retracts keep the axis of the point they leave, rapids take the next
-   one's: the axis turns at the safe height).
+   one's: the axis turns at the safe height);
+5. routes the short links where a continuous C must be turned back through the safe height
+   (:mod:`planning.toolpath.fiveaxis.register`: the C register, issue 33 item 3).
 
 The stock, the fixtures and the table are checked afterwards by the guard on the carried stock
 (:mod:`planning.toolpath.guard`, which runs 5-axis moves in 1-degree steps), as for 3+2.
@@ -40,6 +42,7 @@ from scipy.spatial import cKDTree
 from planning.geometry.axis_collision import ObstacleGrid, default_cell_mm
 from planning.geometry.tool import ToolAssembly
 from planning.toolpath.fiveaxis.axes import contact_normals, plan_axes, slerp, turn_deg
+from planning.toolpath.fiveaxis.register import route_unwinding_links
 from planning.toolpath.frames import AreaFrame
 from planning.toolpath.moves import FEED, USE_CUT, USE_PLUNGE, USE_RETRACT, Toolpath
 from planning.toolpath.safety import cut_moves
@@ -69,7 +72,8 @@ class FiveAxisFigures:
     underside; ``flip``: the rotary solution changes there), ``max_rate_deg_per_mm`` the
     fastest turn between linked positions kept, ``cone_deg`` the range of angles between the axes
     and the normals, ``swing_deg`` the largest angle from the set-up axis; the biarcs of
-    :func:`biarc_figures`."""
+    :func:`biarc_figures`; ``n_unwinding_links`` the short links routed through the safe height so
+    that the post can turn a continuous C back (:mod:`planning.toolpath.fiveaxis.register`)."""
 
     n_positions: int = 0
     n_alternatives: int = 0
@@ -82,6 +86,7 @@ class FiveAxisFigures:
     n_arcs: int = 0
     biarc_max_error_mm: float = 0.0
     biarc_min_clearance_mm: float = math.inf
+    n_unwinding_links: int = 0
 
 
 class Admissible:
@@ -369,6 +374,9 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
             break
     figs.blocked = blocked
     tp = axis_columns(tp)
+    if admissible.machine is not None and tp.n_moves:
+        tp, pi, figs.n_unwinding_links = route_unwinding_links(
+            tp, pi, profile=admissible.machine.profile, rotation=admissible.frame.rotation, safe_z_mm=safe_z_mm)
     if tp.n_moves and tp.axis is not None:
         touch = _touching(tp)
         idx = np.flatnonzero(touch)

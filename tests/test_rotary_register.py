@@ -2,8 +2,8 @@
 
 Checked: passes that keep turning a continuous C the same way are posted with C turned back in the
 air between them (each pass starts within [-180, 180], where the walk alone reaches 1,800 degrees), and
-LinuxCNC's own rs274 reads the unwound program with the planned tool tips; an unwinding turn that
-would take the machine beyond its linear travel is not made; a C beyond the profile's register is
+LinuxCNC's own rs274 reads the unwound program with the planned tool tips; the turn back is made
+with the tool at machine Z0, as an operation's start positions the rotary axes; a C beyond the profile's register is
 a travel excursion; every feed move of a posted program turns its axes at most at the profile's
 limits, measured from the program as read back; a program whose F words are raised is caught on
 exactly the lines whose turns bound their time; the verdict fails on such a line; the profile
@@ -120,15 +120,29 @@ def test_the_post_turns_c_back_between_passes_and_rs274_reads_it():
     assert np.abs(c_words(iso)).max() <= 480.0 + 1e-6 and fi["n_unwound"] == fig["n_unwound"]
 
 
-def test_an_unwinding_turn_beyond_the_linear_travel_is_not_made():
-    base = load_profile(NAME).model_dump()
-    # a Y travel of 2 mm: no full turn of the table keeps the tool within it
-    narrow = MachineProfile(**{**base, "name": "narrow", "y_travel_mm": 2.0, "y_limits_mm": (-1.0, 1.0)})
-    op = winding_op(n_passes=3)
-    text, [fig] = linuxcnc_5axis_program(op, profile=narrow, placement_mm=PLACE, return_figures=True)
-    assert fig["n_unwound"] == 0 and np.abs(c_words(text)).max() > 500.0
-    _, [wide] = linuxcnc_5axis_program(op, profile=NAME, placement_mm=PLACE, return_figures=True)
-    assert wide["n_unwound"] == 2
+@pytest.mark.parametrize("dialect", ["linuxcnc", "iso"])
+def test_c_is_turned_back_with_the_tool_at_machine_z0(dialect):
+    """The turn back is written as an operation's start positions the rotary axes: up to machine Z0,
+    the rotary axes turned there, then down; read back, every move that turns C by a whole turn's
+    share runs with the controlled point at the top of its travel, and the tips are the planned ones."""
+    op = winding_op(n_passes=4)
+    post = linuxcnc_5axis_program if dialect == "linuxcnc" else iso_5axis_program
+    text, [fig] = post(op, profile=NAME, placement_mm=PLACE, return_figures=True)
+    n = fig["n_unwound"]
+    assert n == 3
+    home = "G53 G0 Z0" if dialect == "linuxcnc" else "G91 G28 Z0."
+    assert text.count(home) == n + 2            # and the operation's start and end (ISO: the program's start)
+    m = read_program(text, dialect=dialect, program="t", area=0, profile=NAME, placement_mm=PLACE, tools=TOOLS,
+                     rotary_step_deg=STEP)
+    assert tip_error(m, fig, op) < 1e-3
+    turn = np.abs(np.diff(np.r_[m.rotary_deg[:1, 1], m.rotary_deg[:, 1]]))
+    lines = np.unique(m.line[turn > 0])
+    per_line = np.array([turn[m.line == ln].sum() for ln in lines])
+    big = lines[per_line >= 180.0]
+    assert big.size >= n                       # the turns back, and the operation's start and end positioning
+    top = m.machine_mm[:, 2].max()
+    for ln in big:
+        assert np.allclose(m.machine_mm[m.line == ln, 2], top, atol=1e-6)
 
 
 def test_c_beyond_the_register_is_a_travel_excursion():

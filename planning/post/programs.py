@@ -41,11 +41,15 @@ def _five_axis_operations(ap, config, gauge_length_mm) -> list:
     if tp is None or tp.axis is None:
         return []
     post = config.post
+    # C may be turned back on the rapids at the safe height (planning/toolpath/fiveaxis/register.py)
+    from planning.toolpath.fiveaxis.register import air_moves
+
     return [FiveAxisOperation(name="finishing 5-axis", centre_mm=ap.frame.to_part(tp.xyz_mm),
                               axis=tp.axis @ ap.frame.rotation, kind=tp.kind.copy(), use=tp.use.copy(),
                               tool_number=post.finishing_tool_number, radius_mm=config.tool.diameter_mm / 2.0,
                               spindle_rpm=post.spindle_rpm, feed_mm_min=post.feed_mm_min,
-                              plunge_mm_min=post.plunge_mm_min, gauge_length_mm=float(gauge_length_mm))]
+                              plunge_mm_min=post.plunge_mm_min, gauge_length_mm=float(gauge_length_mm),
+                              unwind=air_moves(tp, ap.safe_z_mm))]
 
 
 def _five_axis_lists(five: list, decimals: int) -> list[dict]:

@@ -100,12 +100,15 @@ The C register
 --------------
 A continuous C is unwrapped along a path (above), so passes that keep turning the same way
 accumulate whole turns (the 200k-point femur-like plan reached C-22,668, 63 turns, which the end of
-the program then turns back). The posts keep it in a register range: on a rapid between two rapids
-(in the air between passes, where the axis turns anyway) whose start has C outside [-180, 180], C
-is turned back to the twin in that range (:func:`rotary_path` ``unwind``), unless the table's turn
-would take the controlled point beyond the linear travel (sampled every 5 degrees; the move then
-keeps its C and the next such rapid is tried). Within a pass C runs on continuously. The programs'
-C must stay within +-``rotary_register_deg`` of the profile (default
+the program then turns back). The posts keep it in a register range: on a move in the air between
+passes (the operation's ``unwind`` moves: in a plan, the rapids with both ends at the safe height;
+without them, a rapid between two rapids) whose start has C outside [-180, 180], C is turned back
+to the twin in that range (:func:`rotary_path` ``unwind``). That move is posted as an operation's
+start positions the rotary axes: up to machine Z0 (LinuxCNC ``G53 G0 Z0``; ISO ``G91 G28 Z0.``
+and ``G49``, TCP off), the rotary axes turned there (``G0`` / ``G53 G0`` with the tilt and C
+words), then down to the move's end (ISO ``G0 G43.4 H``, TCP on again): the table never swings
+with the tool near the part. Within a pass C runs on continuously. The programs' C must stay
+within +-``rotary_register_deg`` of the profile (default
 :data:`~schemas.machine.DEFAULT_ROTARY_REGISTER_DEG`, ten turns): the verification's travel check
 (:func:`planning.simulate.program.check_travel`) counts a C beyond it as a travel excursion.
 Figures: ``rotary_range_deg``, ``n_unwound``.
@@ -199,8 +202,6 @@ MAX_DEPTH = 16
 ROTARY_FEED_DEG_MIN = DEFAULT_ROTARY_FEED_DEG_MIN
 #: Shortest time of a LinuxCNC inverse-time move that neither travels nor turns, min.
 MIN_MOVE_TIME_MIN = 1e-5
-#: Rounds of the C register walk that drop an unwinding move beyond the linear travel.
-UNWIND_ROUNDS = 4
 
 _UNIT_TOL = 1e-6
 _ANGLE_TOL = 1e-9
@@ -219,7 +220,10 @@ class FiveAxisOperation:
     goes from point ``k - 1`` to point ``k``; move 0 is a rapid to the first point from a safe
     position, and the path starts and ends with retract moves along the axis. ``radius_mm``: ball
     radius R (tip = centre - R axis); ``spindle_rpm`` (M3); ``feed_mm_min`` / ``plunge_mm_min``
-    (mm/min of the tip); ``gauge_length_mm``: tool tip to spindle gauge line, mm.
+    (mm/min of the tip); ``gauge_length_mm``: tool tip to spindle gauge line, mm. ``unwind`` (P,) bool
+    or None: the moves (into point k) on which a continuous C may be turned back by whole turns
+    (in the air: the planner gives the rapids at its safe height); None: every rapid between two
+    rapids (module docstring, "The C register").
     """
 
     name: str
@@ -233,6 +237,7 @@ class FiveAxisOperation:
     feed_mm_min: float
     plunge_mm_min: float
     gauge_length_mm: float
+    unwind: np.ndarray | None = None
 
 
 # ------------------------------------------------------------------------------------------------
@@ -575,10 +580,8 @@ class _Path:
             self.sign = (float(rs[0]), float(rs[1]))
         self.ang, feas, self.n_unwound = self._walk(start_deg, pole_deg)
         #: (P,) the moves INTO each point that unwind C (module docstring, "The C register")
-        self.unwinding = np.zeros(self.c.shape[0], dtype=bool)
-        if self.c.shape[0] > 1 and self.p.rotary_continuous:
-            self.unwinding[1:] = (self.kind[1:] == RAPID) & (self.kind[:-1] == RAPID) \
-                & (np.abs(np.diff(self.ang[:, 1])) >= 180.0)
+        self.unwinding = self._unwind_candidates()
+        self.unwinding[1:] &= np.abs(np.diff(self.ang[:, 1])) >= 180.0
         if not feas.all():
             i = int(np.flatnonzero(~feas)[0])
             raise ParameterError(
@@ -588,34 +591,28 @@ class _Path:
                 parameter="axis")
         self.n_pole = int(self.kin.is_pole(self.a).sum())
 
-    def _walk(self, start_deg, pole_deg) -> tuple[np.ndarray, np.ndarray, int]:
-        """``(angles (P,2), feasible (P,), unwound)``: :func:`rotary_path` along the planned points with
-        the C register kept (module docstring, "The C register"): a continuous C may be unwound on a
-        rapid between two rapids (in the air, between passes); an unwinding move whose table turn
-        would take the controlled point beyond the linear travel (sampled every 5 degrees) is not
-        unwound there (the walk is run again without it, at most :data:`UNWIND_ROUNDS` times)."""
+    def _unwind_candidates(self) -> np.ndarray:
+        """(P,) bool: the moves into each point on which C may be turned back (``op.unwind``, else a
+        rapid between two rapids); none on a limited C."""
         P = self.c.shape[0]
         cand = np.zeros(P, dtype=bool)
-        if self.p.rotary_continuous and P > 1:
-            cand[1:] = (self.kind[1:] == RAPID) & (self.kind[:-1] == RAPID)
-        (x0, x1), (y0, y1), (z0, z1) = self.p.linear_limits_mm
-        lo, hi = np.array([x0, y0, z0]) - 1e-6, np.array([x1, y1, z1]) + 1e-6
-        g = float(self.op.gauge_length_mm)
-        for _ in range(UNWIND_ROUNDS):
-            ang, feas = rotary_path(self.a, self.p, start_deg=start_deg, pole_deg=pole_deg, unwind=cand)
-            jumps = np.flatnonzero(cand[1:] & (np.abs(np.diff(ang[:, 1])) >= 180.0)) + 1
-            bad = []
-            for j in jumps.tolist():
-                steps = int(np.ceil(abs(ang[j, 1] - ang[j - 1, 1]) / 5.0)) + 1
-                u = np.linspace(0.0, 1.0, steps + 1)[:, None]
-                a_u = ang[j - 1] + u * (ang[j] - ang[j - 1])
-                tip = (self.c[j - 1] + u * (self.c[j] - self.c[j - 1])) - self.R * self.fk(a_u)
-                pos = self.model.machine_from_tip(tip, a_u, g)
-                if not np.all((pos >= lo) & (pos <= hi)):
-                    bad.append(j)
-            if not bad:
-                return ang, feas, int(jumps.size)
-            cand[bad] = False
+        if not self.p.rotary_continuous or P < 2:
+            return cand
+        if self.op.unwind is not None:
+            u = np.asarray(self.op.unwind, dtype=bool).reshape(-1)
+            if u.shape != (P,):
+                raise ParameterError(f"operation {self.k} ({self.op.name!r}): unwind must have one entry per point "
+                                     f"({P}), got {u.shape}", parameter="unwind")
+            cand[1:] = u[1:] & (self.kind[1:] == RAPID)
+            return cand
+        cand[1:] = (self.kind[1:] == RAPID) & (self.kind[:-1] == RAPID)
+        return cand
+
+    def _walk(self, start_deg, pole_deg) -> tuple[np.ndarray, np.ndarray, int]:
+        """``(angles (P,2), feasible (P,), unwound)``: :func:`rotary_path` along the planned points with
+        the C register kept (module docstring, "The C register"): a continuous C may be turned back
+        on the moves of :meth:`_unwind_candidates`."""
+        cand = self._unwind_candidates()
         ang, feas = rotary_path(self.a, self.p, start_deg=start_deg, pole_deg=pole_deg, unwind=cand)
         return ang, feas, int((cand[1:] & (np.abs(np.diff(ang[:, 1])) >= 180.0)).sum())
 
@@ -650,13 +647,6 @@ class _Path:
             # the inserted points take C linearly (pole rule) so that the angles stay continuous in u
             held = self.kin.is_pole(a[ji - 1]) | self.kin.is_pole(a[ji])
             got, ok = self.kin.near(axis[inner], ref, held)
-            # an unwinding rapid turns C the long way round: its points are the joints' own linear
-            # interpolation (the tool axis follows the table, not the great circle)
-            uw = self.unwinding[ji]
-            if uw.any():
-                got[uw], ok[uw] = ref[uw], True
-                ii = np.flatnonzero(inner)[uw]
-                axis[ii] = self.fk(ref[uw])
             if not ok.all():
                 b = int(np.flatnonzero(~ok)[0])
                 raise ParameterError(
@@ -701,6 +691,7 @@ class _Path:
         dev_before, dev_after, depth = 0.0, 0.0, 0
         for depth in range(MAX_DEPTH + 1):
             dev = self.deviation(A, B, j)
+            dev[self.unwinding[j]] = 0.0          # posted as a return to machine Z0 (module docstring)
             if depth == 0:
                 dev_before = float(dev.max())
             bad = dev > tol if enabled else np.zeros(len(j), dtype=bool)
@@ -909,12 +900,19 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
     Fl = F.tolist()
     lines = []
     mode = 94
+    home = (path.unwinding[posted["j"]] & (posted["u"] >= 1.0)).tolist()
     for i, (x, y, z) in enumerate(pos):
         head = []
         if kinds[i] == RAPID:
             if mode == 93:
                 head.append("G94")
                 mode = 94
+            if home[i]:
+                # C turned back by whole turns: up to machine Z0, turn, down to the point (as an
+                # operation's start positions the rotary axes)
+                w.block(*head, "G53", "G0", "Z0")
+                w.block("G0", f"{tn}{words[i][0]}", f"{rn}{words[i][1]}")
+                head = []
             head.append("G0")
             tail = ()
         else:
@@ -1025,8 +1023,17 @@ def iso_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveAxisOp
     feeds = tip_feed.tolist()
     lines = []
     f_now = None
+    home = (path.unwinding[posted["j"]] & (posted["u"] >= 1.0)).tolist()
     for i, (x, y, z) in enumerate(pos):
-        if kinds[i] == RAPID:
+        if kinds[i] == RAPID and home[i]:
+            # C turned back by whole turns: TCP off at Z home, turn, TCP on to the point (as an
+            # operation's start)
+            w.block("G91", "G28", "Z0.")
+            w.block("G90", "G49")
+            w.block("G53", "G0", f"{tn}{words[i][0]}", f"{rn}{words[i][1]}")
+            head, tail = ("G0", "G43.4", f"H{tool}"), ()
+            f_now = None
+        elif kinds[i] == RAPID:
             head, tail = ("G0",), ()
         else:
             fw = f"F{fmt(feeds[i], d)}"

@@ -4,7 +4,7 @@ go through the safe height, where the post turns it back.
 A continuous rotary axis is unwrapped along a path (:func:`planning.post.simultaneous.rotary_path`):
 consecutive points never differ by 180 degrees or more, so passes that keep going round the part the
 same way accumulate whole turns (the deep slot of issue 19 reached C-1,185, the 200k-point femur-like
-plan C-22,668). The post turns C back on a rapid between two rapids (in the air between passes,
+plan C-22,668). The post turns C back on a rapid at the safe height (in the air between passes,
 module docstring of :mod:`planning.post.simultaneous`, "The C register"), but the finishing's short
 links (retract a few mm, one rapid across, plunge) have no such move, and the table must not swing
 a full turn with the tool a few mm over the surface; and zig-zag passes joined by feed step-overs
@@ -29,7 +29,7 @@ import numpy as np
 
 from planning.toolpath.moves import RAPID, USE_RAPID, Toolpath
 
-__all__ = ["route_unwinding_links", "unwind_at_deg"]
+__all__ = ["air_moves", "route_unwinding_links", "unwind_at_deg"]
 
 
 def unwind_at_deg(profile) -> float:
@@ -39,15 +39,25 @@ def unwind_at_deg(profile) -> float:
     return max(180.0, min(360.0, float(profile.rotary_limits_deg[1]) - 360.0))
 
 
-def _events(tp: Toolpath, pi: np.ndarray | None):
-    """``(index (m,), kind (m,), runs)``: the links of ``tp`` in path order. kind 0: a rapid between
-    two rapids (the post may unwind there); 1: a short link (one rapid between two feed moves); 2: a
+def air_moves(tp: Toolpath, safe_z_mm: float) -> np.ndarray:
+    """(P,) bool: the moves (into point k) that are rapids with both ends at or above ``safe_z_mm``
+    (area frame): where the post may turn C back (:class:`planning.post.simultaneous.FiveAxisOperation`
+    ``unwind``). The guard feeds a rapid that meets the stock below the safe height, never one at it."""
+    z = tp.xyz_mm[:, 2]
+    out = np.zeros(tp.n_moves, dtype=bool)
+    s = float(safe_z_mm) - 1e-6
+    out[1:] = (tp.kind[1:] == RAPID) & (z[1:] >= s) & (z[:-1] >= s)
+    return out
+
+
+def _events(tp: Toolpath, pi: np.ndarray | None, safe_z_mm: float):
+    """``(index (m,), kind (m,), runs)``: the links of ``tp`` in path order. kind 0: a rapid at the
+    safe height (:func:`air_moves`: the post may unwind there); 1: a short link (one rapid between two feed moves); 2: a
     feed step-over (a run of feed points off the passes, ``pass_index`` -1, between two passes).
     ``runs``: per step-over, the (first, last) points of its run."""
     P = tp.n_moves
     kind = tp.kind
-    rr = np.zeros(P, dtype=bool)
-    rr[1:] = (kind[1:] == RAPID) & (kind[:-1] == RAPID)
+    rr = air_moves(tp, safe_z_mm)
     short = np.zeros(P, dtype=bool)
     short[1:-1] = (kind[1:-1] == RAPID) & (kind[:-2] != RAPID) & (kind[2:] != RAPID)
     idx = [np.flatnonzero(rr), np.flatnonzero(short)]
@@ -84,7 +94,7 @@ def route_unwinding_links(tp: Toolpath, pass_index, *, profile, rotation: np.nda
         return tp, pi, 0
     n_routed = 0
     for _ in range(int(max_rounds)):
-        short, steps = _marks(tp, pi, profile, rotation)
+        short, steps = _marks(tp, pi, profile, rotation, safe_z_mm)
         if steps:
             from planning.toolpath.safety import cut_moves
 
@@ -102,7 +112,7 @@ def route_unwinding_links(tp: Toolpath, pass_index, *, profile, rotation: np.nda
     return tp, pi, n_routed
 
 
-def _marks(tp: Toolpath, pi, profile, rotation) -> tuple[list, list]:
+def _marks(tp: Toolpath, pi, profile, rotation, safe_z_mm: float) -> tuple[list, list]:
     """``(short links, step-overs)`` to route: the rapid's index of each short link and the (first,
     last) points of each step-over whose C would start beyond :func:`unwind_at_deg`, in path order
     with the post's own unwinding (module docstring)."""
@@ -110,7 +120,7 @@ def _marks(tp: Toolpath, pi, profile, rotation) -> tuple[list, list]:
 
     ang, _ = rotary_path(tp.axis @ rotation, profile)       # the walk without unwinding: C up to whole turns
     C = ang[:, 1]
-    at, what, runs = _events(tp, pi)
+    at, what, runs = _events(tp, pi, safe_z_mm)
     limit = unwind_at_deg(profile)
     short, steps = [], []
     offset = 0.0

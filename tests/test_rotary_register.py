@@ -206,7 +206,7 @@ def test_posted_feed_moves_keep_to_the_profiles_rotary_limits(dialect):
     op = fast_turn_op()
     cfg = parse_config({})
     post = linuxcnc_5axis_program if dialect == "linuxcnc" else iso_5axis_program
-    text, [fig] = post(op, profile=NAME, placement_mm=PLACE, return_figures=True)
+    text, [_fig] = post(op, profile=NAME, placement_mm=PLACE, return_figures=True)
     m = read_program(text, dialect=dialect, program="t", area=0, profile=NAME, placement_mm=PLACE, tools=TOOLS)
     minutes = move_minutes(m, cfg)
     assert rotary_feed_excesses(m, minutes, NAME) == []
@@ -352,3 +352,35 @@ def test_links_where_c_must_turn_back_are_routed_through_the_safe_height(short_l
     one, pi1 = zigzag_ring_path(n_passes=1)
     same, _, n1 = route_unwinding_links(one, pi1, profile=prof, rotation=np.eye(3), safe_z_mm=80.0)
     assert n1 == 0 and same is one
+
+
+def test_a_rapid_that_swings_the_table_goes_through_machine_z0():
+    """Two passes whose axes lie on opposite sides of the C axis (C 0 and C 180 at the same tilt),
+    joined by one rapid: the table must turn half a turn between them, and does so at machine Z0."""
+    from planning.orientations.kinematics import tool_axis_from_angles
+
+    p = load_profile(NAME)
+    a0, a1 = tool_axis_from_angles(np.array([[30.0, 0.0], [30.0, 180.0]]), p)
+    c0 = (SPHERE + R) * a0
+    c1 = (SPHERE + R) * a1
+    C = [c0 + 10 * a0, c0, c0 + 1.0 * np.cross(a0, [0, 1, 0]), c0 + 10 * a0, c1 + 10 * a1, c1,
+         c1 + 1.0 * np.cross(a1, [0, 1, 0]), c1 + 10 * a1]
+    A = [a0, a0, a0, a0, a1, a1, a1, a1]
+    K = [RAPID, FEED, FEED, FEED, RAPID, FEED, FEED, FEED]
+    U = [USE_RAPID, USE_PLUNGE, USE_CUT, USE_RETRACT, USE_RAPID, USE_PLUNGE, USE_CUT, USE_RETRACT]
+    op = FiveAxisOperation("swing", np.array(C), np.array(A), np.array(K, np.int8), np.array(U, np.int8),
+                           1, R, 10000.0, 1500.0, 500.0, GAUGE)
+    for post, dialect, home in ((linuxcnc_5axis_program, "linuxcnc", "G53 G0 Z0"),
+                                (iso_5axis_program, "iso", "G91 G28 Z0.")):
+        text, [fig] = post(op, profile=NAME, placement_mm=PLACE, return_figures=True)
+        assert fig["n_home"] == 1 and fig["n_unwound"] == 0
+        lines = text.splitlines()
+        at = fig["line"][np.flatnonzero(fig["move"] == 4)[-1]] - 1     # the rapid's block (0-based)
+        assert any(home in ln for ln in lines[at - 3:at])
+        m = read_program(text, dialect=dialect, program="t", area=0, profile=NAME, placement_mm=PLACE, tools=TOOLS,
+                         rotary_step_deg=STEP)
+        assert tip_error(m, fig, op) < 1e-3
+        turning = np.abs(np.diff(np.r_[m.rotary_deg[:1, 1], m.rotary_deg[:, 1]])) > 0
+        top = m.machine_mm[:, 2].max()
+        mid = turning & (m.line > fig["line"][0]) & (m.line < fig["line"][-1])
+        assert mid.any() and np.allclose(m.machine_mm[mid, 2], top, atol=1e-6)

@@ -111,7 +111,11 @@ with the tool near the part. Within a pass C runs on continuously. The programs'
 within +-``rotary_register_deg`` of the profile (default
 :data:`~schemas.machine.DEFAULT_ROTARY_REGISTER_DEG`, ten turns): the verification's travel check
 (:func:`planning.simulate.program.check_travel`) counts a C beyond it as a travel excursion.
-Figures: ``rotary_range_deg``, ``n_unwound``.
+The same is done for every rapid whose rotary axes turn by :data:`HOME_TURN_DEG` (90 degrees) or
+more, or change rotary solution (the tilt's sign, outside the pole cone): such a rapid between two
+passes swings the table (the 50k-point femur-like plan had a rapid through the pole, C turning 180
+degrees, whose tool went 3.6 mm into the stock), so it goes up to machine Z0 first.
+Figures: ``rotary_range_deg``, ``n_unwound``, ``n_home`` (the rapids written through machine Z0).
 * Rapids are ``G0``, also linearised (the control moves every axis together on them too; Fanuc:
   linear-interpolation-type positioning assumed, below).
 
@@ -200,6 +204,8 @@ MAX_DEPTH = 16
 #: Default fastest turn of the tilt and the rotary axis in a feed move (the profile's limits when it
 #: gives none), deg/min.
 ROTARY_FEED_DEG_MIN = DEFAULT_ROTARY_FEED_DEG_MIN
+#: A rapid whose rotary axes turn by this much or more (deg) is written through machine Z0.
+HOME_TURN_DEG = 90.0
 #: Shortest time of a LinuxCNC inverse-time move that neither travels nor turns, min.
 MIN_MOVE_TIME_MIN = 1e-5
 
@@ -582,6 +588,14 @@ class _Path:
         #: (P,) the moves INTO each point that unwind C (module docstring, "The C register")
         self.unwinding = self._unwind_candidates()
         self.unwinding[1:] &= np.abs(np.diff(self.ang[:, 1])) >= 180.0
+        #: (P,) the rapids INTO each point written through machine Z0: the turns back, and every rapid
+        #: whose rotary axes turn by HOME_TURN_DEG or more or change solution (the tilt's sign, outside
+        #: the pole cone): the table is not swung with the tool near the part
+        self.home = self.unwinding.copy()
+        if self.c.shape[0] > 1:
+            t, dT = self.ang[:, 0], np.abs(np.diff(self.ang, axis=0))
+            flip = (t[1:] * t[:-1] < 0) & (np.abs(t[1:]) > self.kin.pole_deg) & (np.abs(t[:-1]) > self.kin.pole_deg)
+            self.home[1:] |= (self.kind[1:] == RAPID) & ((dT.max(axis=1) >= HOME_TURN_DEG) | flip)
         if not feas.all():
             i = int(np.flatnonzero(~feas)[0])
             raise ParameterError(
@@ -691,7 +705,7 @@ class _Path:
         dev_before, dev_after, depth = 0.0, 0.0, 0
         for depth in range(MAX_DEPTH + 1):
             dev = self.deviation(A, B, j)
-            dev[self.unwinding[j]] = 0.0          # posted as a return to machine Z0 (module docstring)
+            dev[self.home[j]] = 0.0               # posted through machine Z0 (module docstring)
             if depth == 0:
                 dev_before = float(dev.max())
             bad = dev > tol if enabled else np.zeros(len(j), dtype=bool)
@@ -839,6 +853,7 @@ def _figures(path: _Path, posted: dict, fig: dict, lines: list, L: np.ndarray, t
         "tilt_range_deg": (float(ang[:, 0].min()), float(ang[:, 0].max())),
         "rotary_range_deg": (float(ang[:, 1].min()), float(ang[:, 1].max())),
         "n_unwound": int(path.n_unwound),
+        "n_home": int(path.home.sum()),
         "feed_limits_deg_min": (float(limits[0]), float(limits[1])),
         "tip_path_mm": float(L[1:].sum()),
         "line": np.asarray(lines, dtype=np.int64),
@@ -900,7 +915,7 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
     Fl = F.tolist()
     lines = []
     mode = 94
-    home = (path.unwinding[posted["j"]] & (posted["u"] >= 1.0)).tolist()
+    home = (path.home[posted["j"]] & (posted["u"] >= 1.0)).tolist()
     for i, (x, y, z) in enumerate(pos):
         head = []
         if kinds[i] == RAPID:
@@ -1023,7 +1038,7 @@ def iso_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveAxisOp
     feeds = tip_feed.tolist()
     lines = []
     f_now = None
-    home = (path.unwinding[posted["j"]] & (posted["u"] >= 1.0)).tolist()
+    home = (path.home[posted["j"]] & (posted["u"] >= 1.0)).tolist()
     for i, (x, y, z) in enumerate(pos):
         if kinds[i] == RAPID and home[i]:
             # C turned back by whole turns: TCP off at Z home, turn, TCP on to the point (as an

@@ -52,6 +52,10 @@ from tests.test_post_simultaneous import (
 )
 
 NAME = "compact_trunnion_bc"
+#: the bundled profile with a register of three turns: C is turned back beyond one turn
+#: (planning.post.simultaneous.unwind_deg: the register less two turns; the default ten turns wait
+#: until eight)
+SMALL = MachineProfile(**{**load_profile(NAME).model_dump(), "name": "register_1080", "rotary_register_deg": 1080.0})
 
 
 def winding_op(n_passes: int = 7, span_deg: float = 300.0, phi_deg: float = 50.0, safe_mm: float = 40.0,
@@ -85,6 +89,15 @@ def c_words(text: str) -> np.ndarray:
     return np.array([float(v) for v in re.findall(r"\bC(-?\d+(?:\.\d*)?)", text)])
 
 
+def test_c_is_turned_back_only_where_the_register_needs_it():
+    from planning.post.simultaneous import unwind_deg
+
+    assert unwind_deg(NAME) == 2880.0 and unwind_deg(SMALL) == 360.0
+    op = winding_op()
+    _, [fig] = linuxcnc_5axis_program(op, profile=NAME, placement_mm=PLACE, return_figures=True)
+    assert fig["n_unwound"] == 0 and fig["rotary_range_deg"][0] < -1800.0      # within ten turns: left as it is
+
+
 def test_without_unwinding_the_winding_passes_accumulate_turns():
     op = winding_op()
     ang, ok = rotary_path(op.axis, NAME)
@@ -95,7 +108,7 @@ def test_without_unwinding_the_winding_passes_accumulate_turns():
 def test_the_post_turns_c_back_between_passes_and_rs274_reads_it():
     assert rs274_available(), INSTALL_HINT
     op = winding_op()
-    text, [fig] = linuxcnc_5axis_program(op, profile=NAME, placement_mm=PLACE, return_figures=True)
+    text, [fig] = linuxcnc_5axis_program(op, profile=SMALL, placement_mm=PLACE, return_figures=True)
     c = c_words(text)
     # every pass starts with C in [-180, 180] and turns 300 degrees on: 480 at most, where the walk
     # alone reaches over 1,800
@@ -108,7 +121,7 @@ def test_the_post_turns_c_back_between_passes_and_rs274_reads_it():
     both = np.flatnonzero(cut[1:] & cut[:-1]) + 1
     assert np.abs(fig["angles_deg"][both, 1] - fig["angles_deg"][both - 1, 1]).max() < 180.0
     for reader in (None, "rs274"):
-        kw = dict(program="t.nc", area=0, profile=NAME, placement_mm=PLACE, tools=TOOLS, rotary_step_deg=STEP)
+        kw = dict(program="t.nc", area=0, profile=SMALL, placement_mm=PLACE, tools=TOOLS, rotary_step_deg=STEP)
         m = run_rs274(text, **kw) if reader else read_program(text, dialect="linuxcnc", **kw)
         assert tip_error(m, fig, op) < 1e-3
         assert not check_travel(m, NAME)
@@ -116,7 +129,7 @@ def test_the_post_turns_c_back_between_passes_and_rs274_reads_it():
         feed_lines = set(fig["line"][op.kind[fig["move"]] == FEED].tolist())
         keep = np.isin(m.line, list(feed_lines))
         assert centre_deviation(m, fig, op)[keep[np.isin(m.line, fig["line"])]].max() < 0.002 + 1e-3
-    iso, [fi] = iso_5axis_program(op, profile=NAME, placement_mm=PLACE, return_figures=True)
+    iso, [fi] = iso_5axis_program(op, profile=SMALL, placement_mm=PLACE, return_figures=True)
     assert np.abs(c_words(iso)).max() <= 480.0 + 1e-6 and fi["n_unwound"] == fig["n_unwound"]
 
 
@@ -127,12 +140,12 @@ def test_c_is_turned_back_with_the_tool_at_machine_z0(dialect):
     share runs with the controlled point at the top of its travel, and the tips are the planned ones."""
     op = winding_op(n_passes=4)
     post = linuxcnc_5axis_program if dialect == "linuxcnc" else iso_5axis_program
-    text, [fig] = post(op, profile=NAME, placement_mm=PLACE, return_figures=True)
+    text, [fig] = post(op, profile=SMALL, placement_mm=PLACE, return_figures=True)
     n = fig["n_unwound"]
     assert n == 3
     home = "G53 G0 Z0" if dialect == "linuxcnc" else "G91 G28 Z0."
     assert text.count(home) == n + 2            # and the operation's start and end (ISO: the program's start)
-    m = read_program(text, dialect=dialect, program="t", area=0, profile=NAME, placement_mm=PLACE, tools=TOOLS,
+    m = read_program(text, dialect=dialect, program="t", area=0, profile=SMALL, placement_mm=PLACE, tools=TOOLS,
                      rotary_step_deg=STEP)
     assert tip_error(m, fig, op) < 1e-3
     turn = np.abs(np.diff(np.r_[m.rotary_deg[:1, 1], m.rotary_deg[:, 1]]))
@@ -152,7 +165,7 @@ def test_c_beyond_the_register_is_a_travel_excursion():
     ang, _ = rotary_path(op.axis, NAME)
     assert np.abs(ang[:, 1]).max() > 500.0
     # the reader takes the program's C words as they are: a program written without unwinding
-    text = linuxcnc_5axis_program(op, profile=NAME, placement_mm=PLACE)
+    text = linuxcnc_5axis_program(op, profile=SMALL, placement_mm=PLACE)
     m = read_program(text, dialect="linuxcnc", program="t", area=0, profile=small, placement_mm=PLACE, tools=TOOLS)
     found = [f for f in check_travel(m, small) if f["axis"] == "C"]
     assert not found                                    # the post unwound it: within +-500
@@ -327,11 +340,11 @@ def test_links_where_c_must_turn_back_are_routed_through_the_safe_height(short_l
     from planning.toolpath.fiveaxis.register import route_unwinding_links
 
     tp, pi = zigzag_ring_path(short_links=short_links)
-    prof = load_profile(NAME)
+    prof = SMALL
 
     def posted_c(path):
         op = FiveAxisOperation("p", path.xyz_mm, path.axis, path.kind, path.use, 1, R, 10000.0, 1500.0, 500.0, GAUGE)
-        text, [fig] = linuxcnc_5axis_program(op, profile=NAME, placement_mm=PLACE, return_figures=True)
+        text, [fig] = linuxcnc_5axis_program(op, profile=SMALL, placement_mm=PLACE, return_figures=True)
         return c_words(text), fig
 
     before, _ = posted_c(tp)
@@ -354,12 +367,15 @@ def test_links_where_c_must_turn_back_are_routed_through_the_safe_height(short_l
     assert n1 == 0 and same is one
 
 
-def test_a_rapid_that_swings_the_table_goes_through_machine_z0():
-    """Two passes whose axes lie on opposite sides of the C axis (C 0 and C 180 at the same tilt),
-    joined by one rapid: the table must turn half a turn between them, and does so at machine Z0."""
+def test_a_rapid_that_changes_rotary_solution_goes_through_machine_z0():
+    """Two passes joined by one rapid, on a C limited to [-90, 90]: the second pass's axis (tilt 30 at
+    C 180) is reached only by the other solution (tilt -30, C 0), so the table swings through the
+    pole between them, and does so at machine Z0."""
     from planning.orientations.kinematics import tool_axis_from_angles
 
-    p = load_profile(NAME)
+    base = load_profile(NAME).model_dump()
+    p = MachineProfile(**{**base, "name": "limited_c", "rotary_continuous": False, "rotary_min_deg": -90.0,
+                          "rotary_max_deg": 90.0})
     a0, a1 = tool_axis_from_angles(np.array([[30.0, 0.0], [30.0, 180.0]]), p)
     c0 = (SPHERE + R) * a0
     c1 = (SPHERE + R) * a1
@@ -368,19 +384,20 @@ def test_a_rapid_that_swings_the_table_goes_through_machine_z0():
     A = [a0, a0, a0, a0, a1, a1, a1, a1]
     K = [RAPID, FEED, FEED, FEED, RAPID, FEED, FEED, FEED]
     U = [USE_RAPID, USE_PLUNGE, USE_CUT, USE_RETRACT, USE_RAPID, USE_PLUNGE, USE_CUT, USE_RETRACT]
-    op = FiveAxisOperation("swing", np.array(C), np.array(A), np.array(K, np.int8), np.array(U, np.int8),
+    op = FiveAxisOperation("flip", np.array(C), np.array(A), np.array(K, np.int8), np.array(U, np.int8),
                            1, R, 10000.0, 1500.0, 500.0, GAUGE)
     for post, dialect, home in ((linuxcnc_5axis_program, "linuxcnc", "G53 G0 Z0"),
                                 (iso_5axis_program, "iso", "G91 G28 Z0.")):
-        text, [fig] = post(op, profile=NAME, placement_mm=PLACE, return_figures=True)
+        text, [fig] = post(op, profile=p, placement_mm=PLACE, return_figures=True)
         assert fig["n_home"] == 1 and fig["n_unwound"] == 0
+        assert fig["angles_deg"][:, 0].min() < -29.0 and fig["angles_deg"][:, 0].max() > 29.0     # the flip
         lines = text.splitlines()
         at = fig["line"][np.flatnonzero(fig["move"] == 4)[-1]] - 1     # the rapid's block (0-based)
         assert any(home in ln for ln in lines[at - 3:at])
-        m = read_program(text, dialect=dialect, program="t", area=0, profile=NAME, placement_mm=PLACE, tools=TOOLS,
+        m = read_program(text, dialect=dialect, program="t", area=0, profile=p, placement_mm=PLACE, tools=TOOLS,
                          rotary_step_deg=STEP)
         assert tip_error(m, fig, op) < 1e-3
-        turning = np.abs(np.diff(np.r_[m.rotary_deg[:1, 1], m.rotary_deg[:, 1]])) > 0
+        turning = np.abs(np.diff(np.r_[m.rotary_deg[:1], m.rotary_deg], axis=0)).max(axis=1) > 0
         top = m.machine_mm[:, 2].max()
-        mid = turning & (m.line > fig["line"][0]) & (m.line < fig["line"][-1])
+        mid = turning & (m.line > fig["line"][0]) & (m.line < fig["line"][-1]) & (m.kind == RAPID)
         assert mid.any() and np.allclose(m.machine_mm[mid, 2], top, atol=1e-6)

@@ -102,7 +102,8 @@ A continuous C is unwrapped along a path (above), so passes that keep turning th
 accumulate whole turns (the 200k-point femur-like plan reached C-22,668, 63 turns, which the end of
 the program then turns back). The posts keep it in a register range: on a move in the air between
 passes (the operation's ``unwind`` moves: in a plan, the rapids with both ends at the safe height;
-without them, a rapid between two rapids) whose start has C outside [-180, 180], C is turned back
+without them, a rapid between two rapids) whose start has C more than :func:`unwind_deg` (the
+register less two turns, at least one turn) from 0, C is turned back
 to the twin in that range (:func:`rotary_path` ``unwind``). That move is posted as an operation's
 start positions the rotary axes: up to machine Z0 (LinuxCNC ``G53 G0 Z0``; ISO ``G91 G28 Z0.``
 and ``G49``, TCP off), the rotary axes turned there (``G0`` / ``G53 G0`` with the tilt and C
@@ -111,10 +112,12 @@ with the tool near the part. Within a pass C runs on continuously. The programs'
 within +-``rotary_register_deg`` of the profile (default
 :data:`~schemas.machine.DEFAULT_ROTARY_REGISTER_DEG`, ten turns): the verification's travel check
 (:func:`planning.simulate.program.check_travel`) counts a C beyond it as a travel excursion.
-The same is done for every rapid whose rotary axes turn by :data:`HOME_TURN_DEG` (90 degrees) or
-more, or change rotary solution (the tilt's sign, outside the pole cone): such a rapid between two
-passes swings the table (the 50k-point femur-like plan had a rapid through the pole, C turning 180
-degrees, whose tool went 3.6 mm into the stock), so it goes up to machine Z0 first.
+The same is done for every rapid that changes rotary solution (the tilt's sign, outside the pole
+cone): such a rapid cannot follow its segment and swings the table through the pole (the 50k-point
+femur-like plan had one, C turning 180 degrees, whose tool went 3.6 mm into the stock), so it goes
+up to machine Z0 first. A rapid that turns C a long way on the same solution is linearised like any
+other (the ball centre on its segment; the verification runs it): a trip to machine Z0 for each of
+those cost the deep slot 27 % more machining time.
 Figures: ``rotary_range_deg``, ``n_unwound``, ``n_home`` (the rapids written through machine Z0).
 * Rapids are ``G0``, also linearised (the control moves every axis together on them too; Fanuc:
   linear-interpolation-type positioning assumed, below).
@@ -189,12 +192,14 @@ __all__ = [
     "MIN_MOVE_TIME_MIN",
     "POLE_DEG",
     "ROTARY_FEED_DEG_MIN",
+    "UNWIND_ROOM_DEG",
     "FiveAxisOperation",
     "iso_5axis_blocks",
     "iso_5axis_program",
     "linuxcnc_5axis_blocks",
     "linuxcnc_5axis_program",
     "rotary_path",
+    "unwind_deg",
 ]
 
 #: Half-angle of the cone about the rotary axis' pole inside which the rotary angle is held, deg.
@@ -204,8 +209,19 @@ MAX_DEPTH = 16
 #: Default fastest turn of the tilt and the rotary axis in a feed move (the profile's limits when it
 #: gives none), deg/min.
 ROTARY_FEED_DEG_MIN = DEFAULT_ROTARY_FEED_DEG_MIN
-#: A rapid whose rotary axes turn by this much or more (deg) is written through machine Z0.
-HOME_TURN_DEG = 90.0
+#: The room (deg) a continuous C keeps below its register when it is turned back: a pass's own turn.
+UNWIND_ROOM_DEG = 720.0
+
+
+def unwind_deg(profile) -> float:
+    """How far from 0 (deg) a continuous C may be before it is turned back to its twin in
+    [-180, 180] on a move in the air: the register (``rotary_limits_deg``) less
+    :data:`UNWIND_ROOM_DEG`, at least one turn. Each turn back is a trip to machine Z0 (on the deep
+    slot 13 trips at one turn cost 17 % more machining time), so C is turned back only where the
+    register needs it."""
+    p = _profile(profile)
+    return max(360.0, float(p.rotary_limits_deg[1]) - UNWIND_ROOM_DEG)
+
 #: Shortest time of a LinuxCNC inverse-time move that neither travels nor turns, min.
 MIN_MOVE_TIME_MIN = 1e-5
 
@@ -428,7 +444,7 @@ def rotary_path(axes, profile, *, start_deg=None, pole_deg: float = POLE_DEG,
     :func:`~planning.orientations.kinematics.choose_rotary` takes; ``pole_deg``: half-angle of the
     cone about the pole inside which the rotary angle is held (deg); ``unwind`` (n,) bool or None:
     the points where a continuous C may be turned back (module docstring, "The C register"): at such
-    a point whose predecessor's C lies outside [-180, 180] the solution is chosen as if the
+    a point whose predecessor's C lies more than :func:`unwind_deg` from 0 the solution is chosen as if the
     predecessor's C were its twin in that range, so the move into it unwinds whole turns.
 
     Returns ``(angles_deg (n,2), feasible (n,))``: ``(tilt, rotary)`` per point in the signs of
@@ -467,20 +483,21 @@ def rotary_path(axes, profile, *, start_deg=None, pole_deg: float = POLE_DEG,
             raise ParameterError(f"unwind must have one entry per axis ({n}), got {uw.shape}", parameter="unwind")
     return _rotary_walk(sols.angles_deg[:, :, 0], sols.angles_deg[:, :, 1], a, pole, kin.u0, kin.u90,
                         kin.tmin - _ANGLE_TOL, kin.tmax + _ANGLE_TOL, kin.rmin - _ANGLE_TOL, kin.rmax + _ANGLE_TOL,
-                        kin.cont, _WRAPS, kin.pole_deg, float(ref[0]), float(ref[1]), uw)
+                        kin.cont, _WRAPS, kin.pole_deg, float(ref[0]), float(ref[1]), uw, unwind_deg(p))
 
 
 @njit(cache=True, nogil=True)
-def _rotary_walk(T, Cw, axes, pole, u0, u90, tmin, tmax, rmin, rmax, cont, wraps, pole_deg, pt, pc, unwind):
+def _rotary_walk(T, Cw, axes, pole, u0, u90, tmin, tmax, rmin, rmax, cont, wraps, pole_deg, pt, pc, unwind,
+                 unwind_deg):
     """The point-by-point choice of :func:`rotary_path` (compiled: each point depends on the last).
     ``T``/``Cw`` (n,2): the solver's tilts and unwrapped rotary angles; ``pole`` (n,): in the pole
     cone; ``tmin``..``rmax``: the travel with its tolerance; ``(pt, pc)``: the reference angles;
-    ``unwind`` (n,): where a continuous C outside [-180, 180] is referred to its twin inside."""
+    ``unwind`` (n,): where a continuous C beyond ``unwind_deg`` is referred to its twin in [-180, 180]."""
     n = axes.shape[0]
     out = np.empty((n, 2))
     feas = np.empty(n, dtype=np.bool_)
     for i in range(n):
-        if cont and unwind[i] and not pole[i] and abs(pc) > 180.0:
+        if cont and unwind[i] and not pole[i] and abs(pc) > unwind_deg:
             pc = pc - 360.0 * np.rint(pc / 360.0)
         if pole[i]:
             cr = math.radians(pc)
@@ -589,13 +606,13 @@ class _Path:
         self.unwinding = self._unwind_candidates()
         self.unwinding[1:] &= np.abs(np.diff(self.ang[:, 1])) >= 180.0
         #: (P,) the rapids INTO each point written through machine Z0: the turns back, and every rapid
-        #: whose rotary axes turn by HOME_TURN_DEG or more or change solution (the tilt's sign, outside
-        #: the pole cone): the table is not swung with the tool near the part
+        #: that changes rotary solution (the tilt's sign, outside the pole cone): the table is not
+        #: swung through the pole with the tool near the part
         self.home = self.unwinding.copy()
         if self.c.shape[0] > 1:
-            t, dT = self.ang[:, 0], np.abs(np.diff(self.ang, axis=0))
+            t = self.ang[:, 0]
             flip = (t[1:] * t[:-1] < 0) & (np.abs(t[1:]) > self.kin.pole_deg) & (np.abs(t[:-1]) > self.kin.pole_deg)
-            self.home[1:] |= (self.kind[1:] == RAPID) & ((dT.max(axis=1) >= HOME_TURN_DEG) | flip)
+            self.home[1:] |= (self.kind[1:] == RAPID) & flip
         if not feas.all():
             i = int(np.flatnonzero(~feas)[0])
             raise ParameterError(

@@ -33,10 +33,11 @@ __all__ = ["air_moves", "route_unwinding_links", "unwind_at_deg"]
 
 
 def unwind_at_deg(profile) -> float:
-    """The |C| (degrees) above which a link is routed through the safe height: one turn, or the
-    register (``rotary_limits_deg``) less one turn left for the next pass where that is smaller, at
-    least 180."""
-    return max(180.0, min(360.0, float(profile.rotary_limits_deg[1]) - 360.0))
+    """The |C| (degrees) above which a link is routed through the safe height: where the post turns
+    C back (:func:`planning.post.simultaneous.unwind_deg`: the register less two turns, at least one)."""
+    from planning.post.simultaneous import unwind_deg
+
+    return unwind_deg(profile)
 
 
 def air_moves(tp: Toolpath, safe_z_mm: float) -> np.ndarray:
@@ -127,7 +128,7 @@ def _marks(tp: Toolpath, pi, profile, rotation, safe_z_mm: float) -> tuple[list,
     for j, k in zip(at.tolist(), what.tolist()):
         c = C[j - 1] + offset
         if k == 0:
-            if abs(c) > 180.0:
+            if abs(c) > limit:
                 offset -= 360.0 * np.rint(c / 360.0)
         elif abs(c) > limit:
             (short if k == 1 else steps).append(j if k == 1 else (j, runs[j]))

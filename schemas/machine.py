@@ -43,7 +43,8 @@ Rotary speeds and the C register (simultaneous 5-axis, issue 33). Optional as we
   programs back and counts a feed move whose axes turn faster (``rotary_feed_excesses``).
 * ``rotary_register_deg`` (continuous C only): the programs keep C within +- this (default
   :data:`DEFAULT_ROTARY_REGISTER_DEG`, ten turns); beyond it is a travel excursion. The planner and
-  the posts turn C back well before (between passes, where it is more than one turn from 0).
+  the posts turn C back before (between passes, where it is more than the register less two turns
+  from 0).
 """
 
 from __future__ import annotations
@@ -141,7 +142,7 @@ class MachineProfile(BaseModel):
         description="Continuous rotary axis only: the programs keep C within +-this, degrees (what the "
                     "control's soft limits of the unwrapped axis allow, and what the return to C0 at the end "
                     "has to unwind). The 5-axis posts turn C back to its twin in [-180, 180] in the air between "
-                    "passes where it is more than one turn from 0; a C beyond +-this is a travel excursion in the "
+                    "passes where it is more than the register less two turns from 0; a C beyond +-this is a travel excursion in the "
                     "verification. Default (null): 3600 (ten turns). Must be null when rotary_continuous is "
                     "false (the rotary travel limits apply).")
     x_travel_mm: float = Field(

@@ -99,8 +99,8 @@ the profile's limit (:func:`planning.simulate.rotary_speed.rotary_feed_excesses`
 The C register
 --------------
 A continuous C is unwrapped along a path (above), so passes that keep turning the same way
-accumulate whole turns (the 200k-point femur-like plan reached C-22,668, 63 turns, which the end of
-the program then turns back). The posts keep it in a register range: on a move in the air between
+accumulate whole turns (the deep slot's program reached C-4,600 and the 200k-point femur-like plan's C+4,433, which
+the end of the program then turns back). The posts keep it in a register range: on a move in the air between
 passes (the operation's ``unwind`` moves: in a plan, the rapids with both ends at the safe height;
 without them, a rapid between two rapids) whose start has C more than :func:`unwind_deg` (the
 register less two turns, at least one turn) from 0, C is turned back
@@ -217,7 +217,7 @@ def unwind_deg(profile) -> float:
     """How far from 0 (deg) a continuous C may be before it is turned back to its twin in
     [-180, 180] on a move in the air: the register (``rotary_limits_deg``) less
     :data:`UNWIND_ROOM_DEG`, at least one turn. Each turn back is a trip to machine Z0 (on the deep
-    slot 13 trips at one turn cost 17 % more machining time), so C is turned back only where the
+    slot, turning back beyond one turn cost 17 % more machining time), so C is turned back only where the
     register needs it."""
     p = _profile(profile)
     return max(360.0, float(p.rotary_limits_deg[1]) - UNWIND_ROOM_DEG)

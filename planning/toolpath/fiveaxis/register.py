@@ -3,8 +3,8 @@ go through the safe height, where the post turns it back.
 
 A continuous rotary axis is unwrapped along a path (:func:`planning.post.simultaneous.rotary_path`):
 consecutive points never differ by 180 degrees or more, so passes that keep going round the part the
-same way accumulate whole turns (the deep slot of issue 19 reached C-1,185, the 200k-point femur-like
-plan C-22,668). The post turns C back on a rapid at the safe height (in the air between passes,
+same way accumulate whole turns (the deep slot of issue 19 reached C-4,600, the 200k-point femur-like
+plan C+4,433). The post turns C back on a rapid at the safe height (in the air between passes,
 module docstring of :mod:`planning.post.simultaneous`, "The C register"), but the finishing's short
 links (retract a few mm, one rapid across, plunge) have no such move, and the table must not swing
 a full turn with the tool a few mm over the surface; and zig-zag passes joined by feed step-overs
@@ -18,8 +18,7 @@ walk it (its own unwinding on the links through the safe height included), and r
 through the safe height instead: the retract point goes straight up (area frame z) to ``safe_z_mm``
 with its axis, across at ``safe_z_mm`` with the next axis, then down to the rapid's end, as
 :func:`planning.toolpath.safety.cut_moves` links pieces. The post then turns C back on the move
-across (and checks that the table's turn keeps within the linear travel); the guard runs the new
-rapids on the stock as it runs every other. Only as many links as needed are routed: after each,
+across, by way of machine Z0; the guard runs the new rapids on the stock as it runs every other. Only as many links as needed are routed: after each,
 the C that follows is one or more whole turns nearer 0.
 """
 

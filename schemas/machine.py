@@ -229,18 +229,11 @@ class MachineProfile(BaseModel):
         return (self.kinematics[-2].upper(), self.kinematics[-1].upper())
 
     @property
-    def tilt_feed_limit_deg_min(self) -> float:
-        """Fastest tilt turn in a feed move, deg/min (``tilt_feed_max_deg_min``, default
-        :data:`DEFAULT_ROTARY_FEED_DEG_MIN`)."""
-        v = self.tilt_feed_max_deg_min
-        return float(DEFAULT_ROTARY_FEED_DEG_MIN if v is None else v)
-
-    @property
-    def rotary_feed_limit_deg_min(self) -> float:
-        """Fastest rotary (C) turn in a feed move, deg/min (``rotary_feed_max_deg_min``, default
-        :data:`DEFAULT_ROTARY_FEED_DEG_MIN`)."""
-        v = self.rotary_feed_max_deg_min
-        return float(DEFAULT_ROTARY_FEED_DEG_MIN if v is None else v)
+    def feed_limits_deg_min(self) -> tuple[float, float]:
+        """``(tilt, rotary)``: the fastest turns in a feed move, deg/min (``tilt_feed_max_deg_min``,
+        ``rotary_feed_max_deg_min``; default :data:`DEFAULT_ROTARY_FEED_DEG_MIN` each)."""
+        return tuple(float(DEFAULT_ROTARY_FEED_DEG_MIN if v is None else v)
+                     for v in (self.tilt_feed_max_deg_min, self.rotary_feed_max_deg_min))
 
     @property
     def rotary_limits_deg(self) -> tuple[float, float]:

@@ -80,7 +80,7 @@ MIN_MOVE_TIME_MIN)`` minutes: ``L`` the length of the straight TIP segment of th
 frame (mm), ``feed`` the operation's ``feed_mm_min`` (``plunge_mm_min`` for
 :data:`~planning.toolpath.moves.USE_PLUNGE` moves), the turns those of the printed angles (deg), the
 limits the profile's ``tilt_feed_max_deg_min`` and ``rotary_feed_max_deg_min`` (default
-:data:`ROTARY_FEED_DEG_MIN` = 7200 deg/min, 20 rev/min; ``rotary_feed_deg_min`` given to the
+:data:`~schemas.machine.DEFAULT_ROTARY_FEED_DEG_MIN` = 7200 deg/min, 20 rev/min; ``rotary_feed_deg_min`` given to the
 LinuxCNC post overrides both). So no feed move turns an axis faster than the machine allows (the tip
 then moves slower than ``feed``), a move that only turns takes its turn over the limit, and one that
 neither travels nor turns :data:`MIN_MOVE_TIME_MIN`. F words are rounded DOWN to ``decimals`` (at
@@ -117,7 +117,7 @@ cone): such a rapid cannot follow its segment and swings the table through the p
 femur-like plan had one, C turning 180 degrees, whose tool went 3.6 mm into the stock), so it goes
 up to machine Z0 first. A rapid that turns C a long way on the same solution is linearised like any
 other (the ball centre on its segment; the verification runs it): a trip to machine Z0 for each of
-those cost the deep slot 27 % more machining time.
+those costs machining time (BENCHMARKS.md, "Simultaneous 5-axis: the C register").
 Figures: ``rotary_range_deg``, ``n_unwound``, ``n_home`` (the rapids written through machine Z0).
 * Rapids are ``G0``, also linearised (the control moves every axis together on them too; Fanuc:
   linear-interpolation-type positioning assumed, below).
@@ -182,7 +182,6 @@ from planning.toolpath.moves import (
     USE_RAPID,
     USE_RETRACT,
 )
-from schemas.machine import DEFAULT_ROTARY_FEED_DEG_MIN
 
 from .blocks import BlockWriter, comment, fmt, scanmill_version, spindle_word
 from .options import PostOptions, check_options, check_placement
@@ -191,7 +190,6 @@ __all__ = [
     "MAX_DEPTH",
     "MIN_MOVE_TIME_MIN",
     "POLE_DEG",
-    "ROTARY_FEED_DEG_MIN",
     "UNWIND_ROOM_DEG",
     "FiveAxisOperation",
     "iso_5axis_blocks",
@@ -206,9 +204,6 @@ __all__ = [
 POLE_DEG = 0.5
 #: Largest number of halvings of one move by the linearisation.
 MAX_DEPTH = 16
-#: Default fastest turn of the tilt and the rotary axis in a feed move (the profile's limits when it
-#: gives none), deg/min.
-ROTARY_FEED_DEG_MIN = DEFAULT_ROTARY_FEED_DEG_MIN
 #: The room (deg) a continuous C keeps below its register when it is turned back: a pass's own turn.
 UNWIND_ROOM_DEG = 720.0
 
@@ -216,9 +211,9 @@ UNWIND_ROOM_DEG = 720.0
 def unwind_deg(profile) -> float:
     """How far from 0 (deg) a continuous C may be before it is turned back to its twin in
     [-180, 180] on a move in the air: the register (``rotary_limits_deg``) less
-    :data:`UNWIND_ROOM_DEG`, at least one turn. Each turn back is a trip to machine Z0 (on the deep
-    slot, turning back beyond one turn cost 17 % more machining time), so C is turned back only where the
-    register needs it."""
+    :data:`UNWIND_ROOM_DEG`, at least one turn. Each turn back is a trip to machine Z0, which costs
+    machining time (BENCHMARKS.md, "Simultaneous 5-axis: the C register"), so C is turned back only
+    where the register needs it."""
     p = _profile(profile)
     return max(360.0, float(p.rotary_limits_deg[1]) - UNWIND_ROOM_DEG)
 
@@ -601,9 +596,10 @@ class _Path:
                 raise ParameterError(f"rotary_sign = {rs!r}: must be two signs (tilt, rotary), each 1 or -1",
                                      parameter="rotary_sign", value=rs)
             self.sign = (float(rs[0]), float(rs[1]))
-        self.ang, feas, self.n_unwound = self._walk(start_deg, pole_deg)
-        #: (P,) the moves INTO each point that unwind C (module docstring, "The C register")
-        self.unwinding = self._unwind_candidates()
+        cand = self._unwind_candidates()
+        self.ang, feas = rotary_path(self.a, p, start_deg=start_deg, pole_deg=pole_deg, unwind=cand)
+        #: (P,) the moves INTO each point that turn C back (module docstring, "The C register")
+        self.unwinding = cand
         self.unwinding[1:] &= np.abs(np.diff(self.ang[:, 1])) >= 180.0
         #: (P,) the rapids INTO each point written through machine Z0: the turns back, and every rapid
         #: that changes rotary solution (the tilt's sign, outside the pole cone): the table is not
@@ -638,14 +634,6 @@ class _Path:
             return cand
         cand[1:] = (self.kind[1:] == RAPID) & (self.kind[:-1] == RAPID)
         return cand
-
-    def _walk(self, start_deg, pole_deg) -> tuple[np.ndarray, np.ndarray, int]:
-        """``(angles (P,2), feasible (P,), unwound)``: :func:`rotary_path` along the planned points with
-        the C register kept (module docstring, "The C register"): a continuous C may be turned back
-        on the moves of :meth:`_unwind_candidates`."""
-        cand = self._unwind_candidates()
-        ang, feas = rotary_path(self.a, self.p, start_deg=start_deg, pole_deg=pole_deg, unwind=cand)
-        return ang, feas, int((cand[1:] & (np.abs(np.diff(ang[:, 1])) >= 180.0)).sum())
 
     # ---- posted points
 
@@ -788,10 +776,9 @@ def _cat(*ds: dict) -> dict:
 
 def _rate_limits(p, rotary_feed_deg_min) -> tuple[float, float]:
     """``(tilt, rotary)`` fastest turns in a feed move, deg/min: the profile's
-    (``tilt_feed_limit_deg_min``, ``rotary_feed_limit_deg_min``), or ``rotary_feed_deg_min`` for both
-    where given."""
+    (``feed_limits_deg_min``), or ``rotary_feed_deg_min`` for both where given."""
     if rotary_feed_deg_min is None:
-        return p.tilt_feed_limit_deg_min, p.rotary_feed_limit_deg_min
+        return p.feed_limits_deg_min
     v = _positive(rotary_feed_deg_min, "rotary_feed_deg_min", "rotary_feed_deg_min")
     return v, v
 
@@ -869,7 +856,7 @@ def _figures(path: _Path, posted: dict, fig: dict, lines: list, L: np.ndarray, t
         "max_turn_deg": float(turn.max()) if turn.size else 0.0,
         "tilt_range_deg": (float(ang[:, 0].min()), float(ang[:, 0].max())),
         "rotary_range_deg": (float(ang[:, 1].min()), float(ang[:, 1].max())),
-        "n_unwound": int(path.n_unwound),
+        "n_unwound": int(path.unwinding.sum()),
         "n_home": int(path.home.sum()),
         "feed_limits_deg_min": (float(limits[0]), float(limits[1])),
         "tip_path_mm": float(L[1:].sum()),

@@ -54,7 +54,7 @@ def rotary_feed_excesses(motion, minutes: np.ndarray, profile) -> list[dict]:
     last = np.zeros(lines.size, dtype=np.int64)
     np.maximum.at(last, inv, idx)
     names = p.axis_names
-    limits = (p.tilt_feed_limit_deg_min, p.rotary_feed_limit_deg_min)
+    limits = p.feed_limits_deg_min
     found = []
     for k in range(2):
         tk = np.bincount(inv, weights=turn[idx, k], minlength=lines.size)

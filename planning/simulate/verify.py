@@ -158,11 +158,6 @@ def move_minutes(motion: ProgramMotion, config) -> np.ndarray:
     return out
 
 
-def _machining_time_s(motion: ProgramMotion, config) -> float:
-    """The program's time as the control runs it (:func:`move_minutes`), s."""
-    return 60.0 * float(move_minutes(motion, config).sum())
-
-
 #: The chord tolerance the program reader splits arcs with (mm): a gouge is confirmed only deeper
 #: than the finishing tolerance plus this and the programs' last decimal.
 READER_CHORD_TOL_MM = 0.005

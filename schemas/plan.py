@@ -109,6 +109,27 @@ class GuardSummary(_Out):
     removed_mm3: float = Field(0.0, description="Material the operation removes from the carried stock, mm^3.")
 
 
+class FiveAxisLinksSummary(_Out):
+    """The links between the passes of a 5-axis finishing path planned on the stock (issue 33 item 1):
+    up each cutting position's own tool axis to a clearance over the stock, across, down; checked
+    on the stock, the fixtures, the travel and the rotary pole when planned."""
+
+    n_links: int = Field(..., description="Links between two cutting positions with a rapid in them.")
+    n_planned: int = Field(..., description="Links replaced by a link over the stock.")
+    n_kept: int = Field(..., description="Links kept as the finishing made them (through the safe height): no "
+                                         "lift cleared every check.")
+    n_round_pole: int = Field(0, description="Planned links whose tool axis turns round the machine's rotary pole "
+                                             "(tilt held, rotary axis turning) instead of through it.")
+    by_lift: dict[str, int] = Field(default_factory=dict, description="Planned links per lift over the higher of "
+                                                                       "their two clear heights, mm; 'safe': both "
+                                                                       "ends up their own axes to the safe height.")
+    kept_by: dict[str, int] = Field(default_factory=dict, description="Kept links per first failing check at the "
+                                                                       "highest lift: column, stock, obstacles, "
+                                                                       "travel, pole.")
+    length_before_mm: float = Field(..., description="Reference-point length of the replaced links before, mm.")
+    length_after_mm: float = Field(..., description="The same after, mm.")
+
+
 class FiveAxisSummary(_Out):
     """Simultaneous 5-axis finishing of one area (issue 19; paths.finishing.mode '5axis'): the axes given
     to the ball-drop positions and the 3D biarcs of the ball-centre path (Chui 2008)."""
@@ -135,6 +156,8 @@ class FiveAxisSummary(_Out):
     n_unwinding_links: int = Field(
         0, description="Short links routed through the safe height so that the post turns a continuous C back "
                        "there (the C register: machine profile rotary_register_deg).")
+    links: FiveAxisLinksSummary | None = Field(
+        None, description="The links planned on the stock (None: planned without a carried stock).")
     biarc_min_clearance_mm: float = Field(
         ..., description="Smallest distance between the biarc curve (as chords within 0.002 mm) and any cloud point, "
                          "mm; the programs are G1 through the positions, the biarcs are the fitted curve reported "

@@ -22,6 +22,7 @@ from planning.toolpath.moves import machining_time_s
 from schemas.plan import (
     AreaPathSummary,
     FinishingSummary,
+    FiveAxisLinksSummary,
     FiveAxisSummary,
     FrameSummary,
     GuardSummary,
@@ -219,6 +220,7 @@ def _five_axis_summary(f):
         swing_deg=f.swing_deg, max_rate_deg_per_mm=f.max_rate_deg_per_mm, n_moves_before_biarcs=f.n_moves_before_biarcs,
         n_biarcs=f.n_biarcs, n_arcs=f.n_arcs, biarc_max_error_mm=f.biarc_max_error_mm,
         n_unwinding_links=int(f.n_unwinding_links),
+        links=FiveAxisLinksSummary(**f.links) if f.links else None,
         biarc_min_clearance_mm=float(f.biarc_min_clearance_mm) if np.isfinite(f.biarc_min_clearance_mm) else 0.0)
 
 

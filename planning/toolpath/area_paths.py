@@ -739,8 +739,15 @@ class _FiveAxisArea:
         ok = Admissible(ap.frame, ap.frame.to_frame(self.obstacles), self.tool, max_swing_deg=self.fp.max_swing_deg,
                         machine=machine, gauge_mm=gauge, stock_f=stock_f,
                         pole_clearance_deg=self.fp.pole_clearance_deg)
+        links = None
+        if self.carried is not None:
+            from planning.toolpath.fiveaxis.links import LINK_MARGIN_MM, StockLinks
+
+            c = self.carried
+            links = StockLinks(ap.frame, c.finishing_shape, c.stock, c.obstacles, ok, safe_z_mm=ap.safe_z_mm,
+                               clearance_mm=c.rapid_clearance_mm + LINK_MARGIN_MM)
         out, _, figs = five_axis_path(tp, pass_index, cloud_f=cloud_f, admissible=ok, fp=self.fp,
-                                      cone_deg=self.cone_deg, safe_z_mm=ap.safe_z_mm, floor=floor)
+                                      cone_deg=self.cone_deg, safe_z_mm=ap.safe_z_mm, floor=floor, links=links)
         self.figures = figs
         ap.five_axis, ap.five_axis_input = figs, tp
         return out

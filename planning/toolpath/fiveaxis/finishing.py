@@ -23,11 +23,16 @@ reduction) and:
    positions where the turn rate could not be met (a pass broken there), and gives every other
    point of the path an axis (retracts keep the axis of the point they leave, rapids take the next
    one's: the axis turns at the safe height);
-5. routes the short links where a continuous C must be turned back through the safe height
+5. with the carried stock, plans the links between passes on it
+   (:mod:`planning.toolpath.fiveaxis.links`, issue 33 item 1): up each cutting position's own axis to a
+   clearance over the stock, across, down, checked on the stock, the fixtures, the travel and the
+   rotary pole when planned;
+6. routes the short links where a continuous C must be turned back through the safe height
    (:mod:`planning.toolpath.fiveaxis.register`: the C register, issue 33 item 3).
 
-The stock, the fixtures and the table are checked afterwards by the guard on the carried stock
-(:mod:`planning.toolpath.guard`, which runs 5-axis moves in 1-degree steps), as for 3+2.
+The guard still runs every move on the carried stock afterwards (:mod:`planning.toolpath.guard`,
+which runs 5-axis moves in 1-degree steps), as for 3+2: it is the check of the whole operation; the
+links of step 5 were planned so that it finds nothing on them.
 Lengths in mm, angles in degrees.
 """
 
@@ -73,7 +78,9 @@ class FiveAxisFigures:
     fastest turn between linked positions kept, ``cone_deg`` the range of angles between the axes
     and the normals, ``swing_deg`` the largest angle from the set-up axis; the biarcs of
     :func:`biarc_figures`; ``n_unwinding_links`` the short links routed through the safe height so
-    that the post can turn a continuous C back (:mod:`planning.toolpath.fiveaxis.register`)."""
+    that the post can turn a continuous C back (:mod:`planning.toolpath.fiveaxis.register`); ``links``
+    the figures of the links planned on the stock
+    (:meth:`planning.toolpath.fiveaxis.links.LinkFigures.as_dict`; empty without a stock)."""
 
     n_positions: int = 0
     n_alternatives: int = 0
@@ -87,6 +94,7 @@ class FiveAxisFigures:
     biarc_max_error_mm: float = 0.0
     biarc_min_clearance_mm: float = math.inf
     n_unwinding_links: int = 0
+    links: dict = field(default_factory=dict)
 
 
 class Admissible:
@@ -307,13 +315,14 @@ def axis_columns(tp: Toolpath) -> Toolpath:
 
 def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.ndarray, admissible: Admissible,
                    fp, cone_deg, safe_z_mm: float, tree: cKDTree | None = None,
-                   floor=None) -> tuple[Toolpath, np.ndarray, FiveAxisFigures]:
+                   floor=None, links=None) -> tuple[Toolpath, np.ndarray, FiveAxisFigures]:
     """The 5-axis version of the finishing toolpath ``tp`` (module docstring): ``(toolpath with
     axis, pass_index, figures)``. ``cloud_f`` (N,3): the scan in the area frame (contact normals);
     ``admissible``: the test of step 2; ``fp``: :class:`schemas.params.FinishingParams` (lead, tilt,
     frame, rate); ``cone_deg``: ``visibility.cone_deg``; ``safe_z_mm``: the ball-centre height of
     retracts (area frame); ``floor``: the part's :class:`planning.toolpath.carried.Footprint` (positions
-    whose ball reaches below the part's underside inside it are cut out first, as in 3+2)."""
+    whose ball reaches below the part's underside inside it are cut out first, as in 3+2); ``links``: a
+    :class:`planning.toolpath.fiveaxis.links.StockLinks` (None: the links stay as the cut made them)."""
     figs = FiveAxisFigures()
     blocked = {"no_axis": 0, "between": 0, "rate": 0, "floor": 0, "flip": 0}
     pi = None if pass_index is None else np.asarray(pass_index)
@@ -374,6 +383,9 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
             break
     figs.blocked = blocked
     tp = axis_columns(tp)
+    if links is not None and tp.n_moves:
+        tp, pi = links(tp, pi)
+        figs.links = links.figures.as_dict()
     if admissible.machine is not None and tp.n_moves:
         tp, pi, figs.n_unwinding_links = route_unwinding_links(
             tp, pi, profile=admissible.machine.profile, rotation=admissible.frame.rotation, safe_z_mm=safe_z_mm)

@@ -229,3 +229,23 @@ def test_a_link_whose_axis_would_pass_through_the_pole_turns_round_it():
     assert min(math.degrees(math.acos(_slerp1(ax[0], ax[-1], t) @ pole)) for t in np.linspace(0, 1, 201)) < 0.5
     after, _, _ = run_on_stock(out, FRAME, BALL, stock, None, None, rapid_clearance_mm=CLEAR)
     assert not (after.rapid.any() or after.holder.any())
+
+
+def test_only_the_links_through_the_safe_height_when_the_guard_relinks():
+    """After a cut the guard plans again only the links that reach the safe height (the ones the cut
+    made); the figures add up over the calls."""
+    stock, _ = _stock(2.0)
+    tp, pi = _path()
+    links = StockLinks(FRAME, BALL, stock, None, None, safe_z_mm=SAFE, clearance_mm=CLEAR + 0.5)
+    once, opi = links(tp, pi)
+    assert links.figures.n_planned == 1
+    again, api = links(once, opi, only_high=True)          # the planned link stays below the safe height
+    assert np.array_equal(again.xyz_mm, once.xyz_mm) and links.figures.n_links == 1
+    # a link through the safe height (as cut_moves makes it) is planned again, and counted
+    high = tp.xyz_mm.copy()
+    high[12:14, 2] = SAFE
+    tp2 = Toolpath(xyz_mm=high, kind=tp.kind, centre_mm=tp.centre_mm, plane=tp.plane, use=tp.use,
+                   tip_offset_mm=R, axis=tp.axis)
+    out, _ = links(tp2, pi, only_high=True)
+    assert links.figures.n_links == 2 and links.figures.n_planned == 2
+    assert out.xyz_mm[12:17, 2].max() < SAFE

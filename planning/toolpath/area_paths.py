@@ -104,6 +104,7 @@ class AreaPaths:
     unmachined: np.ndarray | None = None       # input point indices of the area no kept finishing move reaches
     five_axis: object = None                   # FiveAxisFigures of a simultaneous 5-axis finishing
     five_axis_input: Toolpath | None = None    # the 3-axis passes it was planned from
+    five_axis_links: object = None             # its StockLinks (the guard plans the links of its cuts with it)
     semi: object = None                        # SemiFinishing between the roughing and the finishing, or None
 
     @property
@@ -681,10 +682,14 @@ def _guard_finishing(ap: AreaPaths, carried, area_f, fp, progress: Progress | No
     position with its own rotary solution (:class:`planning.toolpath.fiveaxis.finishing.Admissible`),
     not at the set-up's fixed angles."""
     five = ap.finishing.axis is not None
+    links = getattr(ap, "five_axis_links", None) if five else None
+    relink = None if links is None else (lambda tp, pi: links(tp, pi, only_high=True))
     g = guard_toolpath(ap.finishing, ap.frame, carried.finishing_shape, carried.stock, carried.obstacles,
                        None if (carried.machines is None or five) else carried.machines[ap.area], safe_z_mm=ap.safe_z_mm,
-                       rapid_clearance_mm=carried.rapid_clearance_mm, progress=progress)
+                       rapid_clearance_mm=carried.rapid_clearance_mm, progress=progress, relink=relink)
     ap.finishing, ap.finishing_guard = (g.toolpath if g.toolpath.n_moves else None), g
+    if links is not None and ap.five_axis is not None:
+        ap.five_axis.links = links.figures.as_dict()          # with the links of the guard's cuts
     carried.stock = g.stock
 
 
@@ -749,7 +754,7 @@ class _FiveAxisArea:
         out, _, figs = five_axis_path(tp, pass_index, cloud_f=cloud_f, admissible=ok, fp=self.fp,
                                       cone_deg=self.cone_deg, safe_z_mm=ap.safe_z_mm, floor=floor, links=links)
         self.figures = figs
-        ap.five_axis, ap.five_axis_input = figs, tp
+        ap.five_axis, ap.five_axis_input, ap.five_axis_links = figs, tp, links
         return out
 
 

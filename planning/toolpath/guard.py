@@ -410,7 +410,7 @@ def _truncate(tp: Toolpath, pass_index, first_bad: int, safe_z_mm: float):
 
 def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriDexel, obstacles: TriDexel | None,
                    machine: SetupMachine | None, *, safe_z_mm: float, pass_index=None, rapid_clearance_mm: float = 0.5,
-                   max_rounds: int = 4, progress: Progress | None = None) -> GuardOutcome:
+                   max_rounds: int = 4, progress: Progress | None = None, relink=None) -> GuardOutcome:
     """Guard one operation (module docstring). ``tp``: the toolpath in ``frame``; ``shape``: the
     tool that runs it (simulation shape, its gauge length for the travel); ``stock``: the stock
     before it (unchanged: the outcome carries the stock after); ``obstacles``: fixtures, riser and
@@ -421,7 +421,9 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
     programs' rounding does not turn a grazing rapid into an offence); ``progress``:
     ``progress(fraction in [0, 1], message)`` while the rounds run (the first round takes the
     first 70 %, each further one half of what is left; 1.0 at the end), at most ~10 calls a
-    second."""
+    second. ``relink``: ``(toolpath, pass_index) -> (toolpath, pass_index)`` run on the path after
+    every cut of step 3 (a 5-axis path: the links the cut made through the safe height planned
+    again on the stock, :class:`planning.toolpath.fiveaxis.links.StockLinks` with ``only_high``)."""
     from planning.toolpath.safety import cut_moves
 
     prog = Throttled(progress)
@@ -500,6 +502,8 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
             cut = cut_moves(tp, drop, safe_z_mm=safe_z_mm, pass_index=pass_index)
             tp, pass_index = cut.toolpath, cut.pass_index
             out.dropped += int(drop.sum())
+            if relink is not None and tp.n_moves:
+                tp, pass_index = relink(tp, pass_index)
     first = int(np.flatnonzero(off.any)[0])
     out.truncated = tp.n_moves - first
     tp, pass_index = _truncate(tp, pass_index, first, safe_z_mm)

@@ -94,6 +94,14 @@ class LinkFigures:
     length_before_mm: float = 0.0
     length_after_mm: float = 0.0
 
+    def add(self, other: LinkFigures) -> None:
+        """Add ``other``'s counts to these (the guard's relinking after a cut)."""
+        for name in ("n_links", "n_planned", "n_kept", "n_round_pole", "length_before_mm", "length_after_mm"):
+            setattr(self, name, getattr(self, name) + getattr(other, name))
+        for mine, theirs in ((self.by_lift, other.by_lift), (self.kept_by, other.kept_by)):
+            for key, v in theirs.items():
+                mine[key] = mine.get(key, 0) + v
+
     def as_dict(self) -> dict:
         return {"n_links": self.n_links, "n_planned": self.n_planned, "n_kept": self.n_kept,
                 "n_round_pole": self.n_round_pole,
@@ -291,13 +299,29 @@ class StockLinks:
             why[pole & (why == "")] = "pole"
         return why
 
-    def __call__(self, tp: Toolpath, pass_index) -> tuple[Toolpath, np.ndarray | None]:
+    def __call__(self, tp: Toolpath, pass_index, *, only_high: bool = False) -> tuple[Toolpath, np.ndarray | None]:
         """``(toolpath, pass_index)`` with the links planned on the stock (module docstring); the new
-        points have pass index -1. ``tp``: the 5-axis path (area frame, with ``axis``)."""
-        figs = self.figures = LinkFigures()
+        points have pass index -1. ``tp``: the 5-axis path (area frame, with ``axis``); ``only_high``:
+        only the links that reach the safe height (those a cut made; the guard's relinking), and the
+        figures are added to the last call's instead of replacing them."""
+        figs = LinkFigures()
+        if not only_high:
+            self.figures = figs
         if tp.axis is None or tp.n_moves < 3:
             return tp, pass_index
         a_idx, b_idx = air_links(tp)
+        if only_high and a_idx.size:
+            z = tp.xyz_mm[:, 2]
+            hi = np.concatenate([[0], np.cumsum(z >= self.safe_z - 1e-6)])
+            keep = hi[b_idx] - hi[a_idx + 1] > 0
+            a_idx, b_idx = a_idx[keep], b_idx[keep]
+        out = self._plan(tp, pass_index, a_idx, b_idx, figs)
+        if only_high:
+            self.figures.add(figs)
+        return out
+
+    def _plan(self, tp: Toolpath, pass_index, a_idx: np.ndarray, b_idx: np.ndarray, figs: LinkFigures):
+        """The links between ``a_idx`` and ``b_idx`` planned (:meth:`__call__`), figures into ``figs``."""
         figs.n_links = int(a_idx.size)
         if a_idx.size == 0:
             return tp, pass_index

@@ -109,23 +109,24 @@ def test_the_link_goes_up_each_axis_and_over_the_stock(ridge):
     assert np.array_equal(out.xyz_mm[touch2], tp.xyz_mm[touch])
     assert np.allclose(out.axis[touch2], tp.axis[touch])
     assert np.array_equal(opi[touch2], pi[touch])
-    # the new link: up a's axis, across (two rapids meeting halfway), down b's axis, then a plunge feed
+    # the new link: up a's axis, across (rapids through evenly spaced points), down b's axis, a plunge
     j = 12
     ua, ub = tp.axis[11], tp.axis[14]
-    up, top_a, mid, top_b, down = out.xyz_mm[j:j + 5]
+    new = out.xyz_mm[j:j + 7]
+    up, top_a, top_b, down = new[0], new[1], new[5], new[6]
     for p, base, u in ((up, tp.xyz_mm[11], ua), (top_a, tp.xyz_mm[11], ua), (top_b, tp.xyz_mm[14], ub),
                        (down, tp.xyz_mm[14], ub)):
         d = p - base
         assert np.linalg.norm(np.cross(d, u)) < 1e-9 and d @ u > 0
-    assert np.allclose(mid, 0.5 * (top_a + top_b))
-    assert out.kind[j:j + 6].tolist() == [FEED, RAPID, RAPID, RAPID, RAPID, FEED]
-    assert out.use[j + 5] == USE_PLUNGE and (opi[j:j + 5] == -1).all()
+    assert np.allclose(new[2:5], top_a + np.array([[0.25], [0.5], [0.75]]) * (top_b - top_a))
+    assert out.kind[j:j + 8].tolist() == [FEED] + [RAPID] * 6 + [FEED]
+    assert out.use[j + 7] == USE_PLUNGE and (opi[j:j + 7] == -1).all()
     # the rapids, sampled finely (0.1 mm, 0.25 degree), keep the clearance from every box of the stock
     # (the dexel's rays are 0.5 mm apart: a sample of the boxes' faces 0.5 mm apart, less half a ray)
     surf = np.concatenate([_box_surface(lo, hi) for lo, hi in boxes])
-    pts, ax = out.xyz_mm[j:j + 5], out.axis[j:j + 5]
+    pts, ax = out.xyz_mm[j:j + 7], out.axis[j:j + 7]
     worst = np.inf
-    for k in range(4):
+    for k in range(6):
         ang = math.degrees(math.acos(np.clip(ax[k] @ ax[k + 1], -1, 1)))
         n = int(max(np.ceil(np.linalg.norm(pts[k + 1] - pts[k]) / 0.1), np.ceil(ang / 0.25), 1))
         for t in np.linspace(0.0, 1.0, n + 1):
@@ -220,13 +221,13 @@ def test_a_link_whose_axis_would_pass_through_the_pole_turns_round_it():
     links = StockLinks(FRAME, BALL, stock, None, _PoleOnly(), safe_z_mm=SAFE, clearance_mm=CLEAR + 0.5)
     out, _ = links(tp, pi)
     assert links.figures.n_planned == 1 and links.figures.n_round_pole == 1
-    ax = out.axis[12:17]
+    ax = out.axis[11:21]
     pole = np.array([0.0, 0.0, 1.0])
     closest = min(math.degrees(math.acos(_slerp1(ax[k], ax[k + 1], t) @ pole))
-                  for k in range(4) for t in np.linspace(0, 1, 201))
+                  for k in range(9) for t in np.linspace(0, 1, 201))
     assert closest >= 3.0
     # the straight great circle would have passed through it
-    assert min(math.degrees(math.acos(_slerp1(ax[0], ax[-1], t) @ pole)) for t in np.linspace(0, 1, 201)) < 0.5
+    assert min(math.degrees(math.acos(min(1.0, _slerp1(ax[0], ax[-1], t) @ pole))) for t in np.linspace(0, 1, 201)) < 0.5
     after, _, _ = run_on_stock(out, FRAME, BALL, stock, None, None, rapid_clearance_mm=CLEAR)
     assert not (after.rapid.any() or after.holder.any())
 
@@ -248,4 +249,4 @@ def test_only_the_links_through_the_safe_height_when_the_guard_relinks():
                    tip_offset_mm=R, axis=tp.axis)
     out, _ = links(tp2, pi, only_high=True)
     assert links.figures.n_links == 2 and links.figures.n_planned == 2
-    assert out.xyz_mm[12:17, 2].max() < SAFE
+    assert out.xyz_mm[12:19, 2].max() < SAFE

@@ -19,8 +19,8 @@ than there will be when the link runs, so what is clear there is clear then):
    at least ``approach_mm``); likewise ``h_b`` over ``b`` along ``u_b``.
 2. **Across.** A rapid from ``a + H u_a`` to ``b + H u_b`` at the lift ``H = max(h_a, h_b) + l``, the
    axis turning from ``u_a`` to ``u_b`` along the great circle (as the posts linearise it and the
-   guard runs it: steps of at most :data:`planning.toolpath.guard.AXIS_STEP_DEG`), written as two
-   rapids meeting halfway. Where that arc passes the machine's rotary pole closer than an
+   guard runs it: steps of at most :data:`planning.toolpath.guard.AXIS_STEP_DEG`), written as four
+   rapids (:data:`VIAS` points between). Where that arc passes the machine's rotary pole closer than an
    admissible position may (the rotary axis would swing half a turn within a degree of the axis:
    no control follows that, and the table swings with the tool over the part), the axis turns
    round the pole instead: halfway it is beside the pole at the larger tilt of the two ends
@@ -70,6 +70,9 @@ LINK_MARGIN_MM = 0.5
 #: axis (cosine; 75 degrees), so the columns stay of reasonable length.
 SAFE_LEAN_COS = math.cos(math.radians(75.0))
 
+#: Points across a link between its two tops (the axis turning in VIAS + 1 arcs).
+VIAS = 3
+
 #: Extra growth of the shank and holder on a link's feed moves (mm): a margin over the guard's test.
 FEED_MARGIN_MM = 0.2
 
@@ -82,7 +85,7 @@ class LinkFigures:
     the rotary pole;
     ``n_kept`` kept as they were (no lift cleared; ``kept_by`` the first failing check at the highest
     lift: ``column`` (a column not clear within :data:`COLUMN_MM`), ``stock``, ``obstacles``,
-    ``travel``, ``pole``); ``length_before_mm`` / ``length_after_mm`` the reference point's way over
+    ``travel``, ``pole``, ``holder``: the feed off or onto the surface); ``length_before_mm`` / ``length_after_mm`` the reference point's way over
     the replaced links before and after."""
 
     n_links: int = 0
@@ -192,42 +195,56 @@ class StockLinks:
 
     # -- steps 2-4 -----------------------------------------------------------------------------------
     @staticmethod
-    def _candidate(xyz_a, xyz_b, ua, ub, ha, hb, Ha, Hb, via):
-        """The reference points (k, 7, 3) of each link: a, up (its clear height), top a, halfway across,
-        top b, down (b's clear height), b; and their axes: ``via`` halfway, ``a``'s before, ``b``'s
-        after."""
+    def _candidate(xyz_a, xyz_b, ua, ub, ha, hb, Ha, Hb, vias):
+        """The reference points (k, 6 + V, 3) of each link: a, up (its clear height), top a, the V points
+        across (evenly between the tops), top b, down (b's clear height), b; and their axes: ``vias``
+        (k, V, 3) across, ``a``'s before, ``b``'s after."""
         top_a, top_b = xyz_a + Ha[:, None] * ua, xyz_b + Hb[:, None] * ub
-        pts = np.stack([xyz_a, xyz_a + ha[:, None] * ua, top_a, 0.5 * (top_a + top_b), top_b,
-                        xyz_b + hb[:, None] * ub, xyz_b], axis=1)
-        ax = np.stack([ua, ua, ua, via, ub, ub, ub], axis=1)
+        V = vias.shape[1]
+        f = (np.arange(1, V + 1) / (V + 1.0))[None, :, None]
+        across = top_a[:, None, :] + f * (top_b - top_a)[:, None, :]
+        pts = np.concatenate([np.stack([xyz_a, xyz_a + ha[:, None] * ua, top_a], 1), across,
+                              np.stack([top_b, xyz_b + hb[:, None] * ub, xyz_b], 1)], axis=1)
+        ax = np.concatenate([np.stack([ua, ua, ua], 1), vias, np.stack([ub, ub, ub], 1)], axis=1)
         return pts, ax
 
     def _vias(self, ua: np.ndarray, ub: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(via (k,3), round_pole (k,))``: the axis halfway across each link: the great circle's
-        midpoint, or, where that arc passes the rotary pole closer than the admissible positions may
-        (``round_pole``), an axis beside the pole at the larger of the two ends' angles from it (at
-        least the pole clearance plus 2 degrees), on the side of the arc's midpoint: the axis then
-        turns round the pole in two arcs, the tilt held and the rotary axis turning, instead of
-        through it."""
-        via = slerp(ua, ub, np.full(ua.shape[0], 0.5))
+        """``(vias (k, VIAS, 3), round_pole (k,))``: the axes across each link, at even steps: on the
+        great circle from ``ua`` to ``ub``, or, where that arc passes the rotary pole closer than an
+        admissible position may (``round_pole``), round the pole: at a fixed angle from it (the larger
+        of the two ends' plus 2 degrees, at least the pole clearance plus 2), the azimuth about it
+        turning from ``ua``'s to ``ub``'s the way of the arc's midpoint, in even steps (so each arc
+        between neighbours keeps off the pole), the tilt held and the rotary axis turning."""
+        k = ua.shape[0]
+        f = np.arange(1, VIAS + 1) / (VIAS + 1.0)
+        vias = np.stack([slerp(ua, ub, np.full(k, t)) for t in f], axis=1)
         adm = self.admissible
         if adm is None or adm.pole_f is None:
-            return via, np.zeros(ua.shape[0], dtype=bool)
+            return vias, np.zeros(k, dtype=bool)
         p = adm.pole_f
         rnd = ~adm.arc_clear_of_pole(ua, ub)
         if rnd.any():
             a, b = ua[rnd], ub[rnd]
+            e1 = np.cross(p, [1.0, 0.0, 0.0] if abs(p[0]) < 0.9 else [0.0, 1.0, 0.0])
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(p, e1)
+            # the side the arc passes the pole on: its midpoint's azimuth (or across the arc's plane)
             m = a + b
             d = m - np.outer(m @ p, p)
             dn = np.linalg.norm(d, axis=1)
             alt = np.cross(np.broadcast_to(p, a.shape), a - b)
             d = np.where((dn > 1e-6)[:, None], d, alt)
-            d /= np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
+            az_a, az_b, az_d = (np.arctan2(v @ e2, v @ e1) for v in (a, b, d))
+            ccw = np.mod(az_b - az_a, 2 * np.pi)                    # turning counter-clockwise to b
+            via_ccw = np.mod(az_d - az_a, 2 * np.pi) <= ccw
+            span = np.where(via_ccw, ccw, ccw - 2 * np.pi)
             clr = math.degrees(math.acos(min(1.0, adm.cos_pole))) + 2.0
             th = np.radians(np.maximum(np.maximum(np.degrees(np.arccos(np.clip(a @ p, -1, 1))),
-                                                  np.degrees(np.arccos(np.clip(b @ p, -1, 1)))), clr))
-            via[rnd] = np.cos(th)[:, None] * p + np.sin(th)[:, None] * d
-        return via, rnd
+                                                  np.degrees(np.arccos(np.clip(b @ p, -1, 1)))) + 2.0, clr))
+            az = az_a[:, None] + f[None, :] * span[:, None]
+            ring = np.cos(az)[..., None] * e1 + np.sin(az)[..., None] * e2
+            vias[rnd] = np.cos(th)[:, None, None] * p + np.sin(th)[:, None, None] * ring
+        return vias, rnd
 
     def _steps(self, pts: np.ndarray, ax: np.ndarray):
         """The moves of every candidate link as the guard runs them (the reference point linear, the
@@ -280,7 +297,10 @@ class StockLinks:
         grow = np.where(rapid, self.clearance, FEED_MARGIN_MM)
         dep = collide(self.stock, ts, te, ap, self.shape, which=rapid, grow_mm=grow)
         bad = np.zeros(k, dtype=bool)
-        np.logical_or.at(bad, link, dep > 0)
+        np.logical_or.at(bad, link, (dep > 0) & ~rapid)
+        why[bad & (why == "")] = "holder"          # the feed off or onto the surface: shank or holder
+        bad[:] = False
+        np.logical_or.at(bad, link, (dep > 0) & rapid)
         why[bad & (why == "")] = "stock"
         if self.obstacles is not None:
             dep = collide(self.obstacles, ts, te, ap, self.shape, which="tool", grow_mm=self.clearance)
@@ -295,8 +315,10 @@ class StockLinks:
             np.logical_or.at(b3, link, ~ok)
             why[b3 & (why == "")] = "travel"
         if adm is not None and adm.pole_f is not None:
-            pole = ~(adm.arc_clear_of_pole(ax[:, 2], ax[:, 3]) & adm.arc_clear_of_pole(ax[:, 3], ax[:, 4]))
-            why[pole & (why == "")] = "pole"
+            clear = np.ones(k, dtype=bool)
+            for i in range(2, ax.shape[1] - 3):          # the arcs across, top a to top b
+                clear &= adm.arc_clear_of_pole(ax[:, i], ax[:, i + 1])
+            why[~clear & (why == "")] = "pole"
         return why
 
     def __call__(self, tp: Toolpath, pass_index, *, only_high: bool = False) -> tuple[Toolpath, np.ndarray | None]:
@@ -344,10 +366,10 @@ class StockLinks:
         Lb = np.maximum(COLUMN_MM, np.where(safe_ok, up_b + 1.0, 0.0))
         ha = self.clear_heights(xyz[a_idx], ua, off, La)
         hb = self.clear_heights(xyz[b_idx], ub, off, Lb)
-        via, rnd = self._vias(ua, ub)
+        vias, rnd = self._vias(ua, ub)
         k = a_idx.size
-        pts_k = np.full((k, 7, 3), np.nan)
-        ax_k = np.full((k, 7, 3), np.nan)
+        pts_k = np.full((k, 6 + VIAS, 3), np.nan)
+        ax_k = np.full((k, 6 + VIAS, 3), np.nan)
         done = np.zeros(k, dtype=bool)
         why_last = np.full(k, "column", dtype=object)
         pending = np.flatnonzero(np.isfinite(ha) & np.isfinite(hb))
@@ -363,7 +385,7 @@ class StockLinks:
                 Hb = np.maximum(up_b[P], hb[P] + self.lifts[0])
             else:
                 Ha = Hb = np.maximum(ha[P], hb[P]) + lift
-            pts, ax = self._candidate(xyz[a_idx[P]], xyz[b_idx[P]], ua[P], ub[P], ha[P], hb[P], Ha, Hb, via[P])
+            pts, ax = self._candidate(xyz[a_idx[P]], xyz[b_idx[P]], ua[P], ub[P], ha[P], hb[P], Ha, Hb, vias[P])
             why = self._check(pts, ax, off, tilt_sign[P])
             good = why == ""
             pts_k[P[good]], ax_k[P[good]] = pts[good], ax[good]
@@ -384,7 +406,7 @@ class StockLinks:
         cs = np.concatenate([[0.0], np.cumsum(step)])
         figs.length_before_mm = float((cs[b_idx[take]] - cs[a_idx[take]]).sum())
         figs.length_after_mm = float(np.linalg.norm(np.diff(pts_k[take], axis=1), axis=2).sum())
-        return _splice(tp, pass_index, a_idx[take], b_idx[take], pts_k[take, 1:6], ax_k[take, 1:6])
+        return _splice(tp, pass_index, a_idx[take], b_idx[take], pts_k[take, 1:-1], ax_k[take, 1:-1])
 
 
 def _splice(tp: Toolpath, pass_index, a_idx, b_idx, new_pts, new_ax):

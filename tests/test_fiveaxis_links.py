@@ -250,3 +250,49 @@ def test_only_the_links_through_the_safe_height_when_the_guard_relinks():
     out, _ = links(tp2, pi, only_high=True)
     assert links.figures.n_links == 2 and links.figures.n_planned == 2
     assert out.xyz_mm[12:19, 2].max() < SAFE
+
+
+class _PoleAndMachine(_PoleOnly):
+    """The pole of the compact trunnion (B C) machine with the area frame the part frame, for the C
+    bookkeeping of the turns round the pole."""
+
+    def __init__(self):
+        from planning.orientations.kinematics import tool_axis_from_angles
+        from planning.simulate.kinematics import MachineModel
+
+        self.machine = MachineModel("compact_trunnion_bc", np.zeros(3))
+        self.gauge = 100.0
+        self.pole_f = tool_axis_from_angles(np.zeros((1, 2)), self.machine.profile)[0]
+
+
+def test_turns_round_the_pole_do_not_wind_c_up():
+    """Eight links back and forth across the pole (axes 10 degrees either side). Going round it on the
+    side each arc's plane gives turns C the same way every time (a full turn per pair); choosing the
+    way that brings C nearer 0 keeps it within a turn."""
+    adm = _PoleAndMachine()
+    p = adm.pole_f
+    e = np.cross(p, [1.0, 0.0, 0.0] if abs(p[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e /= np.linalg.norm(e)
+    t = math.radians(10.0)
+    u0, u1 = math.cos(t) * p + math.sin(t) * e, math.cos(t) * p - math.sin(t) * e
+    n = 8
+    ua = np.array([u0 if i % 2 == 0 else u1 for i in range(n)])
+    ub = np.array([u1 if i % 2 == 0 else u0 for i in range(n)])
+    stock, _ = _stock(2.0)
+    links = StockLinks(FRAME, BALL, stock, None, adm, safe_z_mm=SAFE, clearance_mm=CLEAR + 0.5)
+    sign = np.ones(n)
+
+    def c_range(vias):
+        dc = links._c_turn(ua, vias, ub, sign)
+        assert np.all(np.abs(np.abs(dc) - 180.0) < 20.0)          # half a turn each, round the pole
+        c = np.cumsum(dc)
+        return float(np.abs(c).max())
+
+    plain, rnd = links._vias(ua, ub)
+    assert rnd.all()
+    # the walk before: C at each link's start, and the link's turn (back and forth through the pole)
+    c0 = np.array([0.0 if i % 2 == 0 else 180.0 for i in range(n)])
+    dc_old = np.array([180.0 if i % 2 == 0 else -180.0 for i in range(n)])
+    chosen, _ = links._vias(ua, ub, sign, (c0, dc_old))
+    assert c_range(plain) >= 3 * 360.0 - 1e-6
+    assert c_range(chosen) <= 360.0 + 1e-6

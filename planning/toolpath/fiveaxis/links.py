@@ -208,13 +208,18 @@ class StockLinks:
         ax = np.concatenate([np.stack([ua, ua, ua], 1), vias, np.stack([ub, ub, ub], 1)], axis=1)
         return pts, ax
 
-    def _vias(self, ua: np.ndarray, ub: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _vias(self, ua: np.ndarray, ub: np.ndarray, tilt_sign=None, c_walk=None) -> tuple[np.ndarray, np.ndarray]:
         """``(vias (k, VIAS, 3), round_pole (k,))``: the axes across each link, at even steps: on the
         great circle from ``ua`` to ``ub``, or, where that arc passes the rotary pole closer than an
         admissible position may (``round_pole``), round the pole: at a fixed angle from it (the larger
         of the two ends' plus 2 degrees, at least the pole clearance plus 2), the azimuth about it
         turning from ``ua``'s to ``ub``'s the way of the arc's midpoint, in even steps (so each arc
-        between neighbours keeps off the pole), the tilt held and the rotary axis turning."""
+        between neighbours keeps off the pole), the tilt held and the rotary axis turning.
+
+        Either way round turns the rotary axis about half a turn; with ``c_walk`` (the posts' walk on
+        the path as it was: the rotary angle at each link's start and its change over the link, deg)
+        the links are taken in path order and each goes round the way that brings a continuous C
+        nearer 0, so that the turns round the pole do not wind C up (the C register)."""
         k = ua.shape[0]
         f = np.arange(1, VIAS + 1) / (VIAS + 1.0)
         vias = np.stack([slerp(ua, ub, np.full(k, t)) for t in f], axis=1)
@@ -241,10 +246,37 @@ class StockLinks:
             clr = math.degrees(math.acos(min(1.0, adm.cos_pole))) + 2.0
             th = np.radians(np.maximum(np.maximum(np.degrees(np.arccos(np.clip(a @ p, -1, 1))),
                                                   np.degrees(np.arccos(np.clip(b @ p, -1, 1)))) + 2.0, clr))
-            az = az_a[:, None] + f[None, :] * span[:, None]
-            ring = np.cos(az)[..., None] * e1 + np.sin(az)[..., None] * e2
-            vias[rnd] = np.cos(th)[:, None, None] * p + np.sin(th)[:, None, None] * ring
+
+            def round_vias(sp):
+                az = az_a[:, None] + f[None, :] * sp[:, None]
+                ring = np.cos(az)[..., None] * e1 + np.sin(az)[..., None] * e2
+                return np.cos(th)[:, None, None] * p + np.sin(th)[:, None, None] * ring
+
+            near = round_vias(span)
+            if c_walk is not None and adm.machine.profile.rotary_continuous:
+                other = round_vias(np.where(via_ccw, ccw - 2 * np.pi, ccw))
+                dc_near = self._c_turn(a, near, b, tilt_sign[rnd])
+                dc_other = self._c_turn(a, other, b, tilt_sign[rnd])
+                c0, dc_old = c_walk[0][rnd], c_walk[1][rnd]
+                offset = 0.0
+                take_other = np.zeros(a.shape[0], dtype=bool)
+                for i in range(a.shape[0]):            # in path order: each choice moves the C after it
+                    c = c0[i] + offset
+                    take_other[i] = abs(c + dc_other[i]) < abs(c + dc_near[i])
+                    offset += (dc_other[i] if take_other[i] else dc_near[i]) - dc_old[i]
+                near[take_other] = other[take_other]
+            vias[rnd] = near
         return vias, rnd
+
+    def _c_turn(self, a: np.ndarray, vias: np.ndarray, b: np.ndarray, tilt_sign: np.ndarray) -> np.ndarray:
+        """(k,) how far (deg) the rotary axis turns from axis ``a`` through ``vias`` (k, V, 3) to ``b``
+        (area frame) on the branch of ``tilt_sign``, unwrapped as the posts' walk unwraps it."""
+        seq = np.concatenate([a[:, None, :], vias, b[:, None, :]], axis=1)
+        k, m = seq.shape[:2]
+        ang, _ = branch_angles((seq @ self.frame.rotation).reshape(-1, 3), self.admissible.machine.profile,
+                               np.repeat(tilt_sign, m))
+        c = np.unwrap(np.radians(ang[:, 1].reshape(k, m)), axis=1)
+        return np.degrees(c[:, -1] - c[:, 0])
 
     def _steps(self, pts: np.ndarray, ax: np.ndarray):
         """The moves of every candidate link as the guard runs them (the reference point linear, the
@@ -351,11 +383,12 @@ class StockLinks:
         off = float(tp.tip_offset_mm)
         ua, ub = axes[a_idx], axes[b_idx]
         tilt_sign = np.ones(a_idx.size)
+        walk = None
         if self.admissible is not None and self.admissible.machine is not None:
             from planning.post.simultaneous import rotary_path
 
-            ang, _ = rotary_path(axes @ self.frame.rotation, self.admissible.machine.profile)
-            tilt_sign = np.where(ang[a_idx, 0] < 0, -1.0, 1.0)
+            walk, _ = rotary_path(axes @ self.frame.rotation, self.admissible.machine.profile)
+            tilt_sign = np.where(walk[a_idx, 0] < 0, -1.0, 1.0)
         # the lifts along each axis that reach the safe height (the last level tried), when they lean
         # less than SAFE_LEAN
         za, zb = np.maximum(ua[:, 2], 1e-9), np.maximum(ub[:, 2], 1e-9)
@@ -366,7 +399,8 @@ class StockLinks:
         Lb = np.maximum(COLUMN_MM, np.where(safe_ok, up_b + 1.0, 0.0))
         ha = self.clear_heights(xyz[a_idx], ua, off, La)
         hb = self.clear_heights(xyz[b_idx], ub, off, Lb)
-        vias, rnd = self._vias(ua, ub)
+        c_walk = None if walk is None else (walk[a_idx, 1], walk[b_idx, 1] - walk[a_idx, 1])
+        vias, rnd = self._vias(ua, ub, tilt_sign, c_walk)
         k = a_idx.size
         pts_k = np.full((k, 6 + VIAS, 3), np.nan)
         ax_k = np.full((k, 6 + VIAS, 3), np.nan)

@@ -120,6 +120,8 @@ class FiveAxisLinksSummary(_Out):
                                          "lift cleared every check.")
     n_round_pole: int = Field(0, description="Planned links whose tool axis turns round the machine's rotary pole "
                                              "(tilt held, rotary axis turning) instead of through it.")
+    n_holder: int = Field(0, description="Planned links whose feed off or onto the surface meets the stock with the "
+                                         "shank or holder (the guard cuts the cutting position beside it out).")
     by_lift: dict[str, int] = Field(default_factory=dict, description="Planned links per lift over the higher of "
                                                                        "their two clear heights, mm; 'safe': both "
                                                                        "ends up their own axes to the safe height.")

@@ -296,3 +296,19 @@ def test_turns_round_the_pole_do_not_wind_c_up():
     chosen, _ = links._vias(ua, ub, sign, (c0, dc_old))
     assert c_range(plain) >= 3 * 360.0 - 1e-6
     assert c_range(chosen) <= 360.0 + 1e-6
+
+
+def test_a_link_whose_way_off_the_surface_meets_an_overhang_is_planned_and_counted():
+    """Stock overhangs the first pass (a shelf the holder meets on the way up a's axis): that feed is
+    the same at every lift and for any link, so the link is still planned over the stock and counted
+    for the guard, whose run on the stock finds the holder on exactly that move."""
+    lo, hi = (-60.0, -35.0, -35.0), (60.0, 35.0, 80.0)
+    stock = TriDexel.box((-45.0, -20.0, -30.0), (45.0, 20.0, 0.5), resolution_mm=0.5, domain_lo=lo, domain_hi=hi)
+    stock = stock.union(TriDexel.box((-45.0, -20.0, 24.0), (-30.0, 20.0, 30.0), resolution_mm=0.5,
+                                     domain_lo=lo, domain_hi=hi))
+    tp, pi = _path()
+    links = StockLinks(FRAME, BALL, stock, None, None, safe_z_mm=SAFE, clearance_mm=CLEAR + 0.5)
+    out, _ = links(tp, pi)
+    assert links.figures.n_planned == 1 and links.figures.n_holder == 1
+    off, _, _ = run_on_stock(out, FRAME, BALL, stock, None, None, rapid_clearance_mm=CLEAR)
+    assert off.holder[12] and not off.rapid[12:20].any()        # (move 0 starts inside the shelf)

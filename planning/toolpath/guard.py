@@ -19,7 +19,8 @@ the area frame) is guarded by :func:`guard_toolpath`:
    the path's points are clear of the part, so only stock is cut; a rapid straight across could cut
    the part); the end point of any other offending move is cut out of the path
    (:func:`planning.toolpath.safety.cut_moves`: the path retracts along the tool axis to the safe
-   height before it and comes down after it);
+   height before it and comes down after it; a 5-axis path's new links are then planned on the
+   stock by the caller's ``relink``, :mod:`planning.toolpath.fiveaxis.links`);
 4. what still offends after the last round: the path is cut off before its first offending move
    and ends with a retract (``truncated``), so no program carries a known collision.
 

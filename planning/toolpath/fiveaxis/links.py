@@ -82,16 +82,18 @@ class LinkFigures:
     """What :class:`StockLinks` did: ``n_links`` links between two cutting positions with a rapid in
     them; ``n_planned`` replaced by a link over the stock, ``by_lift`` how many at each lift (mm, or
     ``safe``: up the axes to the safe height); ``n_round_pole`` planned links whose axis turns round
-    the rotary pole;
+    the rotary pole; ``n_holder`` planned links whose feed off or onto the surface meets the stock
+    with the shank or holder (left to the guard, which cuts the cutting position beside it out);
     ``n_kept`` kept as they were (no lift cleared; ``kept_by`` the first failing check at the highest
     lift: ``column`` (a column not clear within :data:`COLUMN_MM`), ``stock``, ``obstacles``,
-    ``travel``, ``pole``, ``holder``: the feed off or onto the surface); ``length_before_mm`` / ``length_after_mm`` the reference point's way over
+    ``travel``, ``pole``); ``length_before_mm`` / ``length_after_mm`` the reference point's way over
     the replaced links before and after."""
 
     n_links: int = 0
     n_planned: int = 0
     n_kept: int = 0
     n_round_pole: int = 0
+    n_holder: int = 0
     by_lift: dict = field(default_factory=dict)
     kept_by: dict = field(default_factory=dict)
     length_before_mm: float = 0.0
@@ -99,7 +101,8 @@ class LinkFigures:
 
     def add(self, other: LinkFigures) -> None:
         """Add ``other``'s counts to these (the guard's relinking after a cut)."""
-        for name in ("n_links", "n_planned", "n_kept", "n_round_pole", "length_before_mm", "length_after_mm"):
+        for name in ("n_links", "n_planned", "n_kept", "n_round_pole", "n_holder", "length_before_mm",
+                     "length_after_mm"):
             setattr(self, name, getattr(self, name) + getattr(other, name))
         for mine, theirs in ((self.by_lift, other.by_lift), (self.kept_by, other.kept_by)):
             for key, v in theirs.items():
@@ -107,7 +110,7 @@ class LinkFigures:
 
     def as_dict(self) -> dict:
         return {"n_links": self.n_links, "n_planned": self.n_planned, "n_kept": self.n_kept,
-                "n_round_pole": self.n_round_pole,
+                "n_round_pole": self.n_round_pole, "n_holder": self.n_holder,
                 "by_lift": {str(k): v for k, v in self.by_lift.items()}, "kept_by": dict(self.kept_by),
                 "length_before_mm": round(self.length_before_mm, 1), "length_after_mm": round(self.length_after_mm, 1)}
 
@@ -314,9 +317,13 @@ class StockLinks:
         return ok & np.all((mpos >= lo) & (mpos <= hi), axis=1)
 
     def _check(self, pts: np.ndarray, ax: np.ndarray, tip_offset_mm: float, tilt_sign: np.ndarray) -> np.ndarray:
-        """(k,) the first failing check of each candidate link (module docstring, step 4): '' when it
-        passes, else 'stock', 'obstacles', 'travel' or 'pole'. ``tilt_sign`` (k,): the sign of the
-        tilt the posts' walk has at each link's start (:meth:`_travel_ok`)."""
+        """``(why, holder)``: (k,) the first failing check of each candidate link (module docstring,
+        step 4): '' when it passes, else 'stock', 'obstacles', 'travel' or 'pole'; and (k,) bool
+        whether the feed off or onto the surface meets the stock with the shank or holder. That feed is
+        the same at every lift and is the way off and on the surface of any link there (the
+        guard cuts the cutting position beside it out and the cut is linked again), so it does not
+        make a link fail. ``tilt_sign`` (k,): the sign of the tilt the posts' walk has at each link's
+        start (:meth:`_travel_ok`)."""
         k = pts.shape[0]
         why = np.full(k, "", dtype=object)
         link, s, e, a, rapid = self._steps(pts, ax)
@@ -328,10 +335,9 @@ class StockLinks:
         ap = a @ R
         grow = np.where(rapid, self.clearance, FEED_MARGIN_MM)
         dep = collide(self.stock, ts, te, ap, self.shape, which=rapid, grow_mm=grow)
+        holder = np.zeros(k, dtype=bool)
+        np.logical_or.at(holder, link, (dep > 0) & ~rapid)
         bad = np.zeros(k, dtype=bool)
-        np.logical_or.at(bad, link, (dep > 0) & ~rapid)
-        why[bad & (why == "")] = "holder"          # the feed off or onto the surface: shank or holder
-        bad[:] = False
         np.logical_or.at(bad, link, (dep > 0) & rapid)
         why[bad & (why == "")] = "stock"
         if self.obstacles is not None:
@@ -351,7 +357,7 @@ class StockLinks:
             for i in range(2, ax.shape[1] - 3):          # the arcs across, top a to top b
                 clear &= adm.arc_clear_of_pole(ax[:, i], ax[:, i + 1])
             why[~clear & (why == "")] = "pole"
-        return why
+        return why, holder
 
     def __call__(self, tp: Toolpath, pass_index, *, only_high: bool = False) -> tuple[Toolpath, np.ndarray | None]:
         """``(toolpath, pass_index)`` with the links planned on the stock (module docstring); the new
@@ -420,8 +426,9 @@ class StockLinks:
             else:
                 Ha = Hb = np.maximum(ha[P], hb[P]) + lift
             pts, ax = self._candidate(xyz[a_idx[P]], xyz[b_idx[P]], ua[P], ub[P], ha[P], hb[P], Ha, Hb, vias[P])
-            why = self._check(pts, ax, off, tilt_sign[P])
+            why, holder = self._check(pts, ax, off, tilt_sign[P])
             good = why == ""
+            figs.n_holder += int((good & holder).sum())
             pts_k[P[good]], ax_k[P[good]] = pts[good], ax[good]
             done[P[good]] = True
             why_last[P[~good]] = why[~good]

@@ -47,11 +47,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planning.simulate.dexel import TriDexel, collide, column_rise
+from planning.simulate.motion import RAPID as SIM_RAPID
 from planning.simulate.motion import ToolShape
-from planning.toolpath.fiveaxis.axes import slerp
+from planning.toolpath.fiveaxis.axes import _unit, slerp
+from planning.toolpath.fiveaxis.finishing import _touching
 from planning.toolpath.frames import AreaFrame
-from planning.toolpath.guard import AXIS_STEP_DEG
-from planning.toolpath.moves import FEED, RAPID, USE_CUT, USE_PLUNGE, USE_RAPID, USE_RETRACT, Toolpath
+from planning.toolpath.guard import part_moves
+from planning.toolpath.moves import (
+    FEED,
+    RAPID,
+    USE_PLUNGE,
+    USE_RAPID,
+    USE_RETRACT,
+    Toolpath,
+)
 
 __all__ = ["LIFTS_MM", "LINK_MARGIN_MM", "LinkFigures", "StockLinks", "air_links", "branch_angles"]
 
@@ -115,10 +124,6 @@ class LinkFigures:
                 "length_before_mm": round(self.length_before_mm, 1), "length_after_mm": round(self.length_after_mm, 1)}
 
 
-def _touching(tp: Toolpath) -> np.ndarray:
-    return (tp.kind == FEED) & np.isin(tp.use, (USE_CUT, USE_PLUNGE))
-
-
 def air_links(tp: Toolpath) -> tuple[np.ndarray, np.ndarray]:
     """``(a, b)``: for every link of ``tp`` (a run of points that are not cutting positions between
     two that are, with at least one rapid among the moves into its points), the cutting position
@@ -152,10 +157,6 @@ def branch_angles(axes_p: np.ndarray, profile, tilt_sign) -> tuple[np.ndarray, n
     at_pole = np.abs(sols.angles_deg[:, 0, 0]) < 1e-9
     j = np.where(at_pole, np.where(sols.valid[:, 0], 0, 1), j)
     return sols.angles_deg[rows, j], np.asarray(sols.valid[rows, j], dtype=bool)
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
 class StockLinks:
@@ -281,26 +282,19 @@ class StockLinks:
         c = np.unwrap(np.radians(ang[:, 1].reshape(k, m)), axis=1)
         return np.degrees(c[:, -1] - c[:, 0])
 
-    def _steps(self, pts: np.ndarray, ax: np.ndarray):
-        """The moves of every candidate link as the guard runs them (the reference point linear, the
-        axis along the great circle in steps of at most AXIS_STEP_DEG, each step with its end's
-        axis): ``(link, start ref, end ref, end axis, rapid)`` per step, area frame."""
+    def _moves(self, pts: np.ndarray, ax: np.ndarray, tip_offset_mm: float):
+        """The moves of every candidate link as the guard runs them (:func:`planning.toolpath.guard.part_moves`
+        on the links joined into one path, the joining moves left out): ``(link, start tip, end tip,
+        axis, rapid)`` per step, tips and axes in the part frame."""
         k, m = pts.shape[:2]
-        r0, r1 = pts[:, :-1].reshape(-1, 3), pts[:, 1:].reshape(-1, 3)
-        a0, a1 = ax[:, :-1].reshape(-1, 3), ax[:, 1:].reshape(-1, 3)
-        link = np.repeat(np.arange(k), m - 1)
-        kinds = np.ones(m - 1, dtype=bool)
-        kinds[0] = kinds[-1] = False                    # the feed up and the plunge
-        rapid = np.tile(kinds, k)
-        ang = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", a0, a1), -1.0, 1.0)))
-        n = np.maximum(1, np.ceil(ang / AXIS_STEP_DEG - 1e-12)).astype(np.int64)
-        src = np.repeat(np.arange(r0.shape[0]), n)
-        j = np.arange(src.size) - (np.cumsum(n) - n)[src]
-        f0, f1 = j / n[src], (j + 1) / n[src]
-        s = r0[src] + f0[:, None] * (r1 - r0)[src]
-        e = r0[src] + f1[:, None] * (r1 - r0)[src]
-        a = slerp(a0[src], a1[src], f1)
-        return link[src], s, e, a, rapid[src]
+        kind = np.tile(np.array([FEED, FEED] + [RAPID] * (m - 3) + [FEED], np.int8), k)
+        P = k * m
+        joined = Toolpath(xyz_mm=pts.reshape(-1, 3), kind=kind, centre_mm=np.full((P, 3), np.nan),
+                          plane=np.zeros(P, np.int8), use=np.zeros(P, np.int8), tip_offset_mm=tip_offset_mm,
+                          axis=ax.reshape(-1, 3))
+        pm = part_moves(joined, self.frame)
+        own = pm.source % m != 0                       # not the move into a link's first point
+        return pm.source[own] // m, pm.start[own], pm.end[own], pm.axis[own], pm.kind[own] == SIM_RAPID
 
     def _travel_ok(self, tips_p: np.ndarray, axes_p: np.ndarray, tilt_sign: np.ndarray) -> np.ndarray:
         """(n,) bool: the machine reaches each tool tip (part frame) with its axis on the rotary
@@ -326,13 +320,7 @@ class StockLinks:
         start (:meth:`_travel_ok`)."""
         k = pts.shape[0]
         why = np.full(k, "", dtype=object)
-        link, s, e, a, rapid = self._steps(pts, ax)
-        R = self.frame.rotation
-        off = float(tip_offset_mm)
-        # the tool's start of each step carries the step's (end) axis, as the guard runs it
-        ts = self.frame.to_part(s - off * a)
-        te = self.frame.to_part(e - off * a)
-        ap = a @ R
+        link, ts, te, ap, rapid = self._moves(pts, ax, tip_offset_mm)
         grow = np.where(rapid, self.clearance, FEED_MARGIN_MM)
         dep = collide(self.stock, ts, te, ap, self.shape, which=rapid, grow_mm=grow)
         holder = np.zeros(k, dtype=bool)

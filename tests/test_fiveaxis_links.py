@@ -312,3 +312,166 @@ def test_a_link_whose_way_off_the_surface_meets_an_overhang_is_planned_and_count
     assert links.figures.n_planned == 1 and links.figures.n_holder == 1
     off, _, _ = run_on_stock(out, FRAME, BALL, stock, None, None, rapid_clearance_mm=CLEAR)
     assert off.holder[12] and not off.rapid[12:20].any()        # (move 0 starts inside the shelf)
+
+
+def test_every_arc_round_the_pole_clears_it_with_ends_just_off_it():
+    """Axes 0.02-1 degree outside the 3-degree pole clearance at random azimuths, going round the pole
+    the way the arc's midpoint gives: every arc between neighbouring axes keeps the clearance from
+    the pole (sampled, plain geometry). (Going the long way round in steps of 90 degrees or more, no
+    held tilt clears an end that close; such a link fails the pole check and is kept.)"""
+    adm = _PoleAndMachine()
+    pole = adm.pole_f
+    e1 = np.cross(pole, [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(pole, e1)
+    rng = np.random.default_rng(7)
+    n = 400
+    t0, t1 = (np.radians(3.0 + rng.uniform(0.02, 1.0, n)) for _ in range(2))
+    p0 = rng.uniform(0, 2 * np.pi, n)
+    p1 = p0 + rng.uniform(0.5, 2 * np.pi - 0.5, n)
+
+    def at(t, ph):
+        return (np.cos(t)[:, None] * pole + np.sin(t)[:, None] * (np.cos(ph)[:, None] * e1 + np.sin(ph)[:, None] * e2))
+
+    ua, ub = at(t0, p0), at(t1, p1)
+    stock, _ = _stock(2.0)
+    links = StockLinks(FRAME, BALL, stock, None, adm, safe_z_mm=SAFE, clearance_mm=CLEAR + 0.5)
+
+    def closest(vias):
+        seq = np.concatenate([ua[:, None], vias, ub[:, None]], axis=1)
+        out = np.full(n, 180.0)
+        for i in range(seq.shape[1] - 1):
+            for t in np.linspace(0, 1, 101):
+                v = np.array([_slerp1(seq[j, i], seq[j, i + 1], t) for j in range(n)])
+                out = np.minimum(out, np.degrees(np.arccos(np.clip(v @ pole, -1, 1))))
+        return out
+
+    vias, rnd = links._vias(ua, ub)
+    assert rnd.sum() > n // 2                      # the arc between most pairs passes the pole
+    assert closest(vias)[rnd].min() >= 3.0 - 1e-6
+
+
+class _FemurPole(_PoleOnly):
+    """The compact trunnion's pole in the area frame of set-up 0 of the 50k-point femur-like 5axis
+    plan (the frame's rotation as planned)."""
+
+    def __init__(self):
+        from planning.simulate.kinematics import MachineModel
+
+        self.machine = MachineModel("compact_trunnion_bc", np.zeros(3))
+        self.gauge = 115.0
+        self.pole_f = np.array([0.00607142082599305, 0.939673006640418, 0.3420201433256687])
+
+
+FEMUR_FRAME = AreaFrame(rotation=np.array([[0.9999791270623429, 0.00220981646036539, 0.00607142082599305],
+                                           [-0.006461071090369147, 0.3420130043605396, 0.939673006640418],
+                                           [0.0, -0.9396926207859084, 0.3420201433256687]]), origin_mm=np.zeros(3))
+
+
+def test_the_femur_links_kept_for_the_pole_go_round_it(monkeypatch):
+    """The two links of the 50k-point femur-like plan that no level planned (kept for the pole): ends
+    3.08 and 3.13 degrees off the pole, C already wound to -2,782 and -4,176 degrees, so each goes
+    round the long way (about 300 degrees of azimuth in four steps). With the held tilt
+    at the larger end's plus 2 degrees the first or last arc passes within the 3-degree clearance;
+    grown, every arc clears it."""
+    from planning.toolpath.fiveaxis import links as L
+
+    adm = _FemurPole()
+    ua = np.array([[0.014085709261137279, 0.9564202439101848, 0.2916537499045632],
+                   [0.057594919342950066, 0.9501598151168129, 0.3063970479672793]])
+    ub = np.array([[-0.027987164239363482, 0.954147188785436, 0.29802661084320736],
+                   [-0.001045165330596131, 0.9568247539363341, 0.2906635475667795]])
+    c_walk = (np.array([-2781.5275706011143, -4175.847559054088]), np.array([-44.93534177611764, -61.76020852383499]))
+    stock, _ = _stock(2.0)
+    links = StockLinks(FEMUR_FRAME, BALL, stock, None, adm, safe_z_mm=SAFE, clearance_mm=CLEAR + 0.5)
+
+    def closest(vias):
+        seq = np.concatenate([ua[:, None], vias, ub[:, None]], axis=1)
+        return min(math.degrees(math.acos(min(1.0, _slerp1(seq[j, i], seq[j, i + 1], t) @ adm.pole_f)))
+                   for j in range(2) for i in range(seq.shape[1] - 1) for t in np.linspace(0, 1, 201))
+
+    vias, rnd = links._vias(ua, ub, np.ones(2), c_walk)
+    assert rnd.all()
+    assert abs(links._c_turn(ua, vias, ub, np.ones(2))).min() > 180.0       # the long way round
+    assert closest(vias) >= 3.0 - 1e-6
+    monkeypatch.setattr(L, "ROUND_TILT_STEPS", 0)
+    assert closest(links._vias(ua, ub, np.ones(2), c_walk)[0]) < 3.0
+
+
+class _Machine:
+    """The machine part of an Admissible (travel, no pole): the compact trunnion, the part on a 150 mm
+    riser, the make-run tool's gauge length."""
+
+    def __init__(self):
+        from planning.simulate.kinematics import MachineModel
+
+        self.machine = MachineModel("compact_trunnion_bc", np.array([0.0, 0.0, 150.0]))
+        self.gauge = 115.0
+        self.pole_f = None
+
+
+def test_a_link_the_table_tilted_past_90_degrees_would_take_out_of_travel_goes_higher():
+    """A link of the 50k-point femur-like plan: 312 mm along the part, the table tilted 93 degrees at
+    one end and 113 at the other. At every lift up to 50 mm the tip's way across (the part's far side
+    swung down halfway) takes the spindle below the machine's Z travel; at 100 mm it stays within.
+    The planned link, sampled every 0.25 degree and 1 mm with the angles the posts' own walk gives
+    (``rotary_path``, not the planner's branch choice), stays within the linear travel; the same link
+    at 50 mm does not."""
+    from planning.post.simultaneous import rotary_path
+
+    adm = _Machine()
+    prof = adm.machine.profile
+    ua = np.array([0.347, 0.937, -0.046])
+    ub = np.array([-0.627, 0.676, -0.388])
+    ua, ub = ua / np.linalg.norm(ua), ub / np.linalg.norm(ub)
+    ta, tb = np.array([156.27, 33.44, 13.03]), np.array([-156.44, 41.57, 6.46])
+    a, b = ta + R * ua, tb + R * ub
+    side_a = np.cross(ua, [0.0, 0.0, 1.0])
+    side_a /= np.linalg.norm(side_a)
+    side_b = np.cross(ub, [0.0, 0.0, 1.0])
+    side_b /= np.linalg.norm(side_b)
+    pass_a = a[None] + np.linspace(-4, 0, 5)[:, None] * side_a
+    pass_b = b[None] + np.linspace(0, 4, 5)[:, None] * side_b
+    xyz = np.concatenate([pass_a, [a + 2 * ua, b + 2 * ub], pass_b])
+    kind = np.array([FEED] * 5 + [FEED, RAPID] + [FEED] * 5, np.int8)
+    use = np.array([USE_CUT] * 5 + [USE_RETRACT, USE_RAPID, USE_PLUNGE] + [USE_CUT] * 4, np.int8)
+    axis = np.concatenate([np.repeat(ua[None], 6, 0), np.repeat(ub[None], 6, 0)])
+    P = xyz.shape[0]
+    pi = np.array([0] * 5 + [-1, -1] + [1] * 5, np.int32)
+    tp = Toolpath(xyz_mm=xyz, kind=kind, centre_mm=np.full((P, 3), np.nan), plane=np.zeros(P, np.int8), use=use,
+                  tip_offset_mm=R, axis=axis)
+    # an empty stock (a small block far from the link): only the travel decides
+    lo, hi = (-250.0, -250.0, -250.0), (250.0, 250.0, 250.0)
+    stock = TriDexel.box((-240.0, -240.0, -240.0), (-238.0, -238.0, -238.0), resolution_mm=2.0, domain_lo=lo,
+                         domain_hi=hi)
+    links = StockLinks(FRAME, BALL, stock, None, adm, safe_z_mm=400.0, clearance_mm=CLEAR + 0.5)
+
+    def lowest_margin(path_xyz, path_axis):
+        """The smallest distance (mm) of the controlled point inside the Z travel's floor, and whether
+        X and Y stay within theirs, over the path sampled finely, at the posts' walk's angles."""
+        refs, axes = [], []
+        for k in range(path_xyz.shape[0] - 1):
+            ang = math.degrees(math.acos(np.clip(path_axis[k] @ path_axis[k + 1], -1, 1)))
+            m = int(max(np.ceil(np.linalg.norm(path_xyz[k + 1] - path_xyz[k]) / 1.0), np.ceil(ang / 0.25), 1))
+            for t in np.linspace(0.0, 1.0, m + 1)[1:]:
+                refs.append(path_xyz[k] + t * (path_xyz[k + 1] - path_xyz[k]))
+                axes.append(_slerp1(path_axis[k], path_axis[k + 1], t))
+        refs, axes = np.array(refs), np.array(axes)
+        angles, ok = rotary_path(axes, prof)
+        mpos = adm.machine.machine_from_tip(refs - R * axes, angles, adm.gauge)
+        (x0, x1), (y0, y1), (z0, z1) = prof.linear_limits_mm
+        inside_xy = bool(np.all((mpos[:, 0] >= x0) & (mpos[:, 0] <= x1) & (mpos[:, 1] >= y0) & (mpos[:, 1] <= y1)))
+        return float((mpos[:, 2] - z0).min()), inside_xy and bool(ok.all())
+
+    out, _ = links(tp, pi)
+    f = links.figures
+    assert f.n_planned == 1 and f.n_kept == 0
+    assert "100" in f.by_lift                                 # no lower lift passed
+    margin, inside = lowest_margin(out.xyz_mm, out.axis)
+    assert inside and margin >= 0.0
+    # the same link 50 mm up: out of the Z travel halfway
+    h = 1.0 + 50.0
+    low = np.array([a, a + 1.0 * ua, a + h * ua, b + h * ub, b + 1.0 * ub, b])
+    low_axis = np.array([ua, ua, ua, ub, ub, ub])
+    margin50, _ = lowest_margin(low, low_axis)
+    assert margin50 < -5.0

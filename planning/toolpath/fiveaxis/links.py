@@ -34,7 +34,8 @@ than there will be when the link runs, so what is clear there is clear then):
    that fails is tried at the next lift ``l`` of :data:`LIFTS_MM`, then with both ends up their own
    axes to the safe height (the across then runs over all the stock; axes leaning less than 75
    degrees from the set-up axis); one that fails every level keeps the link it had (the guard, still
-   run on every operation, decides on it).
+   run on every operation, decides on it; the verification's travel check finds what it would
+   leave out of travel).
 
 Lengths in mm (area frame, ball-centre reference points), angles in degrees.
 """
@@ -65,7 +66,7 @@ from planning.toolpath.moves import (
 __all__ = ["LIFTS_MM", "LINK_MARGIN_MM", "LinkFigures", "StockLinks", "air_links", "branch_angles"]
 
 #: The lifts tried, mm over the higher of the two clear heights (step 2), lowest first.
-LIFTS_MM = (1.0, 3.0, 8.0, 20.0, 50.0)
+LIFTS_MM = (1.0, 3.0, 8.0, 20.0, 50.0, 100.0)
 
 #: The longest column read along a tool axis (mm): a link whose column is not clear below this is kept.
 COLUMN_MM = 120.0
@@ -81,6 +82,14 @@ SAFE_LEAN_COS = math.cos(math.radians(75.0))
 
 #: Points across a link between its two tops (the axis turning in VIAS + 1 arcs).
 VIAS = 3
+
+#: Round the pole, the held tilt grows by this (degrees) where an arc of the turn would still come
+#: within the pole clearance, at most ROUND_TILT_STEPS times.
+ROUND_TILT_STEP_DEG = 3.0
+ROUND_TILT_STEPS = 4
+
+#: The fractions of the way (and of the axis's turn) at which the VIAS points across lie.
+_EVEN = np.arange(1, VIAS + 1) / (VIAS + 1.0)
 
 #: Extra growth of the shank and holder on a link's feed moves (mm): a margin over the guard's test.
 FEED_MARGIN_MM = 0.2
@@ -204,8 +213,7 @@ class StockLinks:
         across (evenly between the tops), top b, down (b's clear height), b; and their axes: ``vias``
         (k, V, 3) across, ``a``'s before, ``b``'s after."""
         top_a, top_b = xyz_a + Ha[:, None] * ua, xyz_b + Hb[:, None] * ub
-        V = vias.shape[1]
-        f = (np.arange(1, V + 1) / (V + 1.0))[None, :, None]
+        f = _EVEN[None, :, None]
         across = top_a[:, None, :] + f * (top_b - top_a)[:, None, :]
         pts = np.concatenate([np.stack([xyz_a, xyz_a + ha[:, None] * ua, top_a], 1), across,
                               np.stack([top_b, xyz_b + hb[:, None] * ub, xyz_b], 1)], axis=1)
@@ -217,15 +225,16 @@ class StockLinks:
         great circle from ``ua`` to ``ub``, or, where that arc passes the rotary pole closer than an
         admissible position may (``round_pole``), round the pole: at a fixed angle from it (the larger
         of the two ends' plus 2 degrees, at least the pole clearance plus 2), the azimuth about it
-        turning from ``ua``'s to ``ub``'s the way of the arc's midpoint, in even steps (so each arc
-        between neighbours keeps off the pole), the tilt held and the rotary axis turning.
+        turning from ``ua``'s to ``ub``'s the way of the arc's midpoint, in even steps, the tilt held
+        and the rotary axis turning; where an arc between neighbours would still pass within the
+        clearance (an end just off the pole, a long step of azimuth), the held tilt grows by :data:`ROUND_TILT_STEP_DEG` until every arc clears.
 
         Either way round turns the rotary axis about half a turn; with ``c_walk`` (the posts' walk on
         the path as it was: the rotary angle at each link's start and its change over the link, deg)
         the links are taken in path order and each goes round the way that brings a continuous C
         nearer 0, so that the turns round the pole do not wind C up (the C register)."""
         k = ua.shape[0]
-        f = np.arange(1, VIAS + 1) / (VIAS + 1.0)
+        f = _EVEN
         vias = np.stack([slerp(ua, ub, np.full(k, t)) for t in f], axis=1)
         adm = self.admissible
         if adm is None or adm.pole_f is None:
@@ -251,14 +260,16 @@ class StockLinks:
             th = np.radians(np.maximum(np.maximum(np.degrees(np.arccos(np.clip(a @ p, -1, 1))),
                                                   np.degrees(np.arccos(np.clip(b @ p, -1, 1)))) + 2.0, clr))
 
-            def round_vias(sp):
+            def round_vias(sp, tilt=th):
                 az = az_a[:, None] + f[None, :] * sp[:, None]
                 ring = np.cos(az)[..., None] * e1 + np.sin(az)[..., None] * e2
-                return np.cos(th)[:, None, None] * p + np.sin(th)[:, None, None] * ring
+                return np.cos(tilt)[:, None, None] * p + np.sin(tilt)[:, None, None] * ring
 
+            span_used = span
             near = round_vias(span)
-            if c_walk is not None and adm.machine.profile.rotary_continuous:
-                other = round_vias(np.where(via_ccw, ccw - 2 * np.pi, ccw))
+            if c_walk is not None and adm.machine is not None and adm.machine.profile.rotary_continuous:
+                span_other = np.where(via_ccw, ccw - 2 * np.pi, ccw)
+                other = round_vias(span_other)
                 dc_near = self._c_turn(a, near, b, tilt_sign[rnd])
                 dc_other = self._c_turn(a, other, b, tilt_sign[rnd])
                 c0, dc_old = c_walk[0][rnd], c_walk[1][rnd]
@@ -269,6 +280,18 @@ class StockLinks:
                     take_other[i] = abs(c + dc_other[i]) < abs(c + dc_near[i])
                     offset += (dc_other[i] if take_other[i] else dc_near[i]) - dc_old[i]
                 near[take_other] = other[take_other]
+                span_used = np.where(take_other, span_other, span)
+            # an end just off the pole and a long step of azimuth (the longer way round) can bring the first or last arc within the clearance: the held tilt
+            # grows until every arc of the turn clears (at most ROUND_TILT_STEPS times)
+            for _ in range(ROUND_TILT_STEPS):
+                seq = np.concatenate([a[:, None], near, b[:, None]], axis=1)
+                clear = np.ones(a.shape[0], dtype=bool)
+                for i in range(seq.shape[1] - 1):
+                    clear &= adm.arc_clear_of_pole(seq[:, i], seq[:, i + 1])
+                if clear.all():
+                    break
+                th = np.where(clear, th, th + np.radians(ROUND_TILT_STEP_DEG))
+                near[~clear] = round_vias(span_used, th)[~clear]
             vias[rnd] = near
         return vias, rnd
 

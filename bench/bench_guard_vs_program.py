@@ -34,13 +34,13 @@ def _lengths(stock, family: int) -> np.ndarray:
 
 
 def _compare(model, program) -> str:
-    """Program minus model, per ray family (X, Y, Z rays)."""
+    """Program minus model, per ray family (X, Y, Z rays; each family sees the same volume up to the
+    rays' spacing)."""
     out = []
     for f in range(3):
         d = _lengths(program, f) - _lengths(model, f)
         out.append(f"{'XYZ'[f]}: {int((np.abs(d) > 0.05).sum())} rays, +{d.max():.3f} / {d.min():.3f} mm, "
                    f"{d.sum() * program.res ** 2:+.1f} mm3")
-        # the three families see the same volume up to the rays' spacing; each is printed
     return "; ".join(out)
 
 
@@ -51,7 +51,6 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=float, nargs="*", default=[1.0, 0.25], help="guard steps replayed, deg")
     args = ap.parse_args(argv)
 
-    import planning.toolpath.guard as guard
     from bench.bench_fiveaxis import FEMUR
     from planning.inputs import Cloud, samples
     from planning.orientations.kinematics import as_profile
@@ -59,7 +58,7 @@ def main(argv=None) -> int:
     from planning.simulate.dexel import simulate_moves
     from planning.simulate.program import read_program
     from planning.simulate.verify import tool_shapes
-    from planning.toolpath import area_paths
+    from planning.toolpath import area_paths, guard
     from schemas.params import parse_config
 
     if args.axis_step is not None:

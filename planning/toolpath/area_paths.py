@@ -49,6 +49,7 @@ from planning.geometry.tool import ToolAssembly
 from planning.geometry.triangles import TriangleDropSurface
 from planning.progress import Throttled
 from planning.toolpath.balldrop import DropSurface
+from planning.toolpath.carried import stock_figures
 from planning.toolpath.finishing import FinishingPath, finishing_passes
 from planning.toolpath.finishing_worker import (
     FinishingWorker,
@@ -57,9 +58,7 @@ from planning.toolpath.finishing_worker import (
     binned_cloud,
     region_passes,
 )
-from planning.toolpath.carried import stock_figures
 from planning.toolpath.frames import AreaFrame, area_frame
-from planning.toolpath.fiveaxis.register import route_unwinding_links
 from planning.toolpath.guard import guard_toolpath
 from planning.toolpath.moves import ARC_CCW, ARC_CW, FEED, Toolpath, concatenate
 from planning.toolpath.reduce import fit_arcs, reduce_cl
@@ -684,17 +683,7 @@ def _guard_finishing(ap: AreaPaths, carried, area_f, fp, progress: Progress | No
     not at the set-up's fixed angles."""
     five = ap.finishing.axis is not None
     links = getattr(ap, "five_axis_links", None) if five else None
-    relink = None
-    if links is not None:
-        def relink(tp, pi):
-            """The cut's links over the stock, then (continuous C) the links where C must turn back
-            through the safe height again (the relinking may have replaced such a link)."""
-            tp, pi = links(tp, pi, only_high=True)
-            adm = links.admissible
-            if adm is not None and adm.machine is not None:
-                tp, pi, _ = route_unwinding_links(tp, pi, profile=adm.machine.profile, rotation=ap.frame.rotation,
-                                                  safe_z_mm=ap.safe_z_mm)
-            return tp, pi
+    relink = None if links is None else links.relink
     g = guard_toolpath(ap.finishing, ap.frame, carried.finishing_shape, carried.stock, carried.obstacles,
                        None if (carried.machines is None or five) else carried.machines[ap.area], safe_z_mm=ap.safe_z_mm,
                        rapid_clearance_mm=carried.rapid_clearance_mm, progress=progress, relink=relink)
@@ -716,7 +705,7 @@ def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, to
     travel = None
     if machine is not None:
         gauge = carried.finishing_shape.gauge_length_mm
-        travel = lambda tips: machine.travel_ok(tips, gauge)      # noqa: E731
+        travel = lambda tips: machine.travel_ok(tips, gauge)
     out, figs = guard_finishing(fin, ap.frame, axis, tool=tool, obstacles_part=obstacles, area_points_frame=area_f,
                                 safe_z_mm=ap.safe_z_mm, fixtures=fixtures, stock=carried.stock,
                                 stock_shape=carried.finishing_shape, travel_ok=travel,

@@ -52,6 +52,7 @@ from planning.simulate.motion import RAPID as SIM_RAPID
 from planning.simulate.motion import ToolShape
 from planning.toolpath.fiveaxis.axes import _unit, slerp
 from planning.toolpath.fiveaxis.finishing import _touching
+from planning.toolpath.fiveaxis.register import route_unwinding_links
 from planning.toolpath.frames import AreaFrame
 from planning.toolpath.guard import part_moves
 from planning.toolpath.moves import (
@@ -227,7 +228,8 @@ class StockLinks:
         of the two ends' plus 2 degrees, at least the pole clearance plus 2), the azimuth about it
         turning from ``ua``'s to ``ub``'s the way of the arc's midpoint, in even steps, the tilt held
         and the rotary axis turning; where an arc between neighbours would still pass within the
-        clearance (an end just off the pole, a long step of azimuth), the held tilt grows by :data:`ROUND_TILT_STEP_DEG` until every arc clears.
+        clearance (an end just off the pole, a long step of azimuth), the held tilt grows by
+        :data:`ROUND_TILT_STEP_DEG` until every arc clears.
 
         Either way round turns the rotary axis about half a turn; with ``c_walk`` (the posts' walk on
         the path as it was: the rotary angle at each link's start and its change over the link, deg)
@@ -260,16 +262,16 @@ class StockLinks:
             th = np.radians(np.maximum(np.maximum(np.degrees(np.arccos(np.clip(a @ p, -1, 1))),
                                                   np.degrees(np.arccos(np.clip(b @ p, -1, 1)))) + 2.0, clr))
 
-            def round_vias(sp, tilt=th):
+            def round_vias(sp, tilt):
                 az = az_a[:, None] + f[None, :] * sp[:, None]
                 ring = np.cos(az)[..., None] * e1 + np.sin(az)[..., None] * e2
                 return np.cos(tilt)[:, None, None] * p + np.sin(tilt)[:, None, None] * ring
 
             span_used = span
-            near = round_vias(span)
+            near = round_vias(span, th)
             if c_walk is not None and adm.machine is not None and adm.machine.profile.rotary_continuous:
                 span_other = np.where(via_ccw, ccw - 2 * np.pi, ccw)
-                other = round_vias(span_other)
+                other = round_vias(span_other, th)
                 dc_near = self._c_turn(a, near, b, tilt_sign[rnd])
                 dc_other = self._c_turn(a, other, b, tilt_sign[rnd])
                 c0, dc_old = c_walk[0][rnd], c_walk[1][rnd]
@@ -281,19 +283,23 @@ class StockLinks:
                     offset += (dc_other[i] if take_other[i] else dc_near[i]) - dc_old[i]
                 near[take_other] = other[take_other]
                 span_used = np.where(take_other, span_other, span)
-            # an end just off the pole and a long step of azimuth (the longer way round) can bring the first or last arc within the clearance: the held tilt
-            # grows until every arc of the turn clears (at most ROUND_TILT_STEPS times)
+            # an end just off the pole and a long step of azimuth (the longer way round) can bring the
+            # first or last arc within the clearance: the held tilt grows until every arc clears
             for _ in range(ROUND_TILT_STEPS):
-                seq = np.concatenate([a[:, None], near, b[:, None]], axis=1)
-                clear = np.ones(a.shape[0], dtype=bool)
-                for i in range(seq.shape[1] - 1):
-                    clear &= adm.arc_clear_of_pole(seq[:, i], seq[:, i + 1])
+                clear = self._arcs_clear(np.concatenate([a[:, None], near, b[:, None]], axis=1))
                 if clear.all():
                     break
                 th = np.where(clear, th, th + np.radians(ROUND_TILT_STEP_DEG))
                 near[~clear] = round_vias(span_used, th)[~clear]
             vias[rnd] = near
         return vias, rnd
+
+    def _arcs_clear(self, seq: np.ndarray) -> np.ndarray:
+        """(k,) bool: every arc between neighbouring axes of ``seq`` (k, m, 3) keeps the pole clearance."""
+        clear = np.ones(seq.shape[0], dtype=bool)
+        for i in range(seq.shape[1] - 1):
+            clear &= self.admissible.arc_clear_of_pole(seq[:, i], seq[:, i + 1])
+        return clear
 
     def _c_turn(self, a: np.ndarray, vias: np.ndarray, b: np.ndarray, tilt_sign: np.ndarray) -> np.ndarray:
         """(k,) how far (deg) the rotary axis turns from axis ``a`` through ``vias`` (k, V, 3) to ``b``
@@ -364,9 +370,7 @@ class StockLinks:
             np.logical_or.at(b3, link, ~ok)
             why[b3 & (why == "")] = "travel"
         if adm is not None and adm.pole_f is not None:
-            clear = np.ones(k, dtype=bool)
-            for i in range(2, ax.shape[1] - 3):          # the arcs across, top a to top b
-                clear &= adm.arc_clear_of_pole(ax[:, i], ax[:, i + 1])
+            clear = self._arcs_clear(ax[:, 2:ax.shape[1] - 2])   # the arcs across, top a to top b
             why[~clear & (why == "")] = "pole"
         return why, holder
 
@@ -390,6 +394,20 @@ class StockLinks:
         if only_high:
             self.figures.add(figs)
         return out
+
+    def relink(self, tp: Toolpath, pass_index) -> tuple[Toolpath, np.ndarray | None]:
+        """The guard's relinking after a cut (:func:`planning.toolpath.guard.guard_toolpath` ``relink``):
+        the links through the safe height the cut made planned on the stock (``only_high``), then, on
+        a machine with a continuous C, the links where C must turn back routed through the safe height
+        again (:func:`planning.toolpath.fiveaxis.register.route_unwinding_links`; the relinking may
+        have replaced such a link), as :func:`planning.toolpath.fiveaxis.finishing.five_axis_path`
+        does after its links."""
+        tp, pass_index = self(tp, pass_index, only_high=True)
+        adm = self.admissible
+        if adm is not None and adm.machine is not None:
+            tp, pass_index, _ = route_unwinding_links(tp, pass_index, profile=adm.machine.profile,
+                                                      rotation=self.frame.rotation, safe_z_mm=self.safe_z)
+        return tp, pass_index
 
     def _plan(self, tp: Toolpath, pass_index, a_idx: np.ndarray, b_idx: np.ndarray, figs: LinkFigures):
         """The links between ``a_idx`` and ``b_idx`` planned (:meth:`__call__`), figures into ``figs``."""

@@ -79,6 +79,46 @@ def test_a_ball_below_the_surface_reads_negative_and_far_points_are_not_reached(
     assert np.isinf(got[1]) and got[1] > 0 and np.isinf(got[2]) and np.isinf(got[3])
 
 
+def _left_brute(points, m) -> np.ndarray:
+    """min over the feed moves of dist(p, ball-centre segment) - R, pair by pair."""
+    c0, c1 = m.start_mm + R * m.axis, m.end_mm + R * m.axis
+    d = c1 - c0
+    w = points[:, None, :] - c0[None]
+    t = np.clip((w * d[None]).sum(axis=2) / np.maximum((d * d).sum(axis=1), 1e-300)[None], 0.0, 1.0)
+    return np.linalg.norm(w - t[:, :, None] * d[None], axis=2).min(axis=1) - R
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_within_the_reach_it_is_the_brute_force_and_never_below_it_beyond(seed):
+    """The reach the module promises (``BEYOND_MM``): every point with at most that much left is
+    measured exactly (the least over all moves, against brute force); farther points are either not
+    reached (+inf: the moves are found near their tips, so a point up by the shank 2.4 mm from the
+    ball's sphere can be) or read at least the brute force (the least over the moves found)."""
+    from planning.simulate.finish import BEYOND_MM
+
+    rng = np.random.default_rng(seed)
+    n = 60
+    s = rng.uniform(-20, 20, (n, 3))
+    e = s + rng.normal(size=(n, 3)) * rng.uniform(0.1, 12.0, (n, 1))
+    ax = rng.normal(size=(n, 3)) + [0.0, 0.0, 2.0]
+    ax /= np.linalg.norm(ax, axis=1, keepdims=True)
+    m = _motion(s, e)
+    m.axis[:] = ax
+    pts = np.concatenate([rng.uniform(-30, 30, (4000, 3)),
+                          s + R * ax + rng.normal(size=(n, 3)) * 3.5])      # near the balls too
+    ref = _left_brute(pts, m)
+    got = finish_left_mm(pts, [m], BALL)
+    within = ref <= BEYOND_MM
+    assert within.sum() > 50 and (~within).sum() > 1000
+    np.testing.assert_allclose(got[within], ref[within], atol=1e-9)
+    assert (got[~within] >= ref[~within] - 1e-9).all()
+    # the reach is not a sphere about the ball: beside the shank, above the ball's centre, 2.4 mm left
+    # is not reached, while 2.4 mm left below the tip is
+    one = _motion([(0, 0, 0)], [(4, 0, 0)])
+    far = finish_left_mm(np.array([[7.0, 0.0, 7.5], [4.0, 0.0, -2.4]]), [one], BALL)
+    assert np.isinf(far[0]) and far[1] == pytest.approx(2.4, abs=1e-12)
+
+
 def test_only_the_finishing_tools_feed_moves_count_each_on_its_own_axis():
     """Rapids and another tool's moves leave nothing; a move with a tilted axis has its ball centre
     up that axis (5-axis moves as the reader cut them, each chord its own axis)."""

@@ -261,3 +261,39 @@ def test_the_same_scan_gives_the_same_5_axis_plan(five):
     assert set(first.arrays) == set(again.arrays)
     for key in first.arrays:
         assert np.array_equal(first.arrays[key], again.arrays[key]), key
+
+
+def test_the_cli_slot_from_two_set_ups_keeps_c_within_its_register(tmp_path):
+    """A new user's 5-axis plan (the bundled draft_slot sample, written and planned by the CLI, two
+    set-ups): the finishing of set-up 0 winds C by whole turns (the passes go round the rotary pole
+    the same way), so links must be routed through the safe height where the post turns C back.
+    The guard cuts and relinks that finishing after the routing; it used to replan those links lower
+    (it had no pass index to route them again) and the program wound C to -5,878 degrees, far outside
+    the +-3,600 register. Every C word of every posted program lies within the register, and the
+    finishing that winds turns C back at machine Z0 (``G53 G0 Z0`` between its moves)."""
+    import re
+
+    from planning.orientations.kinematics import load_profile
+    from scanmill.cli import main
+
+    ply, out = tmp_path / "slot.ply", tmp_path / "plan"
+    assert main(["sample", "draft_slot", "--out", str(ply)]) == 0
+    main(["plan", str(ply), "--out", str(out), "--set", "paths.finishing.mode=5axis", "--set", "setups.max_setups=2",
+          "--set", "simulate.enabled=false"])
+    prof = load_profile("compact_trunnion_bc")
+    limit = float(prof.rotary_limits_deg[1])
+    turned_back = 0
+    programs = sorted(out.glob("area_*.linuxcnc.nc"))
+    assert len(programs) == 2
+    for prog in programs:
+        lines = prog.read_text().splitlines()
+        start = next(i for i, ln in enumerate(lines) if ln.startswith("(operation") and "5-axis" in ln)
+        c = np.array([float(m.group(1)) for ln in lines[start:]
+                      for m in [re.search(r"\bC(-?\d+(?:\.\d*)?)", ln.split("(")[0])] if m])
+        assert c.size > 1000, prog.name
+        assert np.abs(c).max() <= limit, (prog.name, c.min(), c.max())
+        homes = sum(ln.strip() == "G53 G0 Z0" for ln in lines[start + 2:-4])     # within the finishing
+        if np.abs(c).max() > 360.0 * 2:
+            assert homes >= 1, prog.name
+        turned_back += homes
+    assert turned_back >= 1                       # set-up 0's finishing needs C turned back

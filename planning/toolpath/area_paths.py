@@ -105,6 +105,7 @@ class AreaPaths:
     five_axis: object = None                   # FiveAxisFigures of a simultaneous 5-axis finishing
     five_axis_input: Toolpath | None = None    # the 3-axis passes it was planned from
     five_axis_links: object = None             # its StockLinks (the guard plans the links of its cuts with it)
+    five_axis_pass_index: np.ndarray | None = None  # (P,) its pass per point, -1 on links (the C register's routes)
     semi: object = None                        # SemiFinishing between the roughing and the finishing, or None
 
     @property
@@ -684,10 +685,19 @@ def _guard_finishing(ap: AreaPaths, carried, area_f, fp, progress: Progress | No
     five = ap.finishing.axis is not None
     links = getattr(ap, "five_axis_links", None) if five else None
     relink = None if links is None else links.relink
+    # the passes of a 5-axis path: the relinking after a cut routes the links where C must turn back
+    # through the safe height again (without them it could not tell a link from a pass, and the routes
+    # it replanned lower were lost: the slot from two set-ups wound C to -5,878 degrees)
+    pi = ap.five_axis_pass_index if five else None
+    if pi is not None and pi.shape[0] != ap.finishing.n_moves:
+        raise AssertionError(f"area {ap.area}: the 5-axis pass index has {pi.shape[0]} points, "
+                             f"the finishing {ap.finishing.n_moves}")
     g = guard_toolpath(ap.finishing, ap.frame, carried.finishing_shape, carried.stock, carried.obstacles,
                        None if (carried.machines is None or five) else carried.machines[ap.area], safe_z_mm=ap.safe_z_mm,
-                       rapid_clearance_mm=carried.rapid_clearance_mm, progress=progress, relink=relink)
+                       pass_index=pi, rapid_clearance_mm=carried.rapid_clearance_mm, progress=progress, relink=relink)
     ap.finishing, ap.finishing_guard = (g.toolpath if g.toolpath.n_moves else None), g
+    if five:
+        ap.five_axis_pass_index = g.pass_index if g.toolpath.n_moves else None
     if links is not None and ap.five_axis is not None:
         ap.five_axis.links = links.figures.as_dict()          # with the links of the guard's cuts
     carried.stock = g.stock
@@ -751,10 +761,11 @@ class _FiveAxisArea:
             c = self.carried
             links = StockLinks(ap.frame, c.finishing_shape, c.stock, c.obstacles, ok, safe_z_mm=ap.safe_z_mm,
                                clearance_mm=c.rapid_clearance_mm + LINK_MARGIN_MM)
-        out, _, figs = five_axis_path(tp, pass_index, cloud_f=cloud_f, admissible=ok, fp=self.fp,
-                                      cone_deg=self.cone_deg, safe_z_mm=ap.safe_z_mm, floor=floor, links=links)
+        out, pi, figs = five_axis_path(tp, pass_index, cloud_f=cloud_f, admissible=ok, fp=self.fp,
+                                       cone_deg=self.cone_deg, safe_z_mm=ap.safe_z_mm, floor=floor, links=links)
         self.figures = figs
         ap.five_axis, ap.five_axis_input, ap.five_axis_links = figs, tp, links
+        ap.five_axis_pass_index = pi
         return out
 
 
@@ -808,7 +819,9 @@ def _add_finishing(ap: AreaPaths, cloud_f, region_masks: list[np.ndarray], fp, m
         from planning.toolpath.fiveaxis.finishing import axis_runs, biarc_figures
 
         if fp.reduce:
-            tp = reduce_cl(tp, binned, R, tol_mm=tol, pass_index=axis_runs(tp))
+            tp, kept = reduce_cl(tp, binned, R, tol_mm=tol, pass_index=axis_runs(tp), with_kept=True)
+            if ap.five_axis_pass_index is not None:
+                ap.five_axis_pass_index = ap.five_axis_pass_index[kept]
         biarc_figures(tp, ap.five_axis, binned=binned, radius_mm=R, tol_mm=tol)
     elif fp.arcs:
         tp = fit_arcs(tp, binned, R, tol_mm=tol, reduce_lines=fp.reduce, pass_index=fin.pass_index)

@@ -320,7 +320,7 @@ def _runs(tp: Toolpath, uses, pass_index):
 
 
 def _reduce(tp, points, radius_mm, tol_mm, *, lines_, arcs, plane, min_points, min_radius_mm,
-            max_radius_mm, plane_tol_mm, uses, pass_index, cell_mm) -> Toolpath:
+            max_radius_mm, plane_tol_mm, uses, pass_index, cell_mm) -> tuple[Toolpath, np.ndarray]:
     R = _check_radius(radius_mm)
     tol = float(tol_mm)
     if not (0 < tol < R):
@@ -348,7 +348,7 @@ def _reduce(tp, points, radius_mm, tol_mm, *, lines_, arcs, plane, min_points, m
                      float(min_radius_mm), float(max_radius_mm), int(min_points), *cloud.arrays, code, centre)
         if cloud.triangles is not None:
             _clear_of_triangles(tp, xyz, code, centre, plane, cloud, R, tol)
-    return _assemble(tp, xyz, code, centre, plane)[0]
+    return _assemble(tp, xyz, code, centre, plane)
 
 
 def _assemble(tp: Toolpath, xyz, code, centre, plane) -> tuple[Toolpath, np.ndarray]:
@@ -383,17 +383,21 @@ def _clear_of_triangles(tp: Toolpath, xyz, code, centre, plane, cloud, R: float,
 
 
 def reduce_cl(tp: Toolpath, points, radius_mm: float, *, tol_mm: float, uses=(USE_CUT,),
-              pass_index: np.ndarray | None = None, cell_mm: float | None = None) -> Toolpath:
+              pass_index: np.ndarray | None = None, cell_mm: float | None = None,
+              with_kept: bool = False) -> Toolpath | tuple[Toolpath, np.ndarray]:
     """Drop CL points of ``tp`` (ball centres, area frame, mm) whose straight replacement passes
     within ``tol_mm`` (3-D) of every dropped point and keeps clearance >= R - tol from every point
     of ``points`` (N,3, or a :class:`planning.toolpath.verify.BinnedCloud`); Sood 2015 §4.4 made
     tolerance bounded and gouge safe (module docstring). Runs are consecutive FEED moves of one
     ``use`` in ``uses`` (default the cutting moves), split where ``pass_index`` (P,) changes or is
     negative when given (:attr:`planning.toolpath.finishing.FinishingPath.pass_index`). Other moves
-    are kept as they are. Returns a new :class:`Toolpath` (same tip offset)."""
-    return _reduce(tp, points, radius_mm, tol_mm, lines_=True, arcs=False, plane=PLANE_ZX, min_points=3,
-                   min_radius_mm=1.0, max_radius_mm=1.0, plane_tol_mm=0.0, uses=uses,
-                   pass_index=pass_index, cell_mm=cell_mm)
+    are kept as they are. Returns a new :class:`Toolpath` (same tip offset); with ``with_kept``
+    ``(toolpath, kept)``, ``kept`` the index in ``tp`` of each of its points (to carry per-point
+    arrays such as a pass index across the reduction)."""
+    out = _reduce(tp, points, radius_mm, tol_mm, lines_=True, arcs=False, plane=PLANE_ZX, min_points=3,
+                  min_radius_mm=1.0, max_radius_mm=1.0, plane_tol_mm=0.0, uses=uses,
+                  pass_index=pass_index, cell_mm=cell_mm)
+    return out if with_kept else out[0]
 
 
 def fit_arcs(tp: Toolpath, points, radius_mm: float, *, tol_mm: float, plane: int = PLANE_ZX,
@@ -414,7 +418,7 @@ def fit_arcs(tp: Toolpath, points, radius_mm: float, *, tol_mm: float, plane: in
     :func:`reduce_cl`. Returns a new :class:`Toolpath`."""
     return _reduce(tp, points, radius_mm, tol_mm, lines_=reduce_lines, arcs=True, plane=plane,
                    min_points=min_points, min_radius_mm=min_radius_mm, max_radius_mm=max_radius_mm,
-                   plane_tol_mm=plane_tol_mm, uses=uses, pass_index=pass_index, cell_mm=cell_mm)
+                   plane_tol_mm=plane_tol_mm, uses=uses, pass_index=pass_index, cell_mm=cell_mm)[0]
 
 
 __all__ = ["BinnedCloud", "fit_arcs", "reduce_cl"]

@@ -340,7 +340,7 @@ def _carried(points: np.ndarray, areas: Areas, config: PlanConfig, tool, gv: Glo
                         rapid_clearance_mm=config.simulate.rapid_clearance_mm + config.paths.guard_rapid_clearance_mm,
                         resolution_mm=config.simulate.resolution_mm,
                         footprint=footprint(points), normals=normals,
-                        visible=visible[:, selected][areas.nearest_sample])
+                        visible=visible[:, selected][areas.nearest_sample], config=config)
 
 
 def _unmachined(area_paths, n_points: int):

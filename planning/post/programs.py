@@ -53,6 +53,17 @@ def _five_axis_operations(ap, config, gauge_length_mm) -> list:
                               unwind=air_moves(tp, ap.safe_z_mm))]
 
 
+def area_post_options(config, area: int, safe_z_mm: float) -> PostOptions:
+    """The post options of area ``area``'s programs: the plan's ``post`` parameters, and retracts and
+    rapids with the tip at the area's safe height ``safe_z_mm`` (ball centre, area frame; the posts
+    never go lower). The 5-axis guard posts its path with the same (:mod:`planning.toolpath.fiveaxis.program_moves`)."""
+    post = config.post
+    R = config.tool.diameter_mm / 2.0
+    return PostOptions(program_number=post.program_number + int(area), coolant=post.coolant,
+                       decimals=post.decimals, rotary_sign=tuple(post.rotary_sign),
+                       safe_z_mm=float(safe_z_mm - R), max_arc_radius_mm=float(post.max_arc_radius_mm))
+
+
 def _five_axis_lists(five: list, decimals: int) -> list[dict]:
     """The simultaneous operations' entries of ``five_axis_operations``: per move the ball centre, the
     tool tip and the tool axis in the part frame (rounded float64 arrays), the kind and the use."""
@@ -105,7 +116,6 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
     before each area's program in each dialect and its moves files."""
     post = config.post
     fp = config.paths.finishing
-    R = config.tool.diameter_mm / 2.0
     files: dict[str, str | bytes] = {}
     summaries: dict[int, AreaPathSummary] = {}
     for k_area, ap in enumerate(area_paths):
@@ -115,10 +125,7 @@ def post_areas(area_paths, *, setups_axes, rotary_deg, profile, placement_mm, ga
         names = {}
         if ops or five:
             # retracts and rapids: the tip at the area's safe height (the posts never go lower)
-            options = PostOptions(program_number=post.program_number + i, coolant=post.coolant,
-                                  decimals=post.decimals, rotary_sign=tuple(post.rotary_sign),
-                                  safe_z_mm=float(ap.safe_z_mm - R),
-                                  max_arc_radius_mm=float(post.max_arc_radius_mm))
+            options = area_post_options(config, i, ap.safe_z_mm)
             n_steps = len(post.dialects) + 1
             for d_i, dialect in enumerate(post.dialects):
                 name = f"area_{i}.{dialect}.nc"

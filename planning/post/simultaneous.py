@@ -195,6 +195,7 @@ __all__ = [
     "iso_5axis_blocks",
     "iso_5axis_program",
     "linuxcnc_5axis_blocks",
+    "linuxcnc_5axis_motion",
     "linuxcnc_5axis_program",
     "rotary_path",
     "unwind_deg",
@@ -947,6 +948,37 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
         w.block("G94")
     operation_end(w, o)
     return _figures(path, posted, fig, lines, L, tol, limits)
+
+
+def _as_printed(values: np.ndarray, decimals: int) -> np.ndarray:
+    """``values`` as a control reads them back from :func:`~planning.post.blocks.fmt` (the same
+    decimal rounding, to the bit)."""
+    v = np.asarray(values, dtype=np.float64)
+    text = f"{{:.{int(decimals)}f}}".format
+    return np.array([float(text(x)) for x in v.ravel().tolist()], dtype=np.float64).reshape(v.shape)
+
+
+def linuxcnc_5axis_motion(op: FiveAxisOperation, profile, placement_mm, options: PostOptions | None = None,
+                          pole_deg: float = POLE_DEG) -> dict:
+    """The motion blocks :func:`linuxcnc_5axis_blocks` writes for ``op`` (same arguments, its defaults),
+    as numbers instead of text: what a control reads from them, for the 5-axis guard
+    (:mod:`planning.toolpath.fiveaxis.program_moves`). Keys: ``approach_mm`` (3,) and
+    ``approach_deg`` (2,): the approach block (``G0`` to the first tip ``safe_z_mm`` up its axis);
+    then per posted point ``pos_mm`` (n,3) the printed X Y Z (rounded to ``decimals``: tip in the machine
+    frame on a table-table machine, the head's rotation centre on a head-head one), ``angles_deg`` (n,2) the
+    printed rotary words in planner signs (:func:`rotary_path` signs, the words times ``rotary_sign``),
+    ``kind`` (n,) RAPID / FEED, ``move`` (n,) the planned move it ends, ``home`` (n,) bool: the block
+    is preceded by ``G53 G0 Z0`` and the rotary words alone (C turned back at machine Z0)."""
+    o = check_options(options)
+    p = _profile(profile)
+    place = check_placement(placement_mm)
+    path, posted, _, _ = _prepare(op, 0, p, place, "linuxcnc", o, None, pole_deg, None, None, True)
+    d = int(o.decimals)
+    _, pos_a = _approach(path, posted, o)
+    return {"approach_mm": _as_printed(pos_a, d), "approach_deg": posted["printed"][0].copy(),
+            "pos_mm": _as_printed(posted["pos"], d), "angles_deg": posted["printed"].copy(),
+            "kind": path.kind[posted["j"]].copy(), "move": posted["j"].astype(np.int64),
+            "home": path.home[posted["j"]] & (posted["u"] >= 1.0) & (path.kind[posted["j"]] == RAPID)}
 
 
 def _check_program_args(operations, profile, placement_mm, options):

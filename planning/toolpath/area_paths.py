@@ -694,13 +694,34 @@ def _guard_finishing(ap: AreaPaths, carried, area_f, fp, progress: Progress | No
                              f"the finishing {ap.finishing.n_moves}")
     g = guard_toolpath(ap.finishing, ap.frame, carried.finishing_shape, carried.stock, carried.obstacles,
                        None if (carried.machines is None or five) else carried.machines[ap.area], safe_z_mm=ap.safe_z_mm,
-                       pass_index=pi, rapid_clearance_mm=carried.rapid_clearance_mm, progress=progress, relink=relink)
+                       pass_index=pi, rapid_clearance_mm=carried.rapid_clearance_mm, progress=progress, relink=relink,
+                       moves=_program_moves(ap, carried) if five else None)
     ap.finishing, ap.finishing_guard = (g.toolpath if g.toolpath.n_moves else None), g
     if five:
         ap.five_axis_pass_index = g.pass_index if g.toolpath.n_moves else None
     if links is not None and ap.five_axis is not None:
         ap.five_axis.links = links.figures.as_dict()          # with the links of the guard's cuts
     carried.stock = g.stock
+
+
+def _program_moves(ap: AreaPaths, carried):
+    """``(toolpath, frame) -> PartMoves``: a 5-axis finishing path's moves as the area's LinuxCNC
+    program runs them (:func:`planning.toolpath.fiveaxis.program_moves.program_part_moves`), so that
+    the guard runs on the stock what the verification will; None without the machine or the plan's
+    parameters (the guard then runs the planned moves, :func:`planning.toolpath.guard.part_moves`)."""
+    cfg = getattr(carried, "config", None)
+    if cfg is None or carried.machines is None:
+        return None
+    from planning.post.programs import area_post_options
+    from planning.toolpath.fiveaxis.program_moves import program_part_moves
+
+    model = carried.machines[ap.area].model
+    options = area_post_options(cfg, ap.area, ap.safe_z_mm)
+    post = cfg.post
+    return lambda tp, frame: program_part_moves(
+        tp, frame, profile=model.profile, placement_mm=model.placement, options=options, shape=carried.finishing_shape,
+        feed_mm_min=post.feed_mm_min, plunge_mm_min=post.plunge_mm_min, spindle_rpm=post.spindle_rpm,
+        safe_z_mm=ap.safe_z_mm)
 
 
 def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, tool: ToolAssembly, fixtures,

@@ -38,7 +38,9 @@ class CarriedStock:
     scan's points (for the allowance left before finishing), ``visible`` (N,k) bool: which set-up
     sees each scan point (the visibility of its nearest sample): points a set-up leaves unmachined
     are handed to a later one that sees them; ``semi_shape``: the semi-finishing cutter
-    (``paths.semi_finishing``) as the simulation sees it, or None when there is none."""
+    (``paths.semi_finishing``) as the simulation sees it, or None when there is none; ``config``: the
+    plan's parameters (the 5-axis guard posts its path as the programs will, with their options), or
+    None."""
 
     stock: TriDexel
     obstacles: TriDexel | None
@@ -52,6 +54,7 @@ class CarriedStock:
     normals: np.ndarray | None = None
     visible: np.ndarray | None = None
     semi_shape: ToolShape | None = None
+    config: object = None
 
     def stock_over(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """(k,) the stock left over the scan ``points`` (k,3, part frame) along their unit ``normals`` on

@@ -218,13 +218,15 @@ class _FixtureMemo:
 
 def run_on_stock(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriDexel, obstacles: TriDexel | None,
                  machine: SetupMachine | None, *, rapid_clearance_mm: float, progress: Progress | None = None,
-                 _fixtures: _FixtureMemo | None = None, keep: dict | None = None
+                 _fixtures: _FixtureMemo | None = None, keep: dict | None = None, moves=None
                  ) -> tuple[Offences, TriDexel, np.ndarray]:
     """Steps 1-2 of the module docstring: ``(offences per toolpath move, the stock after the moves
     (a copy; ``stock`` is unchanged), removed volume per toolpath move mm^3)``. ``progress``:
     ``progress(fraction, message)`` (unthrottled: the caller's). ``keep``: a dict that receives the
-    run's part moves and figures as ``keep["moves"]`` (:class:`~planning.simulate.motion.SimulatedMoves`)."""
-    pm = part_moves(tp, frame)
+    run's part moves and figures as ``keep["moves"]`` (:class:`~planning.simulate.motion.SimulatedMoves`).
+    ``moves``: ``(toolpath, frame) -> PartMoves``, the moves the machine makes (None: :func:`part_moves`;
+    a 5-axis path: :func:`planning.toolpath.fiveaxis.program_moves.program_part_moves`)."""
+    pm = part_moves(tp, frame) if moves is None else moves(tp, frame)
     P = tp.n_moves
     n = pm.start.shape[0]
     ax = np.broadcast_to(pm.axis, (n, 3))
@@ -411,7 +413,8 @@ def _truncate(tp: Toolpath, pass_index, first_bad: int, safe_z_mm: float):
 
 def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriDexel, obstacles: TriDexel | None,
                    machine: SetupMachine | None, *, safe_z_mm: float, pass_index=None, rapid_clearance_mm: float = 0.5,
-                   max_rounds: int = 4, progress: Progress | None = None, relink=None) -> GuardOutcome:
+                   max_rounds: int = 4, progress: Progress | None = None, relink=None,
+                   moves=None) -> GuardOutcome:
     """Guard one operation (module docstring). ``tp``: the toolpath in ``frame``; ``shape``: the
     tool that runs it (simulation shape, its gauge length for the travel); ``stock``: the stock
     before it (unchanged: the outcome carries the stock after); ``obstacles``: fixtures, riser and
@@ -424,7 +427,8 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
     first 70 %, each further one half of what is left; 1.0 at the end), at most ~10 calls a
     second. ``relink``: ``(toolpath, pass_index) -> (toolpath, pass_index)`` run on the path after
     every cut of step 3 (a 5-axis path: the links the cut made through the safe height planned
-    again on the stock, :class:`planning.toolpath.fiveaxis.links.StockLinks` with ``only_high``)."""
+    again on the stock, :class:`planning.toolpath.fiveaxis.links.StockLinks` with ``only_high``).
+    ``moves``: the machine's moves of a path, as :func:`run_on_stock` takes it (None: :func:`part_moves`)."""
     from planning.toolpath.safety import cut_moves
 
     prog = Throttled(progress)
@@ -449,7 +453,7 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
         kept: dict = {}
         off, after, removed = run_on_stock(tp, frame, shape, stock, obstacles, machine,
                                            rapid_clearance_mm=rapid_clearance_mm, progress=round_progress(rnd),
-                                           _fixtures=fixtures, keep=kept)
+                                           _fixtures=fixtures, keep=kept, moves=moves)
         lo, span = lo + span, 0.5 * (1.0 - lo - span)
         out.rounds = rnd + 1
         if rnd == 0:
@@ -512,7 +516,8 @@ def guard_toolpath(tp: Toolpath, frame: AreaFrame, shape: ToolShape, stock: TriD
     kept = {}
     off, after, removed = run_on_stock(tp, frame, shape, stock, obstacles, machine,
                                        rapid_clearance_mm=rapid_clearance_mm,
-                                       progress=round_progress(max_rounds + 1), _fixtures=fixtures, keep=kept)
+                                       progress=round_progress(max_rounds + 1), _fixtures=fixtures, keep=kept,
+                                       moves=moves)
     out.toolpath, out.pass_index, out.stock, out.moves = tp, pass_index, after, kept["moves"]
     out.removed_mm3 = float(removed.sum())
     return finish(out)

@@ -16,7 +16,10 @@ How rs274 is run (``rs274 -t TOOL_TABLE -v PARAMETERS -g INPUT OUTPUT``, in a te
   canonical output millimetres (``USE_LENGTH_UNITS(CANON_UNITS_MM)``; inches raise).
 * Tool table: ``T<n> P<n> Z<gauge length> D<diameter>`` for every tool of ``tools`` (the control's
   tool lengths are the gauge lengths, as :func:`~planning.simulate.program.read_program` assumes);
-  without ``tools`` every T number of the program with length 0.
+  without ``tools`` every T number of the program with length 0. rs274 loads it into a memory-mapped
+  file, ``$HOME/.tool.mmap``, which every rs274 under the same HOME shares: each run is given the
+  temporary folder as its HOME, so that runs at the same time (test workers, service jobs) keep
+  their own tool lengths.
 * Parameters: G54 (5221-5223) = minus the machine home of
   :data:`~planning.simulate.kinematics.HOME_NOTE`, so that LinuxCNC's machine coordinates (what
   ``G53`` addresses, 0 at home) are the machine frame less the home, and G54 is the machine frame
@@ -38,6 +41,7 @@ rs274 prints 4 decimals (0.1 micrometre; 1e-4 degree on the rotary axes).
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -125,7 +129,11 @@ def _run(text: str, tools, home: np.ndarray, program: str, timeout_s: float | No
         (d / "in.ngc").write_text(_numbered(text))
         (d / "tools.tbl").write_text(_tool_table(text, tools))
         (d / "params.var").write_text(_parameters(home))
-        proc = subprocess.run([exe, "-t", "tools.tbl", "-v", "params.var", "-g", "in.ngc", "out.txt"], cwd=d,
+        # rs274 keeps its tool table in a memory-mapped file, $HOME/.tool.mmap, shared by every rs274
+        # running under that HOME: two at once read each other's tool lengths (seen as machine Z off by
+        # the difference of two tests' gauge lengths, 13-14 mm). Each run gets its own HOME.
+        env = {**os.environ, "HOME": str(d)}
+        proc = subprocess.run([exe, "-t", "tools.tbl", "-v", "params.var", "-g", "in.ngc", "out.txt"], cwd=d, env=env,
                               stdin=subprocess.DEVNULL, capture_output=True, check=False, text=True, timeout=timeout_s)
         out = (d / "out.txt").read_text() if (d / "out.txt").is_file() else ""
     if proc.returncode != 0:

@@ -7,7 +7,9 @@ One operation (roughing or finishing of one area, a :class:`~planning.toolpath.m
 the area frame) is guarded by :func:`guard_toolpath`:
 
 1. its moves as the control runs them: tool-tip segments in the part frame, arcs split into chords
-   (:func:`part_moves`);
+   (:func:`part_moves`); a simultaneous 5-axis path as its LinuxCNC program moves the machine (the
+   caller's ``moves``, :mod:`planning.toolpath.fiveaxis.program_moves`: the post's inserted points,
+   joint-space steps), since the planned straight moves leave the tool elsewhere between points;
 2. on a copy of the current stock, in program order (:func:`planning.simulate.dexel.simulate_moves`):
    a rapid whose tool (grown by the rapid clearance) meets material, a feed move whose shank or
    holder meets material; against the obstacles (:func:`planning.simulate.dexel.collide`): any

@@ -708,9 +708,14 @@ def _program_moves(ap: AreaPaths, carried):
     """``(toolpath, frame) -> PartMoves``: a 5-axis finishing path's moves as the area's LinuxCNC
     program runs them (:func:`planning.toolpath.fiveaxis.program_moves.program_part_moves`), so that
     the guard runs on the stock what the verification will; None without the machine or the plan's
-    parameters (the guard then runs the planned moves, :func:`planning.toolpath.guard.part_moves`)."""
+    parameters, or when the verification reads the ISO programs (TCP: the tip straight between the
+    points, not mirrored yet): the guard then runs the planned moves (:func:`planning.toolpath.guard.part_moves`)."""
     cfg = getattr(carried, "config", None)
     if cfg is None or carried.machines is None:
+        return None
+    from planning.simulate.verify import choose_dialect
+
+    if choose_dialect({f"area.{d}.nc": "" for d in cfg.post.dialects}, cfg.simulate.dialect) != "linuxcnc":
         return None
     from planning.post.programs import area_post_options
     from planning.toolpath.fiveaxis.program_moves import program_part_moves

@@ -119,6 +119,36 @@ def test_within_the_reach_it_is_the_brute_force_and_never_below_it_beyond(seed):
     assert np.isinf(far[0]) and far[1] == pytest.approx(2.4, abs=1e-12)
 
 
+def test_a_turning_step_starts_from_the_ball_centre_the_step_before_left():
+    """A 5-axis move as the reader's steps, each with its end's axis: the ball's centre runs from the
+    centre where the step before ended (its tip plus R times ITS axis) to this step's end centre. A
+    step read with its end axis at both ends would put the centre at its start R times the turn off
+    (here 5 degrees: 0.26 mm) and read a cut of 0.011 mm below a point of the swept surface just past
+    the turn, which the tool never made."""
+    a0 = np.array([0.0, 0.0, 1.0])
+    t = np.radians(5.0)
+    a1 = np.array([np.sin(t), 0.0, np.cos(t)])
+    # the tips: the ball centre stays on the line z = R while the axis turns (as the post keeps it)
+    c0, c1, c2 = np.array([0.0, 0, R]), np.array([5.0, 0, R]), np.array([10.0, 0, R])
+    s = np.array([c0 - R * a0, c1 - R * a0])
+    e = np.array([c1 - R * a0, c2 - R * a1])
+    m = _motion(s, e)
+    m.axis[:] = np.array([a0, a1])
+    rng = np.random.default_rng(3)
+    pts = np.concatenate([np.array([[5.3, 0.0, 0.0], [5.0, 0.0, -0.05]]),
+                          rng.uniform([-2, -4, -1], [12, 4, 1], (400, 3))])
+    got = finish_left_mm(pts, [m], BALL)
+    seg = np.array([[c0, c1], [c1, c2]])                   # the true ball-centre segments
+    d = seg[:, 1] - seg[:, 0]
+    w = pts[:, None, :] - seg[None, :, 0]
+    tt = np.clip((w * d[None]).sum(axis=2) / (d * d).sum(axis=1)[None], 0.0, 1.0)
+    ref = np.linalg.norm(w - tt[:, :, None] * d[None], axis=2).min(axis=1) - R
+    np.testing.assert_allclose(got, ref, atol=1e-9)
+    # on the swept surface just past the turn: nothing left, nothing cut (the end axis at both ends of
+    # the second step read -0.0113 mm there); 0.05 mm under the turn: 0.05 mm left
+    assert got[0] == pytest.approx(0.0, abs=1e-9) and got[1] == pytest.approx(0.05, abs=1e-9)
+
+
 def test_only_the_finishing_tools_feed_moves_count_each_on_its_own_axis():
     """Rapids and another tool's moves leave nothing; a move with a tilted axis has its ball centre
     up that axis (5-axis moves as the reader cut them, each chord its own axis)."""

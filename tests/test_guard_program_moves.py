@@ -122,3 +122,18 @@ def test_the_planned_moves_differ_from_the_program_where_the_axis_turns():
         off[mine] = np.minimum(off[mine], np.linalg.norm(top[mine] - (a[k] + t[:, None] * v), axis=1))
     cut = prog.kind == 1
     assert 1e-3 < off[cut].max() < 0.05
+
+
+@pytest.mark.parametrize("decimals", [4, 8])
+def test_the_printed_values_are_the_posts_strings_read_back(decimals):
+    """The numbers the guard moves through are the post's words read back (fmt: Python's decimal
+    rounding), also at the half units where numpy's own rounding goes the other way."""
+    from planning.post.blocks import fmt
+    from planning.post.simultaneous import _as_printed
+
+    rng = np.random.default_rng(decimals)
+    half = 0.5 * 10.0 ** -decimals
+    v = np.concatenate([rng.uniform(-500, 500, 20000),
+                        np.round(rng.uniform(-500, 500, 5000), decimals) + half])
+    want = np.array([float(fmt(x, decimals)) for x in v])
+    assert np.array_equal(_as_printed(v, decimals), want)

@@ -952,10 +952,18 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
 
 def _as_printed(values: np.ndarray, decimals: int) -> np.ndarray:
     """``values`` as a control reads them back from :func:`~planning.post.blocks.fmt` (the same
-    decimal rounding, to the bit)."""
+    decimal rounding, to the bit): numpy's rounding, and the string's for the values within a hair
+    of a half unit of the last place, where the two may round differently."""
     v = np.asarray(values, dtype=np.float64)
-    text = f"{{:.{int(decimals)}f}}".format
-    return np.array([float(text(x)) for x in v.ravel().tolist()], dtype=np.float64).reshape(v.shape)
+    s = 10.0 ** int(decimals)
+    out = np.round(v, int(decimals))
+    frac = np.abs(v * s - np.floor(v * s) - 0.5)
+    near = np.flatnonzero((frac < 1e-6).ravel())
+    if near.size:
+        text = f"{{:.{int(decimals)}f}}".format
+        flat = out.reshape(-1)
+        flat[near] = [float(text(x)) for x in v.reshape(-1)[near].tolist()]
+    return out
 
 
 def linuxcnc_5axis_motion(op: FiveAxisOperation, profile, placement_mm, options: PostOptions | None = None,

@@ -59,12 +59,20 @@ def _options() -> PostOptions:
     return PostOptions(safe_z_mm=SAFE - R, decimals=4)
 
 
+def _operation(tp, frame):
+    return FiveAxisOperation(name="finishing 5-axis", centre_mm=frame.to_part(tp.xyz_mm), axis=tp.axis @ frame.rotation,
+                             kind=tp.kind.copy(), use=tp.use.copy(), tool_number=1, radius_mm=R,
+                             gauge_length_mm=SHAPE.gauge_length_mm, unwind=air_moves(tp, SAFE), **FEEDS)
+
+
+def _program_moves(tp, frame, options):
+    return program_part_moves(_operation(tp, frame), profile=PROFILE, placement_mm=PLACE, options=options)
+
+
 def _reader_moves(tp, frame, options):
     """The posted text read by the verification's reader, from the approach point (the block before the
     first posted point: the way down to it from the tool change is not the path's) to the last point."""
-    op = FiveAxisOperation(name="finishing 5-axis", centre_mm=frame.to_part(tp.xyz_mm), axis=tp.axis @ frame.rotation,
-                           kind=tp.kind.copy(), use=tp.use.copy(), tool_number=1, radius_mm=R,
-                           gauge_length_mm=SHAPE.gauge_length_mm, unwind=air_moves(tp, SAFE), **FEEDS)
+    op = _operation(tp, frame)
     text, figs = linuxcnc_5axis_program([op], profile=PROFILE, placement_mm=PLACE, options=options,
                                         return_figures=True)
     motion = read_program(text, dialect="linuxcnc", program="t", area=0, profile=PROFILE, placement_mm=PLACE,
@@ -79,8 +87,7 @@ def test_the_guards_moves_are_the_readers_moves_of_the_posted_program(n_passes):
     tp, frame = _winding_path(n_passes)
     options = _options()
     blocks, motion, keep = _reader_moves(tp, frame, options)
-    got = program_part_moves(tp, frame, profile=PROFILE, placement_mm=PLACE, options=options, shape=SHAPE,
-                             safe_z_mm=SAFE, **FEEDS)
+    got = _program_moves(tp, frame, options)
     assert got.start.shape[0] == int(keep.sum())
     np.testing.assert_allclose(got.start, motion.start_mm[keep], atol=1e-9)
     np.testing.assert_allclose(got.end, motion.end_mm[keep], atol=1e-9)
@@ -103,8 +110,7 @@ def test_the_planned_moves_differ_from_the_program_where_the_axis_turns():
     the planned points (here, 10-degree turns per move: the flutes' top, 12 mm up the axis, lies about
     0.004 mm off the planned steps' sweep), while both end every planned move at its planned ball centre."""
     tp, frame = _winding_path(3)
-    prog = program_part_moves(tp, frame, profile=PROFILE, placement_mm=PLACE, options=_options(), shape=SHAPE,
-                              safe_z_mm=SAFE, **FEEDS)
+    prog = _program_moves(tp, frame, _options())
     plan = part_moves(tp, frame)
     assert prog.start.shape[0] > 2 * plan.start.shape[0]           # the post's inserted points
     last_prog = np.r_[prog.source[1:] != prog.source[:-1], True]

@@ -36,21 +36,28 @@ _POSTS = {"iso": iso_program, "linuxcnc": linuxcnc_program}
 def _five_axis_operations(ap, config, gauge_length_mm) -> list:
     """The area's simultaneous 5-axis finishing (a toolpath with an axis per move) as a
     :class:`planning.post.simultaneous.FiveAxisOperation` in the part frame; [] otherwise."""
-    from planning.post.simultaneous import FiveAxisOperation
-
     tp = ap.finishing
     if tp is None or tp.axis is None:
         return []
-    post = config.post
-    # C may be turned back on the rapids at the safe height (planning/toolpath/fiveaxis/register.py)
+    return [five_axis_operation(tp, ap.frame, config, gauge_length_mm, ap.safe_z_mm)]
+
+
+def five_axis_operation(tp, frame, config, gauge_length_mm: float, safe_z_mm: float):
+    """A 5-axis finishing path ``tp`` (ball centres in the area ``frame``, with ``axis``) as the
+    :class:`planning.post.simultaneous.FiveAxisOperation` the area's programs post (part frame; the
+    plan's finishing tool, feeds and speed; ``gauge_length_mm``; C may be turned back on the rapids at
+    the safe height ``safe_z_mm``, :func:`planning.toolpath.fiveaxis.register.air_moves`). The 5-axis
+    guard posts the same (:mod:`planning.toolpath.fiveaxis.program_moves`)."""
+    from planning.post.simultaneous import FiveAxisOperation
     from planning.toolpath.fiveaxis.register import air_moves
 
-    return [FiveAxisOperation(name="finishing 5-axis", centre_mm=ap.frame.to_part(tp.xyz_mm),
-                              axis=tp.axis @ ap.frame.rotation, kind=tp.kind.copy(), use=tp.use.copy(),
-                              tool_number=post.finishing_tool_number, radius_mm=config.tool.diameter_mm / 2.0,
-                              spindle_rpm=post.spindle_rpm, feed_mm_min=post.feed_mm_min,
-                              plunge_mm_min=post.plunge_mm_min, gauge_length_mm=float(gauge_length_mm),
-                              unwind=air_moves(tp, ap.safe_z_mm))]
+    post = config.post
+    return FiveAxisOperation(name="finishing 5-axis", centre_mm=frame.to_part(tp.xyz_mm),
+                             axis=tp.axis @ frame.rotation, kind=tp.kind.copy(), use=tp.use.copy(),
+                             tool_number=post.finishing_tool_number, radius_mm=config.tool.diameter_mm / 2.0,
+                             spindle_rpm=post.spindle_rpm, feed_mm_min=post.feed_mm_min,
+                             plunge_mm_min=post.plunge_mm_min, gauge_length_mm=float(gauge_length_mm),
+                             unwind=air_moves(tp, safe_z_mm))
 
 
 def area_post_options(config, area: int, safe_z_mm: float) -> PostOptions:

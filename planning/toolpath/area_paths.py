@@ -717,16 +717,14 @@ def _program_moves(ap: AreaPaths, carried):
 
     if choose_dialect({f"area.{d}.nc": "" for d in cfg.post.dialects}, cfg.simulate.dialect) != "linuxcnc":
         return None
-    from planning.post.programs import area_post_options
+    from planning.post.programs import area_post_options, five_axis_operation
     from planning.toolpath.fiveaxis.program_moves import program_part_moves
 
     model = carried.machines[ap.area].model
     options = area_post_options(cfg, ap.area, ap.safe_z_mm)
-    post = cfg.post
-    return lambda tp, frame: program_part_moves(
-        tp, frame, profile=model.profile, placement_mm=model.placement, options=options, shape=carried.finishing_shape,
-        feed_mm_min=post.feed_mm_min, plunge_mm_min=post.plunge_mm_min, spindle_rpm=post.spindle_rpm,
-        safe_z_mm=ap.safe_z_mm)
+    gauge = carried.finishing_shape.gauge_length_mm
+    return lambda tp, frame: program_part_moves(five_axis_operation(tp, frame, cfg, gauge, ap.safe_z_mm),
+                                                profile=model.profile, placement_mm=model.placement, options=options)
 
 
 def _cut_blocked(ap: AreaPaths, fin: FinishingPath, carried, obstacles, axis, tool: ToolAssembly, fixtures,

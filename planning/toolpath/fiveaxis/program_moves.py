@@ -20,8 +20,8 @@ differently: the verification found shank and holder contacts of up to 0.05 mm t
 
 :func:`program_part_moves` removes the difference at its root: it posts the path as the LinuxCNC
 post will (:func:`planning.post.simultaneous.linuxcnc_5axis_motion`: the blocks of
-:func:`~planning.post.simultaneous.linuxcnc_5axis_blocks` as numbers, the operation built as the
-plan's programs build it in :mod:`planning.post.programs`) and moves the machine through those
+:func:`~planning.post.simultaneous.linuxcnc_5axis_blocks` as numbers, of the operation the plan's
+programs post, :func:`planning.post.programs.five_axis_operation`) and moves the machine through those
 blocks as the verification's reader does (:mod:`planning.simulate.program`, LinuxCNC: the printed
 X Y Z plus the tool length ``G43`` is the controlled point; every axis linear in joint space, cut
 into steps of at most ``rotary_step_deg`` of either rotary axis by
@@ -38,42 +38,32 @@ from __future__ import annotations
 
 import numpy as np
 
-from planning.toolpath.moves import Toolpath
-
 __all__ = ["program_part_moves"]
 
 
-def program_part_moves(tp: Toolpath, frame, *, profile, placement_mm, options, shape, feed_mm_min: float,
-                       plunge_mm_min: float, spindle_rpm: float, safe_z_mm: float, rotary_step_deg: float = 1.0):
-    """:class:`planning.toolpath.guard.PartMoves` of the 5-axis path ``tp`` (ball centres in the area
-    ``frame``, with ``axis``) as the LinuxCNC program runs it (module docstring): ``start``/``end``
-    tool tips (part frame, mm) and ``axis`` (unit, part frame) of every step, from the approach block
-    to the last posted point; ``kind`` the simulation's RAPID / FEED; ``source`` the planned move
-    (index into ``tp``) whose posted point the step leads to (the approach: move 0).
+def program_part_moves(operation, *, profile, placement_mm, options, rotary_step_deg: float = 1.0):
+    """:class:`planning.toolpath.guard.PartMoves` of a 5-axis path as its LinuxCNC program runs it
+    (module docstring): ``start``/``end`` tool tips (part frame, mm) and ``axis`` (unit, part frame)
+    of every step, from the approach block to the last posted point; ``kind`` the simulation's RAPID /
+    FEED; ``source`` the planned move (point index of the path) whose posted point the step leads to
+    (the approach: move 0).
 
-    ``profile`` / ``placement_mm``: the machine and the part on its table; ``options``: the
-    :class:`~planning.post.options.PostOptions` of the area's programs; ``shape``: the finishing
-    :class:`~planning.simulate.motion.ToolShape` (T number, radius, gauge length = the tool length
-    of ``G43``); the feeds (mm/min) and speed (rpm) only time the moves, which leaves them as they
-    are; ``safe_z_mm``: the area's safe height (ball centre, frame z), where C may be turned back
-    (:func:`planning.toolpath.fiveaxis.register.air_moves`); ``rotary_step_deg``: the reader's step
-    (:func:`planning.simulate.program.read_program`, the verification's default 1 degree)."""
-    from planning.post.simultaneous import FiveAxisOperation, linuxcnc_5axis_motion
+    ``operation``: the path as the programs post it, :class:`~planning.post.simultaneous.FiveAxisOperation`
+    (:func:`planning.post.programs.five_axis_operation`: ball centres and axes in the part frame, the
+    tool's gauge length = the tool length of ``G43``, where C may be turned back); ``profile`` /
+    ``placement_mm``: the machine and the part on its table; ``options``: the
+    :class:`~planning.post.options.PostOptions` of the area's programs; ``rotary_step_deg``: the
+    reader's step (:func:`planning.simulate.program.read_program`, the verification's 1 degree)."""
+    from planning.post.simultaneous import linuxcnc_5axis_motion
     from planning.simulate.kinematics import MachineModel, interpolate_moves
     from planning.simulate.motion import FEED as SIM_FEED
     from planning.simulate.motion import RAPID as SIM_RAPID
-    from planning.toolpath.fiveaxis.register import air_moves
     from planning.toolpath.guard import PartMoves
     from planning.toolpath.moves import RAPID
 
-    op = FiveAxisOperation(name="finishing 5-axis", centre_mm=frame.to_part(tp.xyz_mm), axis=tp.axis @ frame.rotation,
-                           kind=tp.kind.copy(), use=tp.use.copy(), tool_number=int(shape.number),
-                           radius_mm=float(shape.radius_mm), spindle_rpm=float(spindle_rpm),
-                           feed_mm_min=float(feed_mm_min), plunge_mm_min=float(plunge_mm_min),
-                           gauge_length_mm=float(shape.gauge_length_mm), unwind=air_moves(tp, safe_z_mm))
-    blocks = linuxcnc_5axis_motion(op, profile, placement_mm, options)
+    blocks = linuxcnc_5axis_motion(operation, profile, placement_mm, options)
     model = MachineModel(profile, placement_mm)
-    gauge = float(shape.gauge_length_mm)
+    gauge = float(operation.gauge_length_mm)
     # the controlled point: the printed X Y Z plus the tool length (G43 H) on a table-table machine;
     # the head's rotation centre as printed (G49) on a head-head one
     lift = np.array([0.0, 0.0, gauge if model.table else 0.0])

@@ -9,11 +9,8 @@ leaves over every scan point is measured from the moves themselves:
   on a feed move from tip ``s`` to tip ``e`` with unit axis ``a`` (the program's rotary position) the
   ball's centre runs along the segment ``s + R a .. e + R a``, so the ball sweeps the capsule of
   radius R about that segment. A 5-axis move comes as the reader's steps, each with the axis at its
-  end; a step that continues the one before starts with that step's axis ``a0``, so its ball centre
-  runs from ``s + R a0`` to ``e + R a`` (the control keeps the ball centre on that line within the
-  post's tolerance). Taking ``a`` at both ends put the centre at the step's start up to ``R`` times
-  the step's turn off (0.05 mm at 1 degree) and read cuts of up to 0.034 mm below the scan that the
-  program does not make;
+  end; a step that continues the one before starts where that step left the ball, ``s + R a0`` (the
+  rule of :func:`planning.simulate.gouge.penetration_mm`, whose ball layer this is);
 * the **material left** over a point p is ``min over the finishing feed moves of dist(p, centre
   segment) - R`` (mm): positive, the surface the ball swept lies that far from p (the scallop
   between passes, or stock the finishing never came down to); negative, the ball went that deep
@@ -65,25 +62,5 @@ def finish_left_mm(points: np.ndarray, motions: list[ProgramMotion], finishing: 
     # the ball alone: with the flutes no longer than the ball there is no side layer
     ball = dataclasses.replace(finishing, flute_length_mm=float(finishing.radius_mm), pieces=())
     said = None if progress is None else (lambda f, m: progress(f, m.replace("exact gouge depth", "material left")))
-    R = float(finishing.radius_mm)
-    depth = penetration_mm(points, [_centred(m, R) for m in motions], {int(finishing.number): ball}, said,
-                           beyond_mm=BEYOND_MM)
+    depth = penetration_mm(points, motions, {int(finishing.number): ball}, said, beyond_mm=BEYOND_MM)
     return -depth
-
-
-def _centred(motion: ProgramMotion, R: float) -> ProgramMotion:
-    """``motion`` with the start tip of every step that continues the one before moved by ``R (a0 -
-    a)`` (``a0`` the axis of the step before, ``a`` its own): the kernels put the ball's centre at
-    ``start + R a``, which is then the centre the step really starts from (module docstring)."""
-    a = np.asarray(motion.axis, dtype=np.float64)
-    if a.shape[0] < 2:
-        return motion
-    turn = np.zeros(a.shape[0], dtype=bool)
-    turn[1:] = (np.abs(a[1:] - a[:-1]).max(axis=1) > 0.0) & (
-        np.abs(motion.start_mm[1:] - motion.end_mm[:-1]).max(axis=1) <= 1e-9)
-    if not turn.any():
-        return motion
-    start = np.array(motion.start_mm, dtype=np.float64, copy=True)
-    k = np.flatnonzero(turn)
-    start[k] += R * (a[k - 1] - a[k])
-    return dataclasses.replace(motion, start_mm=start)

@@ -11,7 +11,12 @@ That depth, not the dexel reading, decides whether it is a gouge.
 Tools (:class:`planning.simulate.motion.ToolShape`, tip ``q``, unit axis ``a``, a point ``p``):
 
 * ball of radius R: the ball's centre runs along the segment ``q + R a``; depth ``R - dist(p,
-  centre segment)`` (exact for the swept ball);
+  centre segment)`` (exact for the swept ball). A 5-axis move comes as the reader's steps, each with
+  the axis at its end: a step that continues the one before starts where that step left the ball,
+  its tip plus R along that step's axis (:func:`_ball_starts`; the control keeps the centre on the
+  line between within the post's tolerance). With the step's own axis at both ends the centre at
+  its start lay R times the step's turn off (0.05 mm at 1 degree; on the CLI slot it read cuts of
+  up to 0.034 mm below the scan that the programs do not make);
 * flat or bull-nose end mill of radius Rt, cutting up to the flute length L: the cylinder
   ``0 <= (p - q).a <= L``, radial distance <= Rt, swept along the segment; on the part of the move
   where the point is within Rt of the axis, sampled at 65 equal steps; depth at a sample = the distance from p to the
@@ -153,7 +158,8 @@ def penetration_mm(points: np.ndarray, motions: list[ProgramMotion], tools: dict
     S, E, A, groups = [], [], [], []
     n_moves = 0
     for number, shape in tools.items():
-        sel = [(m.start_mm[k], m.end_mm[k], m.axis[k]) for m in motions
+        ball = float(shape.radius_mm) if shape.kind == "ball" else 0.0
+        sel = [(_ball_starts(m, k, ball), m.end_mm[k], m.axis[k]) for m in motions
                for k in [np.flatnonzero((m.kind == FEED) & (m.tool == number))] if k.size]
         if not sel:
             continue
@@ -260,6 +266,25 @@ def penetration_mm(points: np.ndarray, motions: list[ProgramMotion], tools: dict
         progress(done / total, f"exact gouge depth: points {done:,} of {total:,} measured")
         size = int(min(most, max(least, batch.size * PROGRESS_BATCH_S / max(dt, 1e-6))))
     return out
+
+
+def _ball_starts(motion: ProgramMotion, k: np.ndarray, R: float) -> np.ndarray:
+    """The start tips of ``motion``'s moves ``k`` for a ball of radius ``R`` (module docstring): a move
+    that continues the one before (its start is that move's end) and turns the axis starts at its tip
+    plus ``R (a0 - a)`` (``a0`` the axis of the move before, ``a`` its own), so that the kernels' ball
+    centre ``start + R a`` is the centre it really starts from. ``R`` 0: the tips as they are."""
+    start = motion.start_mm[k]
+    if R == 0.0:
+        return start
+    j = k[k > 0]
+    a, a0 = motion.axis[j], motion.axis[j - 1]
+    cont = (np.abs(motion.start_mm[j] - motion.end_mm[j - 1]).max(axis=1) <= 1e-9) & (np.abs(a - a0).max(axis=1) > 0.0)
+    if not cont.any():
+        return start
+    start = np.array(start, dtype=np.float64, copy=True)
+    at = np.flatnonzero(k > 0)[cont]
+    start[at] += R * (a0[cont] - a[cont])
+    return start
 
 
 def warm_kernels() -> None:

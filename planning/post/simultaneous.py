@@ -823,6 +823,12 @@ def _prepare(op, k, p, place, dialect, o, rotary_sign, pole_deg, start_deg, line
     return path, posted, fig, float(tol)
 
 
+def _home_points(path: _Path, posted: dict) -> np.ndarray:
+    """(n,) bool: the posted points a rapid reaches through machine Z0 (the planned points whose move
+    turns C back or changes rotary solution, ``_Path.home``; never an inserted point)."""
+    return path.home[posted["j"]] & (posted["u"] >= 1.0)
+
+
 def _approach(path: _Path, posted: dict, o: PostOptions) -> tuple[np.ndarray, np.ndarray]:
     """``(tip (3,), program position (3,))`` of the approach point: the first tip ``safe_z_mm``
     along the first tool axis (printed angles)."""
@@ -920,7 +926,7 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
     Fl = F.tolist()
     lines = []
     mode = 94
-    home = (path.home[posted["j"]] & (posted["u"] >= 1.0)).tolist()
+    home = _home_points(path, posted).tolist()
     for i, (x, y, z) in enumerate(pos):
         head = []
         if kinds[i] == RAPID:
@@ -986,7 +992,7 @@ def linuxcnc_5axis_motion(op: FiveAxisOperation, profile, placement_mm, options:
     return {"approach_mm": _as_printed(pos_a, d), "approach_deg": posted["printed"][0].copy(),
             "pos_mm": _as_printed(posted["pos"], d), "angles_deg": posted["printed"].copy(),
             "kind": path.kind[posted["j"]].copy(), "move": posted["j"].astype(np.int64),
-            "home": path.home[posted["j"]] & (posted["u"] >= 1.0) & (path.kind[posted["j"]] == RAPID)}
+            "home": _home_points(path, posted) & (path.kind[posted["j"]] == RAPID)}
 
 
 def _check_program_args(operations, profile, placement_mm, options):
@@ -1082,7 +1088,7 @@ def iso_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveAxisOp
     feeds = tip_feed.tolist()
     lines = []
     f_now = None
-    home = (path.home[posted["j"]] & (posted["u"] >= 1.0)).tolist()
+    home = _home_points(path, posted).tolist()
     for i, (x, y, z) in enumerate(pos):
         if kinds[i] == RAPID and home[i]:
             # C turned back by whole turns: TCP off at Z home, turn, TCP on to the point (as an

@@ -434,6 +434,37 @@ def test_a_rotary_flip_on_the_surface_is_refused():
         linuxcnc_5axis_program(meridian_op(0.2, half_deg=31.0), profile="compact_trunnion_ac", placement_mm=PLACE)
 
 
+def beside_the_pole_op() -> FiveAxisOperation:
+    """One 18 mm cut whose tool axis turns 62 degrees, from B55.8 to B6.8 on the B/C trunnion, its arc
+    passing about 3 degrees from the pole: C turns 152 degrees, most of it in the move's last fifth
+    (a step down a wall of the range femur, issue 33, whose post failed)."""
+    a0, a1 = np.array([-0.4306, -0.7059, 0.5625]), np.array([0.1024, 0.0602, 0.9929])
+    a0, a1 = a0 / np.linalg.norm(a0), a1 / np.linalg.norm(a1)
+    c0, c1 = np.array([0.0, -9.0, SPHERE + R + 5.0]), np.array([0.0, 9.0, SPHERE + R - 1.0])
+    return FiveAxisOperation("beside the pole", np.array([c0 + 10 * a0, c0, c1, c1 + 10 * a1]),
+                             np.array([a0, a0, a1, a1]), np.array([RAPID, FEED, FEED, FEED], np.int8),
+                             np.array([USE_RAPID, USE_PLUNGE, USE_CUT, USE_RETRACT], np.int8),
+                             1, R, 10000.0, 1500.0, 500.0, GAUGE)
+
+
+def test_a_turn_beside_the_pole_keeps_the_branch_of_both_ends():
+    # the points inserted into the cut take the solution on the ends' side of the pole (B > 0): a
+    # reference interpolated between the ends' angles lies nearer the other branch for part of the move,
+    # which broke the posted path into halves that no halving could join
+    require_rs274()
+    op = beside_the_pole_op()
+    name = "compact_trunnion_bc"
+    for post, dialect, reader in ((linuxcnc_5axis_program, "linuxcnc", "rs274"), (iso_5axis_program, "iso", None)):
+        text, [fig] = post(op, profile=name, placement_mm=PLACE, return_figures=True)
+        on_cut = fig["move"] == 2
+        assert on_cut.sum() > 8 and (fig["angles_deg"][on_cut, 0] > 0).all()
+        assert np.ptp(fig["angles_deg"][on_cut, 1]) > 140.0
+        assert fig["max_deviation_mm"] <= TOL
+        m = read(text, dialect, name, reader=reader)
+        assert centre_deviation(m, fig, op).max() < TOL + 1e-3, dialect
+        assert tip_error(m, fig, op) < 1e-3, dialect
+
+
 # ------------------------------------------------------------------------------------------------
 # the readers' new words
 

@@ -376,10 +376,14 @@ class _Kin:
     def rot_ok(self, c):
         return (c >= self.rmin - _ANGLE_TOL) & (c <= self.rmax + _ANGLE_TOL)
 
-    def near(self, axes: np.ndarray, ref: np.ndarray, held=None) -> tuple[np.ndarray, np.ndarray]:
+    def near(self, axes: np.ndarray, ref: np.ndarray, held=None, branch=None) -> tuple[np.ndarray, np.ndarray]:
         """``(angles (m,2), ok (m,))``: per axis the solution within travel closest to ``ref`` (m,2)
         (the closest out of travel, ok False, where none is within), pole rule applied (also where
-        ``held`` (m,) bool: the rotary angle of ``ref`` kept, the tilt the closest). Vectorised."""
+        ``held`` (m,) bool: the rotary angle of ``ref`` kept, the tilt the closest). ``branch`` (m,)
+        of -1, 0, 1: where not 0, a solution whose tilt has that sign is taken whenever one is within
+        travel, however far from ``ref`` (the branch both ends of a move are on: a reference
+        interpolated between the ends can lie nearer the other branch where the rotary angle turns
+        fast beside the pole). Vectorised."""
         from planning.orientations.kinematics import solve_rotary
 
         m = axes.shape[0]
@@ -401,8 +405,14 @@ class _Kin:
         ok = self.tilt_ok(T) & cok
         dt, dc = np.abs(T - rt), np.abs(C - rc)
         key = np.maximum(dt, dc) + 1e-9 * (dt + dc)
+        if branch is not None:
+            b = np.asarray(branch, dtype=np.float64).reshape(-1, 1)
+            on = ok & ((b == 0) | (np.sign(T) == b))
+            ok_pick = np.where(on.any(axis=1, keepdims=True), on, ok)
+        else:
+            ok_pick = ok
         any_ok = ok.any(axis=1)
-        j = np.where(any_ok, np.argmin(np.where(ok, key, np.inf), axis=1), np.argmin(key, axis=1))
+        j = np.where(any_ok, np.argmin(np.where(ok_pick, key, np.inf), axis=1), np.argmin(key, axis=1))
         r = np.arange(m)
         ang = np.stack([T[r, j], C[r, j]], axis=1)
         good = ok[r, j]
@@ -666,7 +676,11 @@ class _Path:
             # on a move into or out of the pole cone C changes from the held to the solved value:
             # the inserted points take C linearly (pole rule) so that the angles stay continuous in u
             held = self.kin.is_pole(a[ji - 1]) | self.kin.is_pole(a[ji])
-            got, ok = self.kin.near(axis[inner], ref, held)
+            # both ends on one branch (the tilt's sign, outside the pole cone): the points between keep it
+            t0, t1 = ang[ji - 1, 0], ang[ji, 0]
+            pole_t = self.kin.pole_deg
+            branch = np.where((t0 * t1 > 0) & (np.abs(t0) > pole_t) & (np.abs(t1) > pole_t), np.sign(t1), 0.0)
+            got, ok = self.kin.near(axis[inner], ref, held, branch)
             if not ok.all():
                 b = int(np.flatnonzero(~ok)[0])
                 raise ParameterError(

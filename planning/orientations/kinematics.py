@@ -172,14 +172,15 @@ def _as_angles(angles_deg) -> np.ndarray:
 def _rot(axis: str, a_rad: np.ndarray) -> np.ndarray:
     """(m,3,3) active right-hand rotations by ``a_rad`` about machine ``axis`` ('x', 'y' or 'z')."""
     c, s = np.cos(a_rad), np.sin(a_rad)
-    one, zero = np.ones_like(c), np.zeros_like(c)
-    if axis == "x":
-        rows = [[one, zero, zero], [zero, c, -s], [zero, s, c]]
-    elif axis == "y":
-        rows = [[c, zero, s], [zero, one, zero], [-s, zero, c]]
-    else:
-        rows = [[c, -s, zero], [s, c, zero], [zero, zero, one]]
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+    out = np.zeros(np.shape(c) + (3, 3))
+    i, j = {"x": (1, 2), "y": (2, 0)}.get(axis, (0, 1))     # the plane turned: i to j
+    k = 3 - i - j
+    out[..., k, k] = 1.0
+    out[..., i, i] = c
+    out[..., j, j] = c
+    out[..., i, j] = -s
+    out[..., j, i] = s
+    return out
 
 
 def _tilt_axis(profile: MachineProfile) -> str:

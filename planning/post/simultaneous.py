@@ -648,14 +648,17 @@ class _Path:
 
     # ---- posted points
 
-    def words(self, ang: np.ndarray) -> tuple[list, np.ndarray]:
-        """``(strings [(tilt, rot)], printed (m,2))``: the rotary words of planner angles ``ang`` and
-        the planner angles they command."""
+    def words(self, ang: np.ndarray) -> list:
+        """``[(tilt, rot)]``: the rotary words (strings) of planner angles ``ang`` (m,2)."""
         st, sr = self.sign
         ad = self.ad
-        s = [(fmt(st * t, ad), fmt(sr * r, ad)) for t, r in ang.tolist()]
-        v = np.array([(float(x), float(y)) for x, y in s], dtype=np.float64).reshape(-1, 2)
-        return s, v * np.array([st, sr])
+        return [(fmt(st * t, ad), fmt(sr * r, ad)) for t, r in np.asarray(ang).tolist()]
+
+    def printed(self, ang: np.ndarray) -> np.ndarray:
+        """(m,2) the planner angles that the words of ``ang`` (m,2) command: what a control reads
+        from :meth:`words`, to the bit (:func:`_as_printed`), without writing them."""
+        sg = np.array(self.sign)
+        return _as_printed(np.asarray(ang, dtype=np.float64).reshape(-1, 2) * sg, self.ad) * sg + 0.0
 
     def points(self, j: np.ndarray, u: np.ndarray) -> dict:
         """The posted point at parameter ``u`` (m,) of planned move ``j`` (m,) (``u = 1``: the
@@ -687,11 +690,12 @@ class _Path:
                     f"operation {self.k} ({self.op.name!r}): the interpolated tool axis on move {int(ji[b])} "
                     f"{np.round(axis[inner][b], 6).tolist()} has no rotary position within travel", parameter="axis")
             angles[inner] = got
-        strings, printed = self.words(angles)
+        printed = self.printed(angles)
         axis_p = self.fk(printed)
         tip = centre - self.R * axis_p
         pos = tip if self.iso else self.model.machine_from_tip(tip, printed, self.g_post)
-        return {"j": j, "u": u, "centre": centre, "axis": axis, "words": strings, "printed": printed,
+        # ``angles``: the planner's, whose words (:meth:`words`) the writers print; ``printed`` what they command
+        return {"j": j, "u": u, "centre": centre, "axis": axis, "angles": angles, "printed": printed,
                 "axis_p": axis_p, "tip": tip, "pos": pos}
 
     def centres(self, pos: np.ndarray, ang: np.ndarray) -> np.ndarray:
@@ -924,7 +928,7 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
     tool = int(op.tool_number)
     tip_a, pos_a = _approach(path, posted, o)
     L, F, _ = _feeds(path, posted, tip_a, limits, d)
-    words = posted["words"]
+    words = path.words(posted["angles"])
     n_ins = len(posted["j"]) - path.c.shape[0]
 
     w.raw(_op_comment(index, op, n_ins, tol, upper=False))
@@ -1086,7 +1090,7 @@ def iso_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveAxisOp
     tip_a, _ = _approach(path, posted, o)
     limits = _rate_limits(p, None)
     L, _, tip_feed = _feeds(path, posted, tip_a, limits, d, printed_tips=True)
-    words = posted["words"]
+    words = path.words(posted["angles"])
     n_ins = len(posted["j"]) - path.c.shape[0]
 
     w.raw(_op_comment(index, op, n_ins, tol, upper=True))

@@ -15,9 +15,12 @@ reduction) and:
    reaches it: a rotary solution within the rotary travel whose tool tip lies within the linear
    travel (:mod:`planning.simulate.kinematics`); with a carried stock, the shank and holder also
    clear the points of the stock's boundary;
-3. checks the motion between neighbouring positions too: the midpoint of every move (centre halfway,
-   axis halfway along the great circle) must be admissible, and the axis's whole great-circle arc
-   must keep off the rotary pole;
+3. checks the motion between neighbouring positions too: points along every move (centre on the
+   segment, axis along the great circle; the midpoint, and on a long or fast-turning move one every
+   :data:`BETWEEN_STEP_MM` of the centre's path and :data:`BETWEEN_TURN_DEG` of the axis's turn,
+   :func:`_between_fractions`) must be admissible, and the axis's whole great-circle arc must keep off
+   the rotary pole (a pass across a hole in the scan or down a wall has moves of several mm whose axis
+   turns tens of degrees: their flutes above the ball can meet the scan between the ends);
 4. cuts out (:func:`planning.toolpath.safety.cut_moves`, linked through the safe height) the
    positions with no admissible axis, the ends of moves whose midpoint is not admissible and the
    positions where the turn rate could not be met (a pass broken there), and gives every other
@@ -95,6 +98,40 @@ class FiveAxisFigures:
     biarc_min_clearance_mm: float = math.inf
     n_unwinding_links: int = 0
     links: dict = field(default_factory=dict)
+
+
+#: Along a move between two cutting positions, the points checked (:func:`_between_fractions`) are at
+#: most this far apart on the ball centre's path (mm) ...
+BETWEEN_STEP_MM = 0.25
+#: ... and the axis turns at most this much between them (degrees).
+BETWEEN_TURN_DEG = 1.0
+
+
+def _between_fractions(c0: np.ndarray, c1: np.ndarray, a0: np.ndarray, a1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(owner (k,), u (k,))``: the points checked along the moves from centres ``c0`` to ``c1``
+    (m,3) with axes ``a0`` to ``a1`` (m,3, unit): per move its ``n - 1`` inner fractions ``i / n``,
+    ``n = max(2, ceil(length / BETWEEN_STEP_MM), ceil(turn / BETWEEN_TURN_DEG))`` (a short, slowly
+    turning move: its midpoint alone); ``owner`` the move of each."""
+    length = np.linalg.norm(c1 - c0, axis=1)
+    turn = turn_deg(a0, a1)
+    n = np.maximum(2, np.maximum(np.ceil(length / BETWEEN_STEP_MM), np.ceil(turn / BETWEEN_TURN_DEG))).astype(np.int64)
+    owner = np.repeat(np.arange(c0.shape[0]), n - 1)
+    first = np.cumsum(n - 1) - (n - 1)
+    i = np.arange(owner.size) - first[owner] + 1
+    return owner, i / n[owner]
+
+
+def between_ok(admissible, c0: np.ndarray, c1: np.ndarray, a0: np.ndarray, a1: np.ndarray) -> np.ndarray:
+    """(m,) bool: the moves from centres ``c0`` to ``c1`` (m,3, area frame) with axes ``a0`` to ``a1``
+    (m,3, unit) are admissible between their ends (module docstring, step 3): ``admissible`` (an
+    :class:`Admissible`) at every point :func:`_between_fractions` gives (the centre on the segment,
+    the axis along the great circle), and the axis's arc clear of the rotary pole."""
+    owner, u = _between_fractions(c0, c1, a0, a1)
+    c = c0[owner] + u[:, None] * (c1[owner] - c0[owner])
+    a = slerp(a0[owner], a1[owner], u)
+    fails = np.zeros(c0.shape[0], dtype=bool)
+    np.logical_or.at(fails, owner, ~admissible(c, a))
+    return ~fails & admissible.arc_clear_of_pole(a0, a1)
 
 
 class Admissible:
@@ -354,7 +391,7 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
         blocked["no_axis"] += int(plan.blocked.sum())
         drop[idx[plan.breaks]] = True
         blocked["rate"] += int((plan.breaks & ~plan.blocked).sum())
-        # halfway along every move between two kept touching positions
+        # along every move between two kept touching positions
         pair = np.flatnonzero(touch[1:] & touch[:-1]) + 1
         ok_pos = np.zeros(tp.n_moves, dtype=bool)
         ok_pos[idx[~plan.blocked]] = True
@@ -362,9 +399,7 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
         if pair.size:
             ax = np.empty((tp.n_moves, 3))
             ax[idx] = plan.axes
-            mid_c = 0.5 * (tp.xyz_mm[pair] + tp.xyz_mm[pair - 1])
-            mid_a = slerp(ax[pair - 1], ax[pair], 0.5)
-            bad = ~admissible(mid_c, mid_a) | ~admissible.arc_clear_of_pole(ax[pair - 1], ax[pair])
+            bad = ~between_ok(admissible, tp.xyz_mm[pair - 1], tp.xyz_mm[pair], ax[pair - 1], ax[pair])
             drop[pair[bad]] = True
             blocked["between"] += int((bad & ~drop[pair - 1]).sum())
         with_axes = Toolpath(xyz_mm=tp.xyz_mm, kind=tp.kind, centre_mm=tp.centre_mm, plane=tp.plane, use=tp.use,

@@ -166,6 +166,34 @@ def test_positions_whose_axes_fail_the_test_take_an_admissible_one_or_are_blocke
     assert plan.blocked.all()
 
 
+def test_the_ring_search_memo_gives_the_same_axes_and_searches_each_position_once():
+    centres, r, _ = _cylinder_pass(20.0, 0.0, 200)
+    tested = []
+
+    def ok(c, a):                  # admissible: leaning up, and off a band of x (some positions blocked)
+        tested.append(c.shape[0])
+        return (a[:, 2] >= 0.2) & ~((c[:, 0] > 5.0) & (c[:, 0] < 8.0))
+
+    kw = {"lead_deg": 0.0, "tilt_deg": 20.0, "cone_deg": (10, 60), "max_rate_deg_per_mm": 10.0, "ok": ok}
+    plain = plan_axes(centres, np.zeros(200, int), r, **kw)
+    n_plain = sum(tested)
+    memo: dict = {}
+    tested.clear()
+    first = plan_axes(centres, np.zeros(200, int), r, memo=memo, **kw)
+    n_first = sum(tested)
+    tested.clear()
+    again = plan_axes(centres, np.zeros(200, int), r, memo=memo, **kw)
+    n_again = sum(tested)
+    for p in (first, again):
+        assert np.array_equal(p.axes, plain.axes) and np.array_equal(p.blocked, plain.blocked)
+        assert p.n_alternatives == plain.n_alternatives
+    assert plain.blocked.any() and plain.n_alternatives > 0
+    assert n_first <= n_plain
+    # planned again (as five_axis_path does after cutting out a few positions): no ring is searched again,
+    # only the positions' own axes are tested
+    assert n_again < n_plain / 4, (n_plain, n_first, n_again)
+
+
 def test_feed_directions_follow_each_pass_and_restart_on_the_next():
     centres = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [2, 1, 5], [1, 1, 5], [0, 1, 5.0]])
     t = feed_directions(centres, np.array([0, 0, 0, 1, 1, 1]))

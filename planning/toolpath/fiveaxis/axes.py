@@ -379,29 +379,49 @@ class AxisPlan:
     rounds: int = 0
 
 
-def _search(centres, normals, want, cone_deg, ok, idx, n_rings, n_azimuths):
+def _search(centres, normals, want, cone_deg, ok, idx, n_rings, n_azimuths, memo: dict | None = None):
     """For positions ``idx`` whose wanted axis fails ``ok``: the ring candidate nearest to the wanted
-    axis that passes, and whether one was found."""
-    cand = ring_candidates(normals[idx], cone_deg, n_rings=n_rings, n_azimuths=n_azimuths)
-    order = np.argsort(-np.einsum("ikj,ij->ik", cand, want[idx]), axis=1, kind="stable")
-    found = np.zeros(idx.size, dtype=bool)
+    axis that passes, and whether one was found. ``memo``: answers kept by (centre, wanted axis,
+    normal), to the bit, for the same ``ok``, cone and rings (:func:`plan_axes`' callers plan the same
+    positions again after cutting out a few: only the new ones are searched)."""
     best = want[idx].copy()
-    for r in range(order.shape[1]):
-        todo = np.flatnonzero(~found)
-        if todo.size == 0:
-            break
-        trial = cand[todo, order[todo, r]]
-        good = ok(centres[idx[todo]], trial)
-        hit = todo[good]
-        best[hit] = trial[good]
-        found[hit] = True
+    found = np.zeros(idx.size, dtype=bool)
+    todo_pos = np.arange(idx.size)
+    keys = None
+    if memo is not None and idx.size:
+        rows = np.ascontiguousarray(np.hstack([centres[idx], want[idx], normals[idx]]), dtype=np.float64)
+        keys = rows.view(np.dtype((np.void, rows.shape[1] * 8))).ravel().tolist()
+        got = [memo.get(k) for k in keys]
+        known = np.array([g is not None for g in got], dtype=bool)
+        for i in np.flatnonzero(known).tolist():
+            best[i], found[i] = got[i]
+        todo_pos = np.flatnonzero(~known)
+    if todo_pos.size:
+        sub = idx[todo_pos]
+        cand = ring_candidates(normals[sub], cone_deg, n_rings=n_rings, n_azimuths=n_azimuths)
+        order = np.argsort(-np.einsum("ikj,ij->ik", cand, want[sub]), axis=1, kind="stable")
+        done = np.zeros(sub.size, dtype=bool)
+        for r in range(order.shape[1]):
+            todo = np.flatnonzero(~done)
+            if todo.size == 0:
+                break
+            trial = cand[todo, order[todo, r]]
+            good = ok(centres[sub[todo]], trial)
+            hit = todo[good]
+            best[todo_pos[hit]] = trial[good]
+            done[hit] = True
+        found[todo_pos] = done
+        if keys is not None:
+            for i in todo_pos.tolist():
+                memo[keys[i]] = (best[i].copy(), bool(found[i]))
     return best, found
 
 
 def plan_axes(centres: np.ndarray, pass_index: np.ndarray, normals: np.ndarray, *, lead_deg: float,
               tilt_deg: float, cone_deg, max_rate_deg_per_mm: float, frame: str = "frenet",
               ok: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, rounds: int = 3,
-              n_rings: int = 4, n_azimuths: int = 16, rate_slack_deg: float = 0.0, sweeps: int = 6) -> AxisPlan:
+              n_rings: int = 4, n_azimuths: int = 16, rate_slack_deg: float = 0.0, sweeps: int = 6,
+              memo: dict | None = None) -> AxisPlan:
     """Tool axes for the cutting positions ``centres`` (n,3, mm) of one path (module docstring).
 
     ``pass_index`` (n,): the pass of every position (-1: not on a pass, e.g. a link or a lead);
@@ -409,7 +429,9 @@ def plan_axes(centres: np.ndarray, pass_index: np.ndarray, normals: np.ndarray, 
     (:func:`contact_normals`). ``lead_deg``, ``tilt_deg``: eq. 12 angles; ``cone_deg``: ``(v1,
     v2)`` degrees; ``max_rate_deg_per_mm``: the largest axis turn per mm of centre path; ``frame``:
     ``"frenet"`` or ``"surface"``. ``ok(centres, axes) -> bool``: admissibility of given pairs (None:
-    every axis in the cone is admissible). ``rounds``: smoothing / admissibility rounds."""
+    every axis in the cone is admissible). ``rounds``: smoothing / admissibility rounds. ``memo``: a
+    dict kept by the caller across calls with the same ``ok``, cone and rings: the ring search's
+    answers by position (the same answers, searched once)."""
     c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
     n = c.shape[0]
     nrm = _unit(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
@@ -430,7 +452,7 @@ def plan_axes(centres: np.ndarray, pass_index: np.ndarray, normals: np.ndarray, 
         good = check(c, want)
         bad = np.flatnonzero(~good)
         if bad.size:
-            best, found = _search(c, nrm, want, cone_deg, check, bad, n_rings, n_azimuths)
+            best, found = _search(c, nrm, want, cone_deg, check, bad, n_rings, n_azimuths, memo)
             want[bad[found]] = best[found]
             blocked[bad[~found]] = True
             n_alt = int(found.sum())
@@ -450,7 +472,7 @@ def plan_axes(centres: np.ndarray, pass_index: np.ndarray, normals: np.ndarray, 
             break
         # where the smoothed axis fails: the admissible axis nearest to it becomes the wanted one
         failing = moved[~good]
-        best, found = _search(c, nrm, axes, cone_deg, check, failing, n_rings, n_azimuths)
+        best, found = _search(c, nrm, axes, cone_deg, check, failing, n_rings, n_azimuths, memo)
         want[failing[found]] = best[found]
         axes[failing] = want[failing]
         blocked[failing[~found]] = True

@@ -373,6 +373,7 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
             blocked["floor"] = int(low.sum())
             cut = cut_moves(tp, low, safe_z_mm=safe_z_mm, pass_index=pi)
             tp, pi = cut.toolpath, cut.pass_index
+    memo: dict = {}               # the ring search's answers by position, across the attempts
     for attempt in range(3):
         if tp.n_moves == 0:
             break
@@ -382,7 +383,8 @@ def five_axis_path(tp: Toolpath, pass_index: np.ndarray | None, *, cloud_f: np.n
         nrm = contact_normals(c, cloud_f, tree)
         runs = _runs(touch)
         plan = plan_axes(c, runs[idx], nrm, lead_deg=fp.lead_deg, tilt_deg=fp.tilt_deg, cone_deg=cone_deg,
-                         max_rate_deg_per_mm=fp.max_axis_rate_deg_per_mm, frame=fp.axis_frame, ok=admissible)
+                         max_rate_deg_per_mm=fp.max_axis_rate_deg_per_mm, frame=fp.axis_frame, ok=admissible,
+                         memo=memo)
         if attempt == 0:
             figs.n_positions = int(idx.size)
             figs.n_alternatives = int(plan.n_alternatives)

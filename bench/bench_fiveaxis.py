@@ -4,9 +4,12 @@ seams, machining and path time, offences, seconds.
     .venv/bin/python bench/bench_fiveaxis.py                      # femur-like, 1,000,000 points
     .venv/bin/python bench/bench_fiveaxis.py --points 200000 --five-setups 1 2
     .venv/bin/python bench/bench_fiveaxis.py --sample draft_slot --three-setups 3 --five-setups 1
+    .venv/bin/python bench/bench_fiveaxis.py --sample range_femur --five-setups 2
 
 ``--sample draft_slot``: the draft-walled slot of tests/test_fiveaxis_plan.py (top only, exact
-normals, cone [10, 45], light paths) instead.
+normals, cone [10, 45], light paths) instead. ``--sample range_femur``: the simulated 40,000-point
+range scan of issue 24 (``samples.make_sample("range_femur")``; ``--points`` sets its size), planned with the
+README's own-scan settings (bench/bench_range_scan.py OVERRIDES: the defaults, coverage 0.9, 5 set-ups).
 
 Each plan runs the whole pipeline (paths, posts, the verification on the simulated machine) with the
 femur-like reference parameters (scripts/demo_service.py CONFIGS["femur_like"]: sphere 7 mm, tool
@@ -59,6 +62,10 @@ SLOT = {"normals": {"method": "input"}, "visibility": {"cone_deg": [10, 45]},
         "paths": {"finishing": {"scallop_mm": 0.2}, "roughing": {"step_down_mm": 5}}, "simulate": {"resolution_mm": 1.0}}
 
 
+#: The README's own-scan settings (bench/bench_range_scan.py OVERRIDES), the defaults otherwise.
+RANGE = {"setups": {"coverage": 0.9, "max_setups": 5}}
+
+
 def rotary_word_range(programs: dict, letter: str = "C") -> tuple[float, float]:
     """``(min, max)`` of the ``letter`` words over the LinuxCNC programs (the C register, issue 33)."""
     vals = [float(m) for name, text in programs.items() if name.endswith(".linuxcnc.nc")
@@ -94,8 +101,9 @@ def one(cloud: Cloud, mode: str, max_setups: int, base: dict = FEMUR) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--sample", choices=["femur_like", "draft_slot"], default="femur_like")
-    ap.add_argument("--points", type=int, default=1_000_000, help="femur-like points (default 1,000,000)")
+    ap.add_argument("--sample", choices=["femur_like", "draft_slot", "range_femur"], default="femur_like")
+    ap.add_argument("--points", type=int, default=None,
+                    help="points of the femur-like (default 1,000,000) or range femur (default 40,000) sample")
     ap.add_argument("--three-setups", type=int, default=5, help="setups.max_setups of the 3+2 plan (default 5)")
     ap.add_argument("--five-setups", type=int, nargs="+", default=[1, 2],
                     help="setups.max_setups of the 5axis plans (default 1 2)")
@@ -103,8 +111,11 @@ def main(argv=None) -> int:
     if args.sample == "draft_slot":
         s = samples.draft_slot(density_per_mm2=1.0, seed=1, include_sides=False)
         cloud, base = Cloud(points=s.points, normals=s.normals, source_format="generated"), SLOT
+    elif args.sample == "range_femur":
+        s = samples.make_sample("range_femur", n_points=args.points or 40_000)
+        cloud, base = Cloud(points=s.points, normals=None, source_format="generated"), RANGE
     else:
-        s = samples.femur_like(n_points=args.points, seed=0)
+        s = samples.femur_like(n_points=args.points or 1_000_000, seed=0)
         cloud, base = Cloud(points=s.points, normals=None, source_format="generated"), FEMUR
     rows = [one(cloud, "3+2", args.three_setups, base)] + [one(cloud, "5axis", k, base) for k in args.five_setups]
     print(f"{args.sample}, {cloud.points.shape[0]:,} points")

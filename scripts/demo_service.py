@@ -125,6 +125,10 @@ def run(args) -> int:
 
         client = httpx.Client(base_url=url, headers=headers, timeout=600)
         params = CONFIGS[args.sample]
+        if args.set:
+            from schemas.params import apply_overrides
+
+            params = apply_overrides(params, args.set)
         with open(scan, "rb") as fh:
             r = client.post("/jobs", files={"cloud": (scan.name, fh, "application/octet-stream")},
                             data={"parameters": json.dumps(params)},
@@ -236,6 +240,9 @@ def main(argv=None) -> int:
     ap.add_argument("--port", type=int, default=0, help="port (default: a free one)")
     ap.add_argument("--workers", type=int, help="worker processes of the service")
     ap.add_argument("--max-wait-s", type=float, default=1800.0, help="give up polling after this long")
+    ap.add_argument("--set", action="append", default=[], metavar="PATH=VALUE",
+                    help="change one parameter of the sample's job, as `scanmill plan --set` does "
+                         "(e.g. paths.finishing.mode=5axis); repeatable")
     return run(ap.parse_args(argv))
 
 

@@ -143,3 +143,15 @@ def test_the_printed_values_are_the_posts_strings_read_back(decimals):
                         np.round(rng.uniform(-500, 500, 5000), decimals) + half])
     want = np.array([float(fmt(x, decimals)) for x in v])
     assert np.array_equal(_as_printed(v, decimals), want)
+
+
+@pytest.mark.parametrize("decimals", [0, 3, 4, 8])
+def test_the_posts_batch_formatter_writes_what_fmt_writes(decimals):
+    """fmt_many (the 5-axis posts' columns of numbers) gives fmt's strings, the points, the trailing
+    zeros and the zeros' sign included."""
+    from planning.post.blocks import fmt, fmt_many
+
+    rng = np.random.default_rng(decimals + 1)
+    v = np.concatenate([rng.uniform(-2000, 2000, 5000), np.round(rng.uniform(-5, 5, 2000), decimals)
+                        + 0.5 * 10.0 ** -decimals, [0.0, -0.0, -1e-9, 1e-9, 100.0, -100.0, 0.5, -0.5, 1e12]])
+    assert fmt_many(v, decimals) == [fmt(x, decimals) for x in v.tolist()]

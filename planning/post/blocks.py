@@ -48,6 +48,17 @@ def fmt(value: float, decimals: int) -> str:
     return s
 
 
+def fmt_many(values, decimals: int) -> list[str]:
+    """``[fmt(v, decimals) for v in values]`` (a 1-D array or sequence), the same strings, formatted
+    with one bound format and the two of :func:`fmt`'s rules that can apply to Python's fixed-point
+    output (a point where ``decimals`` is 0; ``-0.`` written ``0.``): the posts' long 5-axis
+    programs print millions of numbers."""
+    text = f"{{:.{int(decimals)}f}}".format
+    out = [text(v) for v in np.asarray(values, dtype=np.float64).reshape(-1).tolist()]
+    out = [(s if "." in s else s + ".").rstrip("0") for s in out]
+    return ["0." if s == "-0." else s for s in out]
+
+
 def rounded(value: float, decimals: int) -> float:
     """The value a control reads from ``fmt(value, decimals)``."""
     return float(fmt(value, decimals))

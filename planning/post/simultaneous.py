@@ -183,7 +183,7 @@ from planning.toolpath.moves import (
     USE_RETRACT,
 )
 
-from .blocks import BlockWriter, comment, fmt, scanmill_version, spindle_word
+from .blocks import BlockWriter, comment, fmt, fmt_many, scanmill_version, spindle_word
 from .options import PostOptions, check_options, check_placement
 
 __all__ = [
@@ -651,8 +651,8 @@ class _Path:
     def words(self, ang: np.ndarray) -> list:
         """``[(tilt, rot)]``: the rotary words (strings) of planner angles ``ang`` (m,2)."""
         st, sr = self.sign
-        ad = self.ad
-        return [(fmt(st * t, ad), fmt(sr * r, ad)) for t, r in np.asarray(ang).tolist()]
+        a = np.asarray(ang, dtype=np.float64).reshape(-1, 2)
+        return list(zip(fmt_many(st * a[:, 0], self.ad), fmt_many(sr * a[:, 1], self.ad)))
 
     def printed(self, ang: np.ndarray) -> np.ndarray:
         """(m,2) the planner angles that the words of ``ang`` (m,2) command: what a control reads
@@ -939,13 +939,13 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
                     f"along the tool axis")
     w.block("G0", f"X{fmt(pos_a[0], d)}", f"Y{fmt(pos_a[1], d)}", f"Z{fmt(pos_a[2], d)}", f"{tn}{words[0][0]}",
             f"{rn}{words[0][1]}")
-    pos = posted["pos"].tolist()
+    X, Y, Z = (fmt_many(posted["pos"][:, k], d) for k in range(3))
     kinds = path.kind[posted["j"]].tolist()
-    Fl = F.tolist()
+    Fl = fmt_many(F, d)
     lines = []
     mode = 94
     home = _home_points(path, posted).tolist()
-    for i, (x, y, z) in enumerate(pos):
+    for i in range(len(X)):
         head = []
         if kinds[i] == RAPID:
             if mode == 93:
@@ -964,9 +964,8 @@ def linuxcnc_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveA
                 head.append("G93")
                 mode = 93
             head.append("G1")
-            tail = (f"F{fmt(Fl[i], d)}",)
-        w.block(*head, f"X{fmt(x, d)}", f"Y{fmt(y, d)}", f"Z{fmt(z, d)}", f"{tn}{words[i][0]}", f"{rn}{words[i][1]}",
-                *tail)
+            tail = (f"F{Fl[i]}",)
+        w.block(*head, f"X{X[i]}", f"Y{Y[i]}", f"Z{Z[i]}", f"{tn}{words[i][0]}", f"{rn}{words[i][1]}", *tail)
         lines.append(len(w.lines))
     if mode == 93:
         w.block("G94")
@@ -1101,13 +1100,13 @@ def iso_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveAxisOp
         w.block("M8")
     w.block("G0", "G43.4", f"H{tool}", f"X{fmt(tip_a[0], d)}", f"Y{fmt(tip_a[1], d)}", f"Z{fmt(tip_a[2], d)}",
             f"{tn}{words[0][0]}", f"{rn}{words[0][1]}")
-    pos = posted["pos"].tolist()
+    X, Y, Z = (fmt_many(posted["pos"][:, k], d) for k in range(3))
     kinds = path.kind[posted["j"]].tolist()
-    feeds = tip_feed.tolist()
+    feeds = fmt_many(tip_feed, d)
     lines = []
     f_now = None
     home = _home_points(path, posted).tolist()
-    for i, (x, y, z) in enumerate(pos):
+    for i in range(len(X)):
         if kinds[i] == RAPID and home[i]:
             # C turned back by whole turns: TCP off at Z home, turn, TCP on to the point (as an
             # operation's start)
@@ -1119,11 +1118,10 @@ def iso_5axis_blocks(w: BlockWriter, options: PostOptions | None, op: FiveAxisOp
         elif kinds[i] == RAPID:
             head, tail = ("G0",), ()
         else:
-            fw = f"F{fmt(feeds[i], d)}"
+            fw = f"F{feeds[i]}"
             head, tail = ("G1",), (() if fw == f_now else (fw,))
             f_now = fw
-        w.block(*head, f"X{fmt(x, d)}", f"Y{fmt(y, d)}", f"Z{fmt(z, d)}", f"{tn}{words[i][0]}", f"{rn}{words[i][1]}",
-                *tail)
+        w.block(*head, f"X{X[i]}", f"Y{Y[i]}", f"Z{Z[i]}", f"{tn}{words[i][0]}", f"{rn}{words[i][1]}", *tail)
         lines.append(len(w.lines))
     if o.coolant:
         w.block("M9")

@@ -425,3 +425,27 @@ def test_input_validation():
 def test_empty_input():
     vis = machine_visibility(np.zeros((0, 3)), "compact_trunnion_bc")
     assert vis.feasible.shape == (0,) and vis.angles_deg.shape == (0, 2) and vis.n_solutions.shape == (0,)
+
+
+@pytest.mark.parametrize("name", ["compact_trunnion_bc", "compact_trunnion_ac"])
+def test_the_written_out_table_rotation_is_the_matrix_product(name):
+    """part_to_machine_rotation writes R_tilt R_z(rotary) out by columns (the 5-axis posts ask it for
+    every posted point): the same numbers as the product of the two rotations, and the machine model's
+    pivot shift is (I - R_tilt) P."""
+    from planning.orientations.kinematics import (
+        _rot,
+        _tilt_axis,
+        part_to_machine_rotation,
+    )
+    from planning.simulate.kinematics import MachineModel
+
+    rng = np.random.default_rng(5)
+    a = np.c_[rng.uniform(-40, 120, 5000), rng.uniform(-4000, 4000, 5000)]
+    a[:20, 1] = 0.0
+    a[20:40, 0] = 0.0
+    m = MachineModel(name, np.array([1.0, 2.0, 3.0]))
+    Rt = _rot(_tilt_axis(m.profile), np.radians(a[:, 0]))
+    assert np.array_equal(part_to_machine_rotation(a, m.profile), Rt @ _rot("z", np.radians(a[:, 1])))
+    M, shift = m._rotation(a)
+    assert np.array_equal(M, Rt @ _rot("z", np.radians(a[:, 1])))
+    assert np.allclose(shift, m.pivot - Rt @ m.pivot, rtol=0, atol=1e-12)

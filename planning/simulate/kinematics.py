@@ -83,21 +83,12 @@ class MachineModel:
         self.home = machine_home_mm(self.profile)
 
     def _rotation(self, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(M (k,3,3), shift (k,3))``: table-table ``M`` (:func:`part_to_machine_rotation`: ``R_tilt
-        R_z(rotary)``, its columns written out: ``R_z`` mixes only the first two), ``(I - R_tilt) P`` of
-        each row."""
-        a = np.asarray(angles, dtype=np.float64)
-        if a.ndim != 2 or a.shape[1] != 2 or not np.isfinite(a).all():
-            part_to_machine_rotation(a, self.profile)          # its error for a bad array
-        Rt = _rot(_tilt_axis(self.profile), np.radians(a[:, 0]))
-        r = np.radians(a[:, 1])
-        cr, sr = np.cos(r)[:, None], np.sin(r)[:, None]
-        M = np.empty_like(Rt)
-        M[:, :, 0] = Rt[:, :, 0] * cr + Rt[:, :, 1] * sr
-        M[:, :, 1] = Rt[:, :, 1] * cr - Rt[:, :, 0] * sr
-        M[:, :, 2] = Rt[:, :, 2]
+        """``(M (k,3,3), shift (k,3))``: table-table ``M`` (:func:`part_to_machine_rotation`),
+        ``(I - R_tilt) P`` of each row."""
+        M = part_to_machine_rotation(angles, self.profile)
+        Rt = _rot(_tilt_axis(self.profile), np.radians(np.asarray(angles, dtype=np.float64)[:, 0]))
         P = self.pivot
-        return M + 0.0, P - (Rt[:, :, 0] * P[0] + Rt[:, :, 1] * P[1] + Rt[:, :, 2] * P[2])
+        return M, P - (Rt[:, :, 0] * P[0] + Rt[:, :, 1] * P[1] + Rt[:, :, 2] * P[2])
 
     def axis(self, angles) -> np.ndarray:
         """(k,3) unit tool axis in the part frame (tip towards spindle) for ``angles`` (k,2), degrees."""

@@ -32,31 +32,24 @@ def scanmill_version() -> str:
     return str(scanmill.__version__)
 
 
+def _tidy(s: str) -> str:
+    """Python's fixed-point text ``s`` as the posts print it: a decimal point, no trailing zeros,
+    never ``-0.``."""
+    s = (s if "." in s else s + ".").rstrip("0")
+    return "0." if s == "-0." else s
+
+
 def fmt(value: float, decimals: int) -> str:
     """``value`` rounded to ``decimals`` places with a decimal point and no trailing zeros:
     ``10.``, ``-0.5``, ``0.`` (never ``-0.``)."""
-    s = f"{float(value):.{decimals}f}"
-    if "." not in s:
-        s += "."
-    s = s.rstrip("0")
-    if s.startswith("-") and float(s) == 0.0:
-        s = s[1:]
-    if s.startswith("."):
-        s = "0" + s
-    elif s.startswith("-."):
-        s = "-0" + s[1:]
-    return s
+    return _tidy(f"{float(value):.{int(decimals)}f}")
 
 
 def fmt_many(values, decimals: int) -> list[str]:
-    """``[fmt(v, decimals) for v in values]`` (a 1-D array or sequence), the same strings, formatted
-    with one bound format and the two of :func:`fmt`'s rules that can apply to Python's fixed-point
-    output (a point where ``decimals`` is 0; ``-0.`` written ``0.``): the posts' long 5-axis
-    programs print millions of numbers."""
+    """``[fmt(v, decimals) for v in values]`` (a 1-D array or sequence) with one bound format: the
+    posts' long 5-axis programs print millions of numbers."""
     text = f"{{:.{int(decimals)}f}}".format
-    out = [text(v) for v in np.asarray(values, dtype=np.float64).reshape(-1).tolist()]
-    out = [(s if "." in s else s + ".").rstrip("0") for s in out]
-    return ["0." if s == "-0." else s for s in out]
+    return [_tidy(text(v)) for v in np.asarray(values, dtype=np.float64).reshape(-1).tolist()]
 
 
 def rounded(value: float, decimals: int) -> float:

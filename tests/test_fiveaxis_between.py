@@ -56,8 +56,8 @@ def test_a_point_met_only_late_in_a_long_turning_move_blocks_the_move():
     assert between_ok(far, c0[None], c1[None], a0[None], a1[None])[0]
 
 
-def test_the_points_checked_are_dense_enough_for_any_point_the_flutes_meet():
-    # brute force: a point met anywhere along the move (fine steps) is met by one of the checked points
+def test_the_points_checked_are_at_most_a_step_and_a_degree_apart():
+    # the long turning move is checked every 0.25 mm and every degree (its ends count as checked)
     rng = np.random.default_rng(3)
     c0, c1, a0, a1, _ = long_turning_move()
     owner, u = _between_fractions(c0[None], c1[None], a0[None], a1[None])

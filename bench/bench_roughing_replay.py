@@ -17,6 +17,9 @@ calls it):
     .venv/bin/py-spy record -r 100 -f raw -o /tmp/rough.raw -- .venv/bin/python bench/bench_roughing_replay.py femur_like
     .venv/bin/python bench/bench_roughing_replay.py --shares /tmp/rough.raw
 
+``--within _paths`` counts the samples of a whole plan's paths stage instead (any plan's py-spy raw
+file, e.g. of ``bench/bench_plan_once.py``).
+
 ``--questions``: over the last round, how many questions the roughing asked its stock view of each kind
 and the seconds they took (:class:`planning.toolpath.roughing.levels._LiveStock`: the view brought up
 to date with the moves written since the last question (``sync``, counted in the question that asked
@@ -42,16 +45,17 @@ sys.path.insert(0, str(HERE / "bench"))
 _FRAME = re.compile(r"(.*) \((.*):(\d+)\)")
 
 
-def shares(raw: Path, top: int = 25) -> None:
+def shares(raw: Path, top: int = 25, within: str = "roughing_paths") -> None:
     """The inclusive share of each function and the share of each deepest planning line, over the
-    py-spy raw samples (``stack count`` lines) whose stack holds ``roughing_paths``."""
+    py-spy raw samples (``stack count`` lines) whose stack holds the function ``within`` (default
+    ``roughing_paths``; ``_paths``: the whole paths stage of a plan)."""
     incl: collections.Counter = collections.Counter()
     deepest: collections.Counter = collections.Counter()
     total = 0
     for line in raw.read_text().splitlines():
         stack, _, n = line.rpartition(" ")
         frames = stack.split(";")
-        if not any("roughing_paths" in f for f in frames):
+        if not any(f.startswith(within + " (") for f in frames):
             continue
         total += int(n)
         parsed = [m.groups() for m in map(_FRAME.match, frames) if m]
@@ -61,8 +65,8 @@ def shares(raw: Path, top: int = 25) -> None:
         if inner:
             deepest[inner[-1]] += int(n)
     if not total:
-        raise SystemExit(f"{raw}: no sample inside roughing_paths")
-    print(f"{total} samples inside roughing_paths")
+        raise SystemExit(f"{raw}: no sample inside {within}")
+    print(f"{total} samples inside {within}")
     print("inclusive share, function, file")
     for (name, path), n in incl.most_common(top):
         print(f"{100 * n / total:5.1f} %  {name}  {path}")
@@ -76,11 +80,13 @@ def main() -> int:
     ap.add_argument("case", nargs="?", default="femur_like", help="a bench_stock_first case")
     ap.add_argument("--rounds", type=int, default=2, help="replays of all the calls")
     ap.add_argument("--shares", type=Path, help="read a py-spy raw file instead (module docstring)")
+    ap.add_argument("--within", default="roughing_paths",
+                    help="with --shares: the function whose samples are counted (default roughing_paths)")
     ap.add_argument("--questions", action="store_true",
                     help="count and time the questions to the stock view over the last round (docstring)")
     args = ap.parse_args()
     if args.shares is not None:
-        shares(args.shares)
+        shares(args.shares, within=args.within)
         return 0
     from bench_roughing_air import capture_all
 

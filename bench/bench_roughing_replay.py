@@ -82,11 +82,12 @@ def main() -> int:
     ap.add_argument("--shares", type=Path, help="read a py-spy raw file instead (module docstring)")
     ap.add_argument("--within", default="roughing_paths",
                     help="with --shares: the function whose samples are counted (default roughing_paths)")
+    ap.add_argument("--top", type=int, default=25, help="with --shares: lines of each list (default 25)")
     ap.add_argument("--questions", action="store_true",
                     help="count and time the questions to the stock view over the last round (docstring)")
     args = ap.parse_args()
     if args.shares is not None:
-        shares(args.shares, within=args.within)
+        shares(args.shares, top=args.top, within=args.within)
         return 0
     from bench_roughing_air import capture_all
 

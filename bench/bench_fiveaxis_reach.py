@@ -33,6 +33,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sample", choices=["range_femur", "femur_like"], default="range_femur")
     ap.add_argument("--points", type=int, default=None, help="sample size (default 40,000 / 200,000)")
+    ap.add_argument("--setup", type=int, default=0,
+                    help="which 5-axis finishing set-up (0: the first planned) to take the first ring search of")
+    ap.add_argument("--dense", type=int, default=0,
+                    help="also try this many directions spread evenly over the sphere (those inside the cone "
+                         "about the normal) on every position the rings leave with no admissible axis: how "
+                         "many of them a finer search would finish")
     args = ap.parse_args(argv)
     from bench_fiveaxis import FEMUR, RANGE
 
@@ -47,14 +53,22 @@ def main(argv=None) -> int:
     seen = {}
     search = axes_mod._search
 
+    oks = []
+
     def spy(centres, normals, want, cone_deg, ok, idx, n_rings, n_azimuths, memo=None):
-        if not seen:
+        if not any(o is ok for o in oks):
+            oks.append(ok)
+        if not seen and len(oks) == args.setup + 1:
             seen.update(centres=centres, normals=normals, cone=cone_deg, ok=ok, idx=idx.copy(), rings=n_rings,
                         az=n_azimuths)
         return search(centres, normals, want, cone_deg, ok, idx, n_rings, n_azimuths, memo)
 
+    guard = area_paths._guard_finishing
+
     def stop(*a, **k):
-        raise _Stop
+        if seen:
+            raise _Stop
+        return guard(*a, **k)
 
     axes_mod._search = spy
     area_paths._guard_finishing = stop
@@ -67,7 +81,7 @@ def main(argv=None) -> int:
     except _Stop:
         pass
     if not seen:
-        print("no ring search ran before the first finishing guard")
+        print(f"no ring search of set-up {args.setup} ran")
         return 1
     ok, idx = seen["ok"], seen["idx"]
     cand = axes_mod.ring_candidates(seen["normals"][idx], seen["cone"], n_rings=seen["rings"], n_azimuths=seen["az"])
@@ -82,7 +96,7 @@ def main(argv=None) -> int:
     rot = sols.valid.any(axis=1)
     reach = ok.reachable(c, a)
     inner = swing & pole
-    print(f"{args.sample}, {n:,} points: first set-up's first ring search, {idx.size:,} positions x {k} candidates "
+    print(f"{args.sample}, {n:,} points: 5-axis set-up {args.setup}'s first ring search, {idx.size:,} positions x {k} candidates "
           f"= {len(a):,} pairs")
     print(f"  within the swing and off the pole: {int(inner.sum()):,}")
     print(f"  of those, no rotary solution within the tilt's travel: {int((inner & ~rot).sum()):,}")
@@ -104,7 +118,43 @@ def main(argv=None) -> int:
     free = np.flatnonzero(inner & reach)
     clear = ok.grid.free(c[free], a[free], ok.tool)
     print(f"  reachable: {free.size:,}; of those, the tool assembly meets the cloud: {int((~clear).sum()):,}")
+    if args.dense:
+        _dense(seen, ok, cand, args.dense)
     return 0
+
+
+def _fibonacci(n: int) -> np.ndarray:
+    """(n,3) unit directions spread evenly over the sphere (the golden-angle spiral)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * i
+    return np.c_[r * np.cos(phi), r * np.sin(phi), z]
+
+
+def _dense(seen, ok, cand, n_dirs: int) -> None:
+    """The positions of the first ring search whose 64 candidates all fail ``ok``: how many have an
+    admissible axis among ``n_dirs`` evenly spread directions inside the cone about their normal."""
+    idx = seen["idx"]
+    cen, nrm = seen["centres"][idx], seen["normals"][idx]
+    k = cand.shape[1]
+    good = ok(np.repeat(cen, k, axis=0), cand.reshape(-1, 3)).reshape(-1, k)
+    none = np.flatnonzero(~good.any(axis=1))
+    d = _fibonacci(n_dirs)
+    lo, hi = (np.cos(np.radians(float(v))) for v in seen["cone"])
+    cosang = nrm[none] @ d.T                                     # (p, n_dirs)
+    inside = (cosang <= lo) & (cosang >= hi) & (d[:, 2][None, :] >= ok.cos_swing - 1e-12)
+    rows, cols = np.nonzero(inside)
+    rescued = np.zeros(none.size, dtype=bool)
+    step = 200_000
+    for s0 in range(0, rows.size, step):
+        r, c = rows[s0:s0 + step], cols[s0:s0 + step]
+        g = ok(cen[none[r]], d[c])
+        rescued[r[g]] = True
+    print(f"  positions with no admissible ring candidate: {none.size:,} of {idx.size:,}; "
+          f"{int(inside.any(axis=1).sum()):,} have some of {n_dirs:,} even directions inside the cone and the "
+          f"swing ({int(inside.sum(axis=1).mean()) if none.size else 0} each on average); an admissible one "
+          f"among them: {int(rescued.sum()):,}")
 
 
 if __name__ == "__main__":

@@ -234,7 +234,7 @@ def try_changes(points: np.ndarray, nrm, ori, config: PlanConfig, profile, visib
         else:
             sub = (lambda f, m="", at=frac: say(at + f / max(len(changes), 1), m)) if progress else None
             _, gv = pl._visibility(points, nrm, ori, cfg, cfg.tool.assembly(), profile, base_dir, sub)
-            vis = pl.selection_matrix(gv.visible, ori.axes, nrm.normals, cfg)
+            vis = pl.selection_matrix(gv.visible, ori.axes, nrm.normals, cfg, along=gv.along)
         sel = pl._setups(vis, zmask, cfg, None)
         feasible = sel.status in _FEASIBLE
         note = "the selection's time limit (capped to the budget left) ran out" if sel.status == "unknown" else ""

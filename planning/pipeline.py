@@ -197,8 +197,15 @@ def _visibility(points: np.ndarray, nrm: _Normals, ori: _Orientations, config: P
     gv = global_visibility(points, nrm.sample_index, nrm.normals, ori.axes, ori.angles_deg, cone, tool=tool,
                            profile=profile, fixtures_params=config.fixtures, check_global=vp.global_,
                            check_travel=vp.travel, obstacles=vp.obstacles, base_dir=base_dir,
-                           progress=progress)
+                           progress=progress, along_swing_deg=_along_swing(config))
     return cone, gv
+
+
+def _along_swing(config: PlanConfig) -> float | None:
+    """``global_visibility``'s ``along_swing_deg``: the 5-axis swing in simultaneous 5-axis finishing
+    (the pass directions must be within travel themselves), None in 3+2."""
+    fp = config.paths.finishing
+    return float(fp.max_swing_deg) if fp.mode == "5axis" else None
 
 
 def _visibility_summary(config: PlanConfig, nrm: _Normals, ori: _Orientations, cone: np.ndarray,
@@ -237,16 +244,18 @@ def _visibility_warnings(vis: _Visibility) -> list[str]:
     return []
 
 
-def selection_matrix(visible: np.ndarray, axes: np.ndarray, normals: np.ndarray, config: PlanConfig) -> np.ndarray:
+def selection_matrix(visible: np.ndarray, axes: np.ndarray, normals: np.ndarray, config: PlanConfig,
+                     along: np.ndarray | None = None) -> np.ndarray:
     """(n, m) which set-up axis can finish which sample: ``visible`` itself in 3+2; in 5-axis finishing
-    (``paths.finishing.mode``), the points some candidate axis within the swing sees
-    (:func:`planning.visibility.five_axis.five_axis_visibility`)."""
+    (``paths.finishing.mode``), the points some candidate axis within the swing sees, where the machine
+    can present the set-up's own axis (``along``: :attr:`GlobalVisibility.along`;
+    :func:`planning.visibility.five_axis.five_axis_visibility`)."""
     fp = config.paths.finishing
     if fp.mode != "5axis":
         return visible
     from planning.visibility.five_axis import five_axis_visibility
 
-    return five_axis_visibility(visible, axes, normals, fp.max_swing_deg)
+    return five_axis_visibility(visible, axes, normals, fp.max_swing_deg, along=along)
 
 
 def _setups(visible: np.ndarray, zmask: np.ndarray, config: PlanConfig, progress) -> SetupSelection:
@@ -472,7 +481,7 @@ def run_plan(cloud: Cloud, config: PlanConfig, *, name: str | None = None,
     run.warnings += _visibility_warnings(vis)
     zmask, zone_warnings = zone_mask(placed.scanned_points, nrm.sample_index, config.setups.functional_zones)
     run.warnings += zone_warnings
-    finish_vis = selection_matrix(gv.visible, ori.axes, nrm.normals, config)
+    finish_vis = selection_matrix(gv.visible, ori.axes, nrm.normals, config, along=gv.along)
     sel = run.stage("setups", lambda p: _setups(finish_vis, zmask, config, p))
     run.warnings += _setups_warnings(sel, vis.summary, config)
     hinted = {}

@@ -211,6 +211,11 @@ def test_five_axis_visibility_matches_a_brute_force_reading_of_its_rule():
             want[i, j] = facing and bool(vis[i, near].any())
     assert np.array_equal(got, want)
     assert got.sum() > vis.sum() // 4          # a real mix of both outcomes
+    # a pass direction the machine cannot present at the point itself (out of travel) finishes nothing there
+    along = rng.random((n, m)) < 0.5
+    got_along = five_axis_visibility(vis, axes, nrm, swing, along=along)
+    assert np.array_equal(got_along, want & along)
+    assert 0 < got_along.sum() < got.sum()
 
 
 def test_an_axis_turn_is_kept_off_the_rotary_pole_along_its_whole_arc():

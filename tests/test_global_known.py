@@ -170,3 +170,38 @@ def test_all_obstacles_never_free_more_than_sampled():
     assert full.n_obstacles == s.points.shape[0] and sub.n_obstacles == idx.size
     ref = brute_force_collision_free(s.points, idx[:40], normals[:40], axes, tool, candidates=cone[:40])
     assert np.array_equal(full.visible[:40], ref)
+
+
+def test_along_is_the_travel_of_each_facing_pair_by_the_simulation_kinematics():
+    """``along_swing_deg`` (simultaneous 5-axis): for every (sample, axis) pair whose normal lies within
+    the swing of the axis, whether the machine can present that axis itself there within X/Y/Z travel,
+    without the cone; the others False. Checked pair by pair against the simulation's own kinematics
+    (:class:`planning.simulate.kinematics.MachineModel`, tip = ball centre - R * axis), on a placement
+    that puts some of the pairs out of travel and keeps others in."""
+    from planning.simulate.kinematics import MachineModel
+
+    s, idx, normals, prof, axes, angles, cone = _slot_case(0.5, 3, 6)
+    tool = ball_tool(3.0, flute_length_mm=12.0, stickout_mm=30.0, holder=[(12.5, 45.0, None)])
+    swing = 70.0
+    fx = FixturesParams(placement_mm=(0.0, 0.0, 40.0))
+    gv = global_visibility(s.points, idx, normals, axes, angles, cone, tool=tool, profile=prof, fixtures_params=fx,
+                           check_global=False, along_swing_deg=swing)
+    facing = np.degrees(np.arccos(np.clip(normals @ axes.T, -1, 1))) <= swing
+    model = MachineModel(prof, gv.placement_mm)
+    (x0, x1), (y0, y1), (z0, z1) = prof.linear_limits_mm
+    lo, hi = np.array([x0, y0, z0]) - 1e-6, np.array([x1, y1, z1]) + 1e-6
+    want = np.zeros_like(facing)
+    R = tool.radius_mm
+    for i in range(idx.size):
+        for j in np.flatnonzero(facing[i]):
+            tip = s.points[idx[i]] + R * normals[i] - R * axes[j]
+            mpos = model.machine_from_tip(tip[None], angles[j][None], tool.gauge_length_mm)[0]
+            want[i, j] = bool(np.all((mpos >= lo) & (mpos <= hi)))
+    assert np.array_equal(gv.along, want)
+    assert 0 < gv.along.sum() < facing.sum()                   # some pairs in travel, some out
+    assert (gv.along & ~cone).any()                             # not limited to the cone's pairs
+    # none asked, or the travel not checked: not computed
+    assert global_visibility(s.points, idx, normals, axes, angles, cone, tool=tool, profile=prof,
+                             fixtures_params=fx, check_global=False).along is None
+    assert global_visibility(s.points, idx, normals, axes, angles, cone, tool=tool, profile=prof, fixtures_params=fx,
+                             check_global=False, check_travel=False, along_swing_deg=swing).along is None

@@ -177,8 +177,8 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
     tried: list[Tried] = []
     survivors: list[Tried] = []        # screened feasible (the placed clouds are turned again to confirm)
 
-    def setups(visible: np.ndarray, normals: np.ndarray, progress=None):
-        return pl._setups(pl.selection_matrix(visible, ori.axes, normals, config),
+    def setups(visible: np.ndarray, normals: np.ndarray, progress=None, along=None):
+        return pl._setups(pl.selection_matrix(visible, ori.axes, normals, config, along=along),
                           zm if zm is not None else np.zeros(n, bool), config, progress)
 
     def within(lo: float, hi: float, what: str):
@@ -199,9 +199,9 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
         g0 = global_visibility(P, sidx, N, ori.axes, ori.angles_deg, cone, tool=tool, profile=profile,
                                fixtures_params=config.fixtures, check_global=vp.global_, check_travel=vp.travel,
                                obstacles=vp.obstacles, base_dir=base_dir, check_cloud=False,
-                               progress=within(lo, lo + 0.1 * w, what))
+                               progress=within(lo, lo + 0.1 * w, what), along_swing_deg=pl._along_swing(config))
         if not vp.global_:
-            sel = setups(g0.visible, N, within(lo + 0.1 * w, lo + w, f"{what}: set-ups"))
+            sel = setups(g0.visible, N, within(lo + 0.1 * w, lo + w, f"{what}: set-ups"), along=g0.along)
             t = _from_selection(i, pose, "confirmed", sel, exact=True)
             t.seconds = time.perf_counter() - c0
             tried.append(t)
@@ -218,7 +218,7 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
         ok = cloud_collision_free(P[sidx], np.arange(n), N, ori.axes, tool, candidates=g0.visible,
                                   obstacles=forbidden if forbidden.size else None,
                                   progress=lambda d, t, say=screen: say(d / max(t, 1), f"screening collisions, axis {d}/{t}"))
-        sel = setups(g0.visible & ok, N, within(lo + 0.4 * w, lo + w, f"{what}: set-ups"))
+        sel = setups(g0.visible & ok, N, within(lo + 0.4 * w, lo + w, f"{what}: set-ups"), along=g0.along)
         t = _from_selection(i, pose, "screened", sel, exact=False)
         t.seconds = time.perf_counter() - c0
         tried.append(t)
@@ -238,7 +238,7 @@ def search_placement(points: np.ndarray, sample_index: np.ndarray, normals: np.n
         P, N = apply_pose(pts, t.pose), turn(nrm, t.pose.rotation)
         cone, gv = pl._visibility(P, pl._Normals(sidx, N, None), ori, config, tool, profile, base_dir,
                                   within(lo, lo + 0.5 * w, what))
-        sel = setups(gv.visible, N, within(lo + 0.5 * w, lo + w, f"{what}: set-ups"))
+        sel = setups(gv.visible, N, within(lo + 0.5 * w, lo + w, f"{what}: set-ups"), along=gv.along)
         c = _from_selection(t.index, t.pose, "confirmed", sel, exact=True)
         c.seconds = t.seconds + time.perf_counter() - c0
         tried[[x.index for x in tried].index(t.index)] = c

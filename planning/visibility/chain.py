@@ -16,6 +16,7 @@ It reports, per axis, how many sampled points each filter removed.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,7 +40,10 @@ class GlobalVisibility:
     """``visible`` (n, m) bool after every filter; ``removed[name]`` (m,) int: sampled points that
     filter removed per axis; ``placement_mm`` (3,): the part placement used; ``fixtures``: the
     fixture solids and table, ``forbidden_mm`` (K,3) the forbidden points (built once here, also the
-    tool paths' obstacles); ``seconds[name]``."""
+    tool paths' obstacles); ``seconds[name]``. ``along`` (n, m) bool or None: with ``along_swing_deg``
+    (simultaneous 5-axis), the machine can present axis ``j`` itself at sample ``i`` within the X/Y/Z
+    travel, for the samples whose normal is within that swing of ``j`` (the others False): where a
+    set-up of pass direction ``j`` can rough and drop its ball."""
 
     visible: np.ndarray
     removed: dict[str, np.ndarray]
@@ -49,6 +53,7 @@ class GlobalVisibility:
     fixtures: list = field(default_factory=list)
     forbidden_mm: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     seconds: dict[str, float] = field(default_factory=dict)
+    along: np.ndarray | None = None
 
 
 def build_fixtures(fixtures_params, placement_mm: np.ndarray, *, base_dir: Optional[Path] = None):
@@ -86,7 +91,7 @@ def global_visibility(points: np.ndarray, sample_index: np.ndarray, normals: np.
                       fixtures_params, check_global: bool = True, check_travel: bool = True,
                       obstacles: str = "all", base_dir: Optional[Path] = None,
                       progress: Optional[Callable[[float, str], None]] = None,
-                      check_cloud: bool = True) -> GlobalVisibility:
+                      check_cloud: bool = True, along_swing_deg: float | None = None) -> GlobalVisibility:
     """Apply travel, fixture and cloud-collision filters to ``cone_visible`` (n, m) bool.
 
     ``points`` (N,3) mm: the whole cloud; ``sample_index`` (n,), ``normals`` (n,3): the sampled
@@ -97,7 +102,10 @@ def global_visibility(points: np.ndarray, sample_index: np.ndarray, normals: np.
     tool passing between samples). Follows Makki
     2010 §2.2.2 (Fig. 4c, travel) and §2.2.4 (global visibility). ``check_cloud=False`` stops after
     the fixtures and the table (a superset of the visible pairs at a fraction of the cost, which
-    :mod:`planning.placement.search` bounds the coverage with).
+    :mod:`planning.placement.search` bounds the coverage with). ``along_swing_deg`` (simultaneous
+    5-axis, ``paths.finishing.max_swing_deg``): also the travel of every pair whose normal is within
+    that angle of the axis, without the cone (``GlobalVisibility.along``; None: not computed, nor when
+    the travel is not checked).
     """
     m = axes.shape[0]
     vis = np.array(cone_visible, dtype=bool, copy=True)
@@ -122,6 +130,13 @@ def global_visibility(points: np.ndarray, sample_index: np.ndarray, normals: np.
         vis &= ok
         seconds["travel"] = time.perf_counter() - t0
         report(0.05, f"travel: {int(removed['travel'].sum())} pairs out of X/Y/Z travel")
+    along = None
+    if check_travel and along_swing_deg is not None:
+        t0 = time.perf_counter()
+        facing = (normals @ axes.T) >= math.cos(math.radians(float(along_swing_deg))) - 1e-12
+        along = travel_feasible(centres, axes, angles_deg, profile, placement_mm=placement, tool_radius_mm=R,
+                                gauge_length_mm=tool.gauge_length_mm, candidates=facing)
+        seconds["travel_along"] = time.perf_counter() - t0
 
     solids, forbidden, table_z = build_fixtures(fixtures_params, placement, base_dir=base_dir)
     n_obst = 0
@@ -146,6 +161,6 @@ def global_visibility(points: np.ndarray, sample_index: np.ndarray, normals: np.
         removed["cloud_collision"] = (vis & ~ok).sum(axis=0)
         vis &= ok
         seconds["cloud_collision"] = time.perf_counter() - t0
-    return GlobalVisibility(visible=vis, removed=removed, placement_mm=placement,
+    return GlobalVisibility(visible=vis, removed=removed, placement_mm=placement, along=along,
                             table_z_mm=table_z if check_global else None, n_obstacles=n_obst, fixtures=solids,
                             forbidden_mm=forbidden, seconds=seconds)

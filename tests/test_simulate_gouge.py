@@ -367,3 +367,86 @@ def test_the_warm_up_compiles_the_kernels_a_real_call_uses(tmp_path):
     out = json.loads(p.stdout.strip().splitlines()[-1])
     assert out["cut"] > 0
     assert [f for f in out["compiled"] if f.startswith("planning.")] == [], out["compiled"]
+
+
+def _turning_steps(seed: int, n: int = 40, turn_deg: float = 0.7, step_mm: float = 0.25):
+    """A 5-axis pass as the reader gives it: ball centres ``step_mm`` apart along a gentle curve, the axis
+    turning ``turn_deg`` per step about a wandering direction, each step a move from the tip before to
+    its own tip with its own (end) axis; a first move down to the first tip."""
+    rng = np.random.default_rng(seed)
+    R = BALL.radius_mm
+    a = np.empty((n + 1, 3))
+    a[0] = (0.3, -0.2, 0.93)
+    a[0] /= np.linalg.norm(a[0])
+    c = np.zeros((n + 1, 3))
+    d = np.array([1.0, 0.3, 0.0]) / np.hypot(1.0, 0.3)
+    for k in range(1, n + 1):
+        d = d + rng.normal(0.0, 0.05, 3)
+        d /= np.linalg.norm(d)
+        c[k] = c[k - 1] + step_mm * d
+        u = np.cross(a[k - 1], rng.normal(size=3))
+        u /= np.linalg.norm(u)
+        th = math.radians(turn_deg)
+        a[k] = math.cos(th) * a[k - 1] + math.sin(th) * u
+    tips = c - R * a
+    start = np.vstack([tips[:1] + 20.0 * a[:1], tips[:-1]])
+    m = _motion(start, tips, 1)
+    m.axis[:] = a
+    return m, c, a
+
+
+def _true_depth(points, c, a, R, Lside, samples=801):
+    """The depth of each point inside the ball or the side of its flutes over the steps run as a control
+    runs them: the centre along its line, the axis turning between the steps' ends (normalised linear
+    interpolation), sampled densely; (n,)."""
+    out = np.full(points.shape[0], -np.inf)
+    for k in range(1, c.shape[0]):
+        for t in np.linspace(0.0, 1.0, samples):
+            ax = (1 - t) * a[k - 1] + t * a[k]
+            ax /= np.linalg.norm(ax)
+            w = points - ((1 - t) * c[k - 1] + t * c[k])
+            h = w @ ax
+            r = np.linalg.norm(w - h[:, None] * ax, axis=1)
+            ball = R - np.linalg.norm(w, axis=1)
+            side = np.where((h >= 0.0) & (h <= Lside) & (r <= R), R - r, -np.inf)
+            out = np.maximum(out, np.maximum(ball, side))
+    return out
+
+
+def test_the_flutes_turn_with_the_axis_on_a_five_axis_step():
+    """Points beside the flutes of a pass whose axis turns 0.7 degrees a step: the measured depth is that
+    of the tool run as the control runs it (the centre on its line, the axis turning), within the
+    sampling, not that of flutes held at each step's end axis, which stand up to 0.15 mm off at the top
+    of the flutes and read cuts the tool does not make. The 65 samples of a step lie at most a 64th of
+    its path apart (0.004 mm of centre, 0.002 mm of turn at the flutes' top): a depth can read that much
+    shallow, never deeper."""
+    R, Lside = BALL.radius_mm, BALL.flute_length_mm - BALL.radius_mm
+    worst, over, n_cut, n_false = 0.0, -np.inf, 0, 0
+    for seed in (0, 1):
+        m, c, a = _turning_steps(seed)
+        rng = np.random.default_rng(100 + seed)
+        k = rng.integers(1, c.shape[0], 300)
+        t = rng.uniform(0.0, 1.0, (300, 1))
+        ax = (1 - t) * a[k - 1] + t * a[k]
+        ax /= np.linalg.norm(ax, axis=1)[:, None]
+        perp = np.cross(ax, rng.normal(size=(300, 3)))
+        perp /= np.linalg.norm(perp, axis=1)[:, None]
+        h = rng.uniform(0.5, Lside - 0.5, (300, 1))
+        pts = (1 - t) * c[k - 1] + t * c[k] + h * ax + (R + rng.uniform(-0.03, 0.06, (300, 1))) * perp
+        got = penetration_mm(pts, [m], {1: BALL})
+        true = _true_depth(pts, c, a, R, Lside)
+        near = true > -0.2
+        worst = max(worst, float((true[near] - got[near]).max()))
+        over = max(over, float((got[near] - true[near]).max()))
+        n_cut += int((true > 0.001).sum())
+        # the same steps with the flutes held at each step's end axis (the measure before): deeper readings
+        held = np.full(pts.shape[0], -np.inf)
+        for j in range(1, c.shape[0]):
+            held = np.maximum(held, _ref_depth_pairs(pts, np.repeat(c[j - 1:j] - R * a[j:j + 1], 300, 0),
+                                                     np.repeat(c[j:j + 1] - R * a[j:j + 1], 300, 0),
+                                                     np.repeat(a[j:j + 1], 300, 0), BALL))
+        n_false += int(((held > true + 0.02) & near).sum())
+    assert worst <= 0.006, worst
+    assert over <= 1e-6, over
+    assert n_cut > 50                     # points the flutes really cut, measured as deep as they are
+    assert n_false > 50                   # and points the held flutes would read 0.02 mm or more too deep

@@ -13,7 +13,10 @@ so the same bits), half length ``half``. A tool gives *layers*:
   and ``FLAT`` (a flat or bull-nose end mill's cylinder, radius Rt, up to L): a piece's point is the
   centre of the cylinder at its mid, and a move is measured when the point lies within the sphere
   ``hypot(radius, length / 2) + half`` of one of its pieces and within ``radius + half`` of that
-  piece's axis segment: outside all of them the point is never inside the cylinder (-inf).
+  piece's axis segment: outside all of them the point is never inside the cylinder (-inf). A SIDE
+  move that turns the axis (``A0``, the axis it starts with, differs from ``A``) has both radii and
+  the bound widened by ``tw = hypot(L, R) |A0 - A|`` and is sampled with its turning axis
+  (:func:`_side_turning`).
 
 A layer's pieces are sorted by the cell of a uniform grid (``lo``, ``cell``, ``dims``; cell number
 ``(ix * ny + iy) * nz + iz``, a counting sort), ``cstart`` the first piece of every cell, so the cells
@@ -154,6 +157,56 @@ def _cylinder(vx, vy, vz, w0x, w0y, w0z, ax, ay, az, Rt, L, side_only, f, best):
     return out
 
 
+@njit(cache=True)
+def _side_turning(vx, vy, vz, w0x, w0y, w0z, a0x, a0y, a0z, ax, ay, az, Rt, L, w, f):
+    """Depth of ``p`` inside the side of a ball's flutes (radius ``Rt``, from the ball's centre up to ``L``)
+    on a step that turns the axis from ``a0`` to ``a`` while the centre runs from ``s`` along ``v``
+    (``w0 = p - s``): the axis at ``t`` is ``a0 + t (a - a0)`` normalised (the great circle between
+    them), sampled at the ``f`` fractions of the part of the step where ``p`` lies within ``Rt + w`` of
+    the line along ``a`` (``w``: how far the turned flutes stray from the cylinder along ``a``, module
+    docstring); ``-inf`` where never inside."""
+    va = _dot(vx, vy, vz, ax, ay, az)
+    wa = _dot(w0x, w0y, w0z, ax, ay, az)
+    vvx, vvy, vvz = vx - va * ax, vy - va * ay, vz - va * az
+    wwx, wwy, wwz = w0x - wa * ax, w0y - wa * ay, w0z - wa * az
+    A = _dot(vvx, vvy, vvz, vvx, vvy, vvz)
+    B = -2.0 * _dot(wwx, wwy, wwz, vvx, vvy, vvz)
+    rw = Rt + w
+    C = _dot(wwx, wwy, wwz, wwx, wwy, wwz) - rw * rw
+    disc = B * B - 4.0 * A * C
+    if A > 1e-18:
+        if not disc >= 0.0:
+            return _NEG_INF
+        root = math.sqrt(max(disc, 0.0))
+        t0 = (-B - root) / (2.0 * A)
+        t1 = (-B + root) / (2.0 * A)
+    else:
+        if not C <= 0.0:
+            return _NEG_INF
+        t0, t1 = 0.0, 1.0
+    t0 = min(max(t0, 0.0), 1.0)
+    t1 = min(max(t1, 0.0), 1.0)
+    if not t1 >= t0:
+        return _NEG_INF
+    dt = t1 - t0
+    out = _NEG_INF
+    lim = Rt + 1e-12
+    for k in range(f.shape[0]):
+        t = t0 + dt * f[k]
+        bx, by, bz = a0x + t * (ax - a0x), a0y + t * (ay - a0y), a0z + t * (az - a0z)
+        nb = math.sqrt(bx * bx + by * by + bz * bz)
+        if not nb > 1e-12:
+            continue
+        bx, by, bz = bx / nb, by / nb, bz / nb
+        wx, wy, wz = w0x - t * vx, w0y - t * vy, w0z - t * vz             # p - centre(t)
+        h = _dot(wx, wy, wz, bx, by, bz)
+        dx, dy, dz = wx - h * bx, wy - h * by, wz - h * bz
+        r = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if h >= 0.0 and h <= L and r <= lim:
+            out = max(out, Rt - r)
+    return out
+
+
 # ------------------------------------------------------------------------------ the layers' pieces
 
 @njit(cache=True)
@@ -227,7 +280,7 @@ def sort_pieces(key, ncell, cen, cen2, half, owner, at, cstart, cat, pcen, pball
 # --------------------------------------------------------------------------------- the points
 
 @njit(cache=True)
-def _scan_layer(px, py, pz, sid, g, best, prune, S, E, A, lmode, lrad, llen, lsearch, lrho, lsoff, lhalf, lo, cell,
+def _scan_layer(px, py, pz, sid, g, best, prune, S, E, A, A0, lmode, lrad, llen, lsearch, lrho, lsoff, lhalf, lo, cell,
                 dims, lcoff, cstart, pcen, pball, phalf, powner, f, stamp):
     """``best`` raised by the depths of layer ``g``'s candidates at ``p`` (stamp ``sid``); and whether a
     ball piece was passed over by its bound (``prune``)."""
@@ -302,27 +355,33 @@ def _scan_layer(px, py, pz, sid, g, best, prune, S, E, A, lmode, lrad, llen, lse
                             pr = prune
                     continue
                 for q in range(cstart[col + iz0], cstart[col + iz1 + 1]):
+                    m = powner[q]
+                    ax, ay, az = A[m, 0], A[m, 1], A[m, 2]
+                    # a step of the flutes that turns the axis (from A0): they stray at most tw from
+                    # the cylinder along its end axis (module docstring), which the tests below widen by
+                    tw = 0.0
+                    if mode == SIDE and (A0[m, 0] != ax or A0[m, 1] != ay or A0[m, 2] != az):
+                        ex, ey, ez = A0[m, 0] - ax, A0[m, 1] - ay, A0[m, 2] - az
+                        tw = math.hypot(L, R) * math.sqrt(ex * ex + ey * ey + ez * ez) + SPHERE_SLACK_MM
                     dx, dy, dz = pcen[q, 0] - px, pcen[q, 1] - py, pcen[q, 2] - pz
-                    rr = rho + phalf[q]
+                    rr = rho + phalf[q] + tw
                     if dx * dx + dy * dy + dz * dz > rr * rr:
                         continue
-                    m = powner[q]
                     if stamp[soff + m] == sid:
                         continue
                     # the cylinder over the piece's part of the move lies within R + half of its axis at
                     # the piece's mid point (the segment of length L about pcen): else never inside; and
                     # reads at most R + half - the radial distance there (a flat end: and at most the
                     # height + half)
-                    ax, ay, az = A[m, 0], A[m, 1], A[m, 2]
                     hh = -_dot(dx, dy, dz, ax, ay, az)
                     wx, wy, wz = -dx - hh * ax, -dy - hh * ay, -dz - hh * az
                     r2 = wx * wx + wy * wy + wz * wz
-                    over = max(abs(hh) - 0.5 * L, 0.0)
-                    lim = R + phalf[q] + SPHERE_SLACK_MM
+                    over = max(abs(hh) - 0.5 * L - tw, 0.0)
+                    lim = R + phalf[q] + SPHERE_SLACK_MM + tw
                     if r2 + over * over > lim * lim:
                         continue
                     if best > _NEG_INF:
-                        bound = R + phalf[q] - math.sqrt(r2)
+                        bound = R + phalf[q] + tw - math.sqrt(r2)
                         if mode == FLAT:
                             bound = min(bound, hh + 0.5 * L + phalf[q])
                         if bound < best - BOUND_SLACK_MM:
@@ -335,7 +394,11 @@ def _scan_layer(px, py, pz, sid, g, best, prune, S, E, A, lmode, lrad, llen, lse
                     else:                        # the side of the ball's flutes, from the ball's centres
                         sx, sy, sz = S[m, 0] + R * ax, S[m, 1] + R * ay, S[m, 2] + R * az
                         vx, vy, vz = (E[m, 0] + R * ax) - sx, (E[m, 1] + R * ay) - sy, (E[m, 2] + R * az) - sz
-                        d = _cylinder(vx, vy, vz, px - sx, py - sy, pz - sz, ax, ay, az, R, L, True, f, best)
+                        if tw > 0.0:
+                            d = _side_turning(vx, vy, vz, px - sx, py - sy, pz - sz, A0[m, 0], A0[m, 1], A0[m, 2],
+                                              ax, ay, az, R, L, tw, f)
+                        else:
+                            d = _cylinder(vx, vy, vz, px - sx, py - sy, pz - sz, ax, ay, az, R, L, True, f, best)
                     if d > best:
                         best = d
         if near and prune and best > _NEG_INF and ring * c > 2.0 * R + lhalf[g] - best + BOUND_SLACK_MM:
@@ -345,7 +408,7 @@ def _scan_layer(px, py, pz, sid, g, best, prune, S, E, A, lmode, lrad, llen, lse
 
 
 @njit(cache=True)
-def _point_depth(px, py, pz, i, S, E, A, lmode, lrad, llen, lsearch, lrho, lsoff, lhalf, lfloor, lo, cell, dims,
+def _point_depth(px, py, pz, i, S, E, A, A0, lmode, lrad, llen, lsearch, lrho, lsoff, lhalf, lfloor, lo, cell, dims,
                  lcoff, cstart, pcen, pball, phalf, powner, f, stamp):
     """The deepest depth of point ``p`` (index ``i``) over the candidates of every layer; measured again
     without the ball bounds when the result is at or below the floor of a ball layer (module docstring)."""
@@ -360,7 +423,7 @@ def _point_depth(px, py, pz, i, S, E, A, lmode, lrad, llen, lsearch, lrho, lsoff
         best = _NEG_INF
         skipped = False
         for g in range(lmode.shape[0]):
-            best, sk = _scan_layer(px, py, pz, sid, g, best, prune, S, E, A, lmode, lrad, llen, lsearch, lrho, lsoff,
+            best, sk = _scan_layer(px, py, pz, sid, g, best, prune, S, E, A, A0, lmode, lrad, llen, lsearch, lrho, lsoff,
                                    lhalf, lo, cell, dims, lcoff, cstart, pcen, pball, phalf, powner, f, stamp)
             skipped = skipped or sk
         if not skipped or best > floor + BOUND_SLACK_MM:
@@ -369,7 +432,7 @@ def _point_depth(px, py, pz, i, S, E, A, lmode, lrad, llen, lsearch, lrho, lsoff
 
 
 @njit(parallel=True, cache=True)
-def penetration(pts, order, nchunk, S, E, A, lmode, lrad, llen, lsearch, lrho, lsoff, lhalf, lfloor, lo, cell, dims,
+def penetration(pts, order, nchunk, S, E, A, A0, lmode, lrad, llen, lsearch, lrho, lsoff, lhalf, lfloor, lo, cell, dims,
                 lcoff, cstart, pcen, pball, phalf, powner, f, out):
     """``out[order[j]]`` = the depth of point ``pts[order[j]]`` (module docstring): blocks of
     :data:`BLOCK` consecutive ``order`` entries, dealt round-robin to ``nchunk`` chunks run in
@@ -383,6 +446,6 @@ def penetration(pts, order, nchunk, S, E, A, lmode, lrad, llen, lsearch, lrho, l
         for blk in range(c, nblock, nchunk):
             for j in range(blk * BLOCK, min(n, (blk + 1) * BLOCK)):
                 i = order[j]
-                out[i] = _point_depth(pts[i, 0], pts[i, 1], pts[i, 2], i, S, E, A, lmode, lrad, llen, lsearch, lrho,
+                out[i] = _point_depth(pts[i, 0], pts[i, 1], pts[i, 2], i, S, E, A, A0, lmode, lrad, llen, lsearch, lrho,
                                       lsoff, lhalf, lfloor, lo, cell, dims, lcoff, cstart, pcen, pball, phalf,
                                       powner, f, stamp)
